@@ -1,0 +1,450 @@
+"""The ``jointcal`` command: one thin click subcommand per stage.
+
+Commands read files, call the library's pure functions and write results atomically.
+Bad input ends with exit status 2 and one line ``file:line:column: message``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from .errors import InputError
+
+
+def _fail_spec(spec_path, message, pattern=r"^\s*(orders|n_max)\s*="):
+    from .spec import _locate
+
+    try:
+        text = Path(spec_path).read_text(encoding="utf-8")
+        line, col = _locate(text, pattern)
+    except OSError:
+        line, col = None, None
+    raise InputError(spec_path, message, line, col)
+
+
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "file not found (run the stage that makes it first, or `make all`)") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
+
+
+def _read_interim(path):
+    from .io import read_parquet
+
+    if not Path(path).exists():
+        raise InputError(path, "file not found (run `jointcal ingest` first, or `make all`)")
+    return read_parquet(path)
+
+
+def campaign_kind(folder) -> str:
+    """``"robot"`` when the folder has robot.toml/poses.csv/tracker.csv, else ``"encoder"``."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, "campaign folder not found")
+    if (folder / "robot.toml").exists() or (folder / "poses.csv").exists():
+        return "robot"
+    return "encoder"
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="jointcal")
+def cli():
+    """jointcal: calibrate robot joints and robots.
+
+    \b
+    Encoder chain (one joint module, polygon + autocollimator):
+      ingest -> harmonic -> aliasing -> select -> fit -> compensate -> report
+    Robot chain (laser tracker): see `jointcal robot --help`.
+    Diagnosis: `jointcal diagnose` ranks the physical effects a model lacks.
+
+    Units: angles in degrees, angle errors in arcseconds, lengths in millimetres.
+    `make all` runs every stage on the shipped fixtures; `make help` lists the targets.
+    """
+
+
+# ------------------------------------------------------------------------------- simulate
+@cli.group()
+def simulate():
+    """Write synthetic campaigns (seeded, deterministic) with documented physics."""
+
+
+@simulate.command("encoder")
+@click.option("--out", "out_dir", default="raw/encoder", show_default=True, type=click.Path(file_okay=False),
+              help="Folder that receives one campaign folder per module.")
+@click.option("--truth", "truth_dir", default="raw/truth/encoder", show_default=True, type=click.Path(file_okay=False),
+              help="Folder for the generator's truth (never read by the pipeline).")
+@click.option("--module", "modules", multiple=True, default=("a", "b"), show_default=True,
+              help="Module(s) to simulate: the fixture's a and b, or any new name (uses module a's physics).")
+@click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
+@click.option("--runs", type=int, default=6, show_default=True, help="Runs per module.")
+@click.option("--two-way", is_flag=True, help="Go round the polygon and come back (73 readings a run).")
+@click.option("--hidden", default=None, metavar="EFFECT[:TARGET]",
+              help="Hide one effect the paper's spec lacks: direction, drift, temperature or harmonic:ORDER.")
+def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidden):
+    """Simulate encoder campaigns in the contract's format (default: the shipped fixture)."""
+    from .io import write_json, write_text
+    from .simulate import ENCODER_FIXTURE, format_encoder_csv, hidden_encoder_effect, simulate_encoder
+
+    for module in modules:
+        config = dict(ENCODER_FIXTURE.get(module, ENCODER_FIXTURE["a"]))
+        if seed is not None:
+            config["seed"] = seed
+        hid = hidden_encoder_effect(hidden, config["seed"]) if hidden else None
+        if hid and hid["effect"] == "direction":
+            two_way = True
+        frame, truth = simulate_encoder(module, config, runs=runs, two_way=two_way, hidden=hid)
+        folder = Path(out_dir) / module
+        folder.mkdir(parents=True, exist_ok=True)
+        for r, g in frame.groupby("run", sort=True):
+            write_text(folder / f"{module}_run{r}.csv", format_encoder_csv(g))
+        write_json(Path(truth_dir) / f"{module}.json", truth)
+        click.echo(f"wrote {folder}/ ({len(frame)} readings, {runs} runs){' with hidden ' + hidden if hidden else ''}", err=True)
+
+
+# ---------------------------------------------------------------------------------- ingest
+@cli.command()
+@click.option("--campaign", required=True, type=click.Path(), help="Raw campaign folder, e.g. raw/encoder/a.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Parquet file to write.")
+def ingest(campaign, out):
+    """Validate a raw campaign (contract sections 1-2) and write the derived table as Parquet.
+
+    Encoder: adds error_arcsec (joint reading minus polygon + autocollimator reference,
+    relative to the run's first reading) and theta_deg (encoder reading mod 360).
+    """
+    from .io import write_parquet
+
+    if campaign_kind(campaign) == "robot":
+        from .robot_cli import ingest_robot_to
+
+        ingest_robot_to(campaign, out)
+        return
+    from .ingest import ingest_encoder
+
+    frame = ingest_encoder(campaign)
+    write_parquet(out, frame)
+    click.echo(f"{out}: {len(frame)} readings, {frame['run'].nunique()} runs of module {frame['module'].iloc[0]}", err=True)
+
+
+@cli.command()
+@click.option("--campaign", required=True, type=click.Path(), help="Raw campaign folder.")
+def validate(campaign):
+    """Check a raw campaign without writing anything; list every problem, exit 2 if any."""
+    from .tables import Problems
+
+    problems = Problems()
+    if campaign_kind(campaign) == "robot":
+        from .robot_cli import validate_robot
+
+        validate_robot(campaign, problems)
+    else:
+        from .ingest import load_encoder_campaign
+
+        try:
+            load_encoder_campaign(campaign, problems)
+        except InputError:
+            pass
+    for p in problems:
+        click.echo(p.one_line(), err=True)
+    if problems:
+        sys.exit(2)
+    click.echo(f"{campaign}: no problems found", err=True)
+
+
+# -------------------------------------------------------------------------------- harmonic
+@cli.command()
+@click.option("--interim", required=True, type=click.Path(), help="Ingested encoder Parquet.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Parquet of per-run coefficients.")
+@click.option("--n-max", type=int, default=None,
+              help="Highest order (default (N-1)//2 for N distinct angles; above N/2 is refused).")
+@click.option("--grid-tol", type=float, default=0.05, show_default=True,
+              help="Largest distance (deg) of an angle from the even grid for the FFT to apply.")
+def harmonic(interim, out, n_max, grid_tol):
+    """Per-run harmonic coefficients A_i, B_i, C_i, phi_i by least squares and FFT.
+
+    Convention: error = C_0 + sum C_i sin(i theta + phi_i), phi_i = atan2(A_i, B_i).
+    Also reports each run's closure (last reading minus first at the same angle, arcsec).
+    """
+    from .aliasing import OrderTooHighError
+    from .harmonic import analyse_runs
+    from .io import write_parquet
+
+    frame = _read_interim(interim)
+    try:
+        table = analyse_runs(frame, n_max=n_max, grid_tol_deg=grid_tol)
+    except OrderTooHighError as exc:
+        raise click.BadParameter(str(exc), param_hint="--n-max") from None
+    write_parquet(out, table)
+    agree = (table["A"] - table["A_fft"]).abs().max()
+    click.echo(f"{out}: orders 0..{table['order'].max()} for {table['run'].nunique()} runs; "
+               f"N = {table['N'].iloc[0]} distinct angles; |LSQ - FFT| <= {agree:.3g} arcsec; "
+               f"closure {table.groupby('run')['closure_arcsec'].first().abs().max():.2f} arcsec at most", err=True)
+
+
+@cli.command()
+@click.option("--interim", required=True, type=click.Path(), help="Ingested encoder Parquet.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="CSV of the aliasing table.")
+@click.option("--highest", type=int, default=100, show_default=True, help="Highest order listed as a source.")
+def aliasing(interim, out, highest):
+    """Tabulate which higher orders fold into each fitted order (paper 1, Eqs. 3-4)."""
+    import pandas as pd
+
+    from .aliasing import alias_table, max_full_order, max_order
+    from .effects import EncoderData
+    from .io import write_csv
+
+    data = EncoderData.from_frame(_read_interim(interim))
+    N = data.distinct_angles()
+    rows = alias_table(N, max_order(N), highest)
+    table = pd.DataFrame([{"order": r["order"], "folds_from": " ".join(map(str, r["cos_from"])),
+                           "sin_added": " ".join(map(str, r["sin_plus"])),
+                           "sin_subtracted": " ".join(map(str, r["sin_minus"])), "equation": r["equation"]}
+                          for r in rows])
+    table.insert(0, "N_distinct", N)
+    write_csv(out, table)
+    click.echo(f"{out}: N = {N} distinct angles, highest order {max_order(N)} "
+               f"(both sine and cosine up to {max_full_order(N)})", err=True)
+
+
+# ---------------------------------------------------------------------------------- select
+@cli.command()
+@click.option("--interim", required=True, type=click.Path(), help="Ingested encoder Parquet.")
+@click.option("--harmonics", required=True, type=click.Path(), help="Per-run coefficients (jointcal harmonic).")
+@click.option("--spec", "spec_path", required=True, type=click.Path(), help="Encoder spec with [select] thresholds.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="JSON of the selection.")
+def select(interim, harmonics, spec_path, out):
+    """Choose harmonic orders: the paper's rule, and beside it a cross-validated choice.
+
+    Paper rule over the modelling runs: keep an order whose mean amplitude is at least
+    amplitude_strong_arcsec, or at least amplitude_min_arcsec with a phase range of at most
+    phase_range_max_deg. The CV choice adds orders while the leave-one-run-out RMS falls.
+    """
+    import numpy as np
+
+    from .effects import EncoderData
+    from .evaluate import split_runs
+    from .io import provenance, write_json
+    from .select import cv_select, paper_rule
+    from .spec import load_spec
+
+    spec = load_spec(spec_path)
+    frame = _read_interim(interim)
+    table = _read_interim(harmonics)
+    try:
+        model_runs, _ = split_runs(frame["run"].unique(), spec.model)
+    except ValueError as exc:
+        _fail_spec(spec_path, str(exc), r"^\s*(modelling_runs|validation_runs)\s*=")
+    h = spec.effect("harmonic")
+    explicit = h is not None and isinstance(h.params.get("orders"), list)
+    paper_orders, rule = paper_rule(table, model_runs, spec.select)
+    data = EncoderData.from_frame(frame)
+    n_fit = int(table["order"].max())
+    train = data.subset(np.isin(data.run, model_runs))
+    cv_orders, path = cv_select(train, n_fit)
+    chosen = sorted(h.params["orders"]) if explicit else paper_orders
+    write_json(out, {"module": str(frame["module"].iloc[0]), "orders": chosen,
+                     "rule": "spec" if explicit else spec.select.get("rule", "paper"),
+                     "paper_rule_orders": paper_orders, "cv_orders": cv_orders,
+                     "cv_path": [{"added": a, "cv_rms_arcsec": b} for a, b in path],
+                     "thresholds": spec.select, "modelling_runs": model_runs,
+                     "table": rule.to_dict(orient="records"),
+                     "provenance": provenance([interim, harmonics], spec_path)})
+    click.echo(f"{out}: paper rule {paper_orders}; cross-validated {cv_orders}; using {chosen}", err=True)
+
+
+# ------------------------------------------------------------------------------------- fit
+@cli.command()
+@click.option("--interim", required=True, type=click.Path(), help="Ingested encoder Parquet.")
+@click.option("--spec", "spec_path", required=True, type=click.Path(), help="Encoder spec.")
+@click.option("--orders", "orders_path", type=click.Path(), default=None,
+              help="Selection JSON (jointcal select); needed when the spec leaves orders to selection.")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="Model JSON to write.")
+def fit(interim, spec_path, orders_path, out):
+    """Fit the spec's model on the modelling runs; evaluate on the held-out run.
+
+    Reports peak-to-peak error of the validation run before and after compensation.
+    """
+    from .aliasing import OrderTooHighError
+    from .evaluate import fit_encoder
+    from .io import provenance, write_json
+    from .spec import load_spec
+
+    spec = load_spec(spec_path)
+    frame = _read_interim(interim)
+    orders = _read_json(orders_path)["orders"] if orders_path else None
+    h = spec.effect("harmonic")
+    if h is not None and not isinstance(h.params.get("orders"), list) and orders is None:
+        _fail_spec(spec_path, "the harmonic effect leaves orders to selection: give --orders (from jointcal select) "
+                   "or write orders = [...] in the spec", r"^\s*name\s*=\s*\"harmonic\"")
+    try:
+        result = fit_encoder(frame, spec, orders)
+    except OrderTooHighError as exc:
+        _fail_spec(spec_path, str(exc))
+    except ValueError as exc:
+        _fail_spec(spec_path, str(exc), r"^\s*(modelling_runs|validation_runs)\s*=")
+    inputs = [interim] + ([orders_path] if orders_path else [])
+    result["provenance"] = provenance(inputs, spec_path)
+    write_json(out, result)
+    click.echo(f"{out}: orders {result['orders']}; validation run {result['validation_runs']}: p2p "
+               f"{result['p2p_before_arcsec']:.2f} -> {result['p2p_after_arcsec']:.2f} arcsec "
+               f"({result['reduction_pct']:.2f} % less)", err=True)
+
+
+# ------------------------------------------------------------------------------ compensate
+@cli.command()
+@click.option("--model", "model_path", required=True, type=click.Path(), help="Model JSON (jointcal fit).")
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="CSV table to write.")
+@click.option("--step", type=float, default=0.1, show_default=True, help="Angle step of the table (deg).")
+def compensate(model_path, out, step):
+    """Write the compensation table: modelled error and correction (arcsec) every STEP degrees."""
+    from .compensate import compensation_table
+    from .evaluate import model_from_result
+    from .io import write_csv
+
+    model = model_from_result(_read_json(model_path))
+    try:
+        table = compensation_table(model, step)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--step") from None
+    write_csv(out, table, float_format="%.4f")
+    click.echo(f"{out}: {len(table)} angles, correction {table['correction_arcsec'].min():.2f} .. "
+               f"{table['correction_arcsec'].max():.2f} arcsec", err=True)
+
+
+@cli.command()
+@click.option("--model", "model_path", required=True, type=click.Path(), help="Model JSON (jointcal fit).")
+@click.option("--input", "input_path", default="-", show_default=True, type=click.Path(),
+              help="CSV with a column of joint readings, or - for standard input.")
+@click.option("--column", default="encoder_deg", show_default=True, help="Column of readings (deg).")
+@click.option("--output", "output_path", default="-", show_default=True, type=click.Path(),
+              help="Where to write the CSV with corrected_deg and correction_arcsec added.")
+def correct(model_path, input_path, column, output_path):
+    """Correct joint readings (deg) with a fitted model: corrected = reading - error(reading).
+
+    \b
+    Example:
+      printf 'encoder_deg\\n10.0\\n95.5\\n' | jointcal correct --model results/encoder/a_model.json
+    """
+    import io as _io
+
+    import pandas as pd
+
+    from .compensate import correct_readings
+    from .evaluate import model_from_result
+    from .io import write_csv
+    from .tables import FLOAT, read_table
+
+    model = model_from_result(_read_json(model_path))
+    if input_path == "-":
+        text = sys.stdin.read()
+        tmp_name = "<stdin>"
+        buf = _io.StringIO(text)
+        try:
+            raw = pd.read_csv(buf, dtype=str, keep_default_na=False)
+        except pd.errors.EmptyDataError:
+            raise InputError(tmp_name, "no input on standard input", 1, None) from None
+        if column not in raw.columns:
+            raise InputError(tmp_name, f"missing column '{column}'", 1, column)
+        values = pd.to_numeric(raw[column], errors="coerce")
+        if values.isna().any() or not values.map(lambda v: abs(v) < float("inf")).all():
+            i = int(values.isna().to_numpy().argmax())
+            raise InputError(tmp_name, f"'{raw[column].iloc[i]}' is not a finite number", i + 2, column)
+        frame = raw
+        readings = values.to_numpy(float)
+    else:
+        frame = read_table(input_path, {column: FLOAT})
+        readings = frame[column].to_numpy(float)
+        frame = pd.read_csv(input_path, dtype=str, keep_default_na=False)
+    corrected, correction = correct_readings(model, readings)
+    frame = frame.copy()
+    frame["corrected_deg"] = [f"{v:.7f}" for v in corrected]
+    frame["correction_arcsec"] = [f"{v:.3f}" for v in correction]
+    if output_path == "-":
+        click.echo(frame.to_csv(index=False, lineterminator="\n"), nl=False)
+    else:
+        write_csv(output_path, frame)
+
+
+# ---------------------------------------------------------------------------------- report
+@cli.command()
+@click.option("--kind", type=click.Choice(["encoder"]), default="encoder", show_default=True)
+@click.option("--results", "results_dir", default="results/encoder", show_default=True, type=click.Path(),
+              help="Folder with <module>_model.json, _orders.json, _aliasing.csv.")
+@click.option("--interim", "interim_dir", default="interim/encoder", show_default=True, type=click.Path(),
+              help="Folder with <module>.parquet and <module>_harmonics.parquet.")
+@click.option("--module", "modules", multiple=True, default=("a", "b"), show_default=True)
+@click.option("--out", default="reports/encoder.pdf", show_default=True, type=click.Path(dir_okay=False))
+def report(kind, results_dir, interim_dir, modules, out):
+    """Write the PDF report: the paper's Figures 4-9, the aliasing table, numbers beside the paper's."""
+    from .report import encoder_report
+
+    inputs = {}
+    for m in modules:
+        inputs[m] = {"readings": _read_interim(Path(interim_dir) / f"{m}.parquet"),
+                     "harmonics": _read_interim(Path(interim_dir) / f"{m}_harmonics.parquet"),
+                     "selection": _read_json(Path(results_dir) / f"{m}_orders.json"),
+                     "model": _read_json(Path(results_dir) / f"{m}_model.json"),
+                     "aliasing": Path(results_dir) / f"{m}_aliasing.csv"}
+    encoder_report(inputs, out)
+    click.echo(f"{out}: written", err=True)
+
+
+# --------------------------------------------------------------------------------- summary
+@cli.command()
+@click.option("--encoder-results", default="results/encoder", show_default=True, type=click.Path(),
+              help="Folder with <module>_model.json files.")
+@click.option("--robot-results", default="results/robot", show_default=True, type=click.Path(),
+              help="Folder with table2.json (robot part), if the robot chain ran.")
+@click.option("--out", default="results/summary.json", show_default=True, type=click.Path(dir_okay=False))
+def summary(encoder_results, robot_results, out):
+    """Write results/summary.json (contract section 5) from the stages' results."""
+    from .io import write_json
+    from .summary import build_summary
+
+    models = {}
+    for p in sorted(Path(encoder_results).glob("*_model.json")):
+        m = _read_json(p)
+        models[m["module"]] = m
+    robot_path = Path(robot_results) / "table2.json"
+    robot = _read_json(robot_path) if robot_path.exists() else None
+    write_json(out, build_summary(models, robot))
+    click.echo(f"{out}: {len(models)} module(s){' and the robot' if robot else ''}", err=True)
+
+
+def _register_optional():
+    """Robot and diagnosis commands live in their own modules."""
+    for name in ("robot_cli", "diagnose_cli"):
+        try:
+            module = __import__(f"pipeline.{name}", fromlist=["register"])
+        except ImportError:
+            continue
+        module.register(cli)
+
+
+_register_optional()
+
+
+def main(argv=None):
+    """Entry point: run the CLI; bad input -> one line on stderr and exit status 2."""
+    try:
+        cli.main(args=argv, prog_name="jointcal", standalone_mode=False)
+    except InputError as exc:
+        click.echo(f"jointcal: error: {exc.one_line()}", err=True)
+        sys.exit(2)
+    except click.exceptions.Exit as exc:
+        sys.exit(exc.exit_code)
+    except click.ClickException as exc:
+        exc.show()
+        sys.exit(2)
+    except click.Abort:
+        click.echo("jointcal: aborted", err=True)
+        sys.exit(1)
+    except KeyboardInterrupt:
+        sys.exit(130)
+    sys.exit(0)

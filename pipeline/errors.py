@@ -1,0 +1,32 @@
+"""The one error type users see: bad input, located by file, line and column."""
+
+from __future__ import annotations
+
+
+class InputError(Exception):
+    """Bad input. Printed as one line ``file:line:column: message``; exit status 2.
+
+    Parameters
+    ----------
+    path : str
+        File the problem is in.
+    message : str
+        What is wrong and what was expected.
+    line : int, optional
+        1-based line number in the file (the header is line 1 of a CSV).
+    column : str or int, optional
+        Column name (CSV) or 1-based character column (TOML).
+    """
+
+    def __init__(self, path, message, line=None, column=None):
+        self.path = str(path)
+        self.message = message
+        self.line = line
+        self.column = column
+        super().__init__(self.one_line())
+
+    def one_line(self) -> str:
+        line = "-" if self.line is None else str(self.line)
+        column = "-" if self.column is None else str(self.column)
+        text = " ".join(str(self.message).split())
+        return f"{self.path}:{line}:{column}: {text}"

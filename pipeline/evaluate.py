@@ -1,0 +1,98 @@
+"""Stage ``fit`` (encoder): build the model on the modelling runs, evaluate it on the held-out run.
+
+The result is a plain dict (written as ``results/encoder/<module>_model.json``) holding
+the model's terms, the peak-to-peak error of the validation run before and after
+compensation and the reduction, with everything needed to rebuild the model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .effects import EncoderData, Harmonic
+from .model import EncoderModel, peak_to_peak, residual_without_constant
+
+
+def split_runs(runs, spec_model: dict) -> tuple[list[int], list[int]]:
+    """Modelling and validation runs: from the spec, else all but the last / the last."""
+    runs = sorted(int(r) for r in runs)
+    model_runs = spec_model.get("modelling_runs")
+    valid_runs = spec_model.get("validation_runs")
+    if model_runs is None and valid_runs is None:
+        return runs[:-1], runs[-1:]
+    if model_runs is None:
+        model_runs = [r for r in runs if r not in valid_runs]
+    if valid_runs is None:
+        valid_runs = [r for r in runs if r not in model_runs]
+    missing = sorted((set(model_runs) | set(valid_runs)) - set(runs))
+    if missing:
+        raise ValueError(f"the spec names run(s) {missing} that the campaign does not have (runs: {runs})")
+    return sorted(model_runs), sorted(valid_runs)
+
+
+def fit_encoder(frame, spec, orders) -> dict:
+    """Fit the spec's encoder model and evaluate it on the validation runs.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        Ingested readings of one module.
+    spec : Spec
+        Encoder spec; ``[model] fit`` chooses ``run_average`` (paper) or ``pooled``.
+    orders : list of int
+        Harmonic orders when the spec leaves them to selection.
+
+    Returns
+    -------
+    dict with ``terms`` (order, C_arcsec, phi_deg), ``other`` coefficients, run lists,
+    ``p2p_before_arcsec``, ``p2p_after_arcsec``, ``reduction_pct``, RMS before/after and the
+    validation run's readings, model values and residuals (for the report).
+    """
+    data = EncoderData.from_frame(frame)
+    model_runs, valid_runs = split_runs(data.runs, spec.model)
+    effects = spec.effects or [Harmonic()]
+    method = spec.model.get("fit", "run_average")
+    n_max = _harmonic_n_max(spec)
+    train = data.subset(np.isin(data.run, model_runs))
+    model = EncoderModel(effects, orders=orders, fit_method=method, n_max=n_max).fit(train)
+    out = {"module": str(frame["module"].iloc[0]), "fit": method, "effects": [e.name for e in effects],
+           "orders": sorted(model.orders_), "modelling_runs": model_runs, "validation_runs": valid_runs,
+           "n_distinct_angles": model.n_distinct_, "terms": model.terms(), "other": model.other_coefficients(),
+           "validation": []}
+    for r in valid_runs:
+        test = data.subset(data.run == r)
+        pred = model.predict(test)
+        after = test.error_arcsec - pred
+        centred = residual_without_constant(test.error_arcsec, pred, test.run)
+        out["validation"].append({
+            "run": r, "p2p_before_arcsec": peak_to_peak(test.error_arcsec), "p2p_after_arcsec": peak_to_peak(after),
+            "rms_before_arcsec": float(np.std(test.error_arcsec)), "rms_after_arcsec": float(np.sqrt(np.mean(centred ** 2))),
+            "theta_deg": test.theta_deg, "error_arcsec": test.error_arcsec, "model_arcsec": pred})
+    v = out["validation"][0]
+    out["p2p_before_arcsec"] = v["p2p_before_arcsec"]
+    out["p2p_after_arcsec"] = v["p2p_after_arcsec"]
+    out["reduction_pct"] = 100.0 * (1.0 - v["p2p_after_arcsec"] / v["p2p_before_arcsec"])
+    return out
+
+
+def _harmonic_n_max(spec):
+    h = spec.effect("harmonic")
+    return None if h is None else h.params.get("n_max")
+
+
+def model_from_result(result: dict) -> EncoderModel:
+    """Rebuild the harmonic part of a fitted model from its JSON (for compensation)."""
+    orders = [t["order"] for t in result["terms"]]
+    model = EncoderModel([Harmonic(orders=orders)])
+    model.orders_ = orders
+    model.keep_constant_ = 0 in orders
+    model.C0_ = next((t["C_arcsec"] for t in result["terms"] if t["order"] == 0), 0.0)
+    labels, coef = [], []
+    for t in result["terms"]:
+        if t["order"] == 0:
+            continue
+        p = np.deg2rad(t["phi_deg"])
+        labels += [f"A{t['order']}", f"B{t['order']}"]
+        coef += [t["C_arcsec"] * np.sin(p), t["C_arcsec"] * np.cos(p)]
+    model.labels_, model.coef_ = labels, np.array(coef)
+    return model

@@ -1,0 +1,178 @@
+"""Stage ``simulate``: synthetic campaigns with stated physics (the shipped fixtures).
+
+Encoder (polygon + autocollimator, paper 1)
+-------------------------------------------
+The joint's true angle error is
+
+    e_r(theta) = sum_i C_i (1 + a_ri) sin(i theta + phi_i + p_ri)     published orders (Eqs. 7, 8)
+               + sum_j c_j sin(j theta + psi_rj)                      weaker orders, phase wandering
+               + drift_r * t + noise
+
+per run r: a_ri ~ N(0, amp_spread), p_ri ~ N(0, phase_spread_i) is the run-to-run spread of
+Figure 4; psi_rj is drawn per run (the weak orders' phases wander); a few weak orders keep
+a fixed phase (stable but small). A run starts with the polygon's face 0 nulled at true
+angle 0, turns the joint one face pitch at a time and nulls the autocollimator each time,
+imperfectly: the autocollimator reads the residual ``u ~ U(-nulling, nulling)`` arcsec. The
+true angle at step k is k * pitch + u_k; the encoder reads true angle + e_r(true angle)
++ reading noise. The truth (all drawn parameters) is written outside the campaign folder.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import pandas as pd
+
+# Published models (paper 1, Eqs. 7 and 8): order -> (C arcsec, phi deg)
+PAPER_MODELS = {
+    "a": {1: (14.10, 243.75), 4: (6.91, 26.73), 8: (18.05, 46.50), 12: (6.66, 264.24),
+          14: (33.36, 20.82), 15: (8.94, 57.88), 16: (19.60, 247.91)},
+    "b": {1: (24.31, 15.81), 4: (10.18, 187.75), 7: (4.86, 147.06), 8: (13.85, 258.45),
+          12: (4.68, 213.24), 14: (17.71, 115.24), 16: (8.64, 128.30)},
+}
+
+# Generator settings of the shipped fixture, one per module. Amplitudes in arcsec, phases in deg.
+ENCODER_FIXTURE = {
+    "a": {
+        "seed": 20200328,
+        "published": PAPER_MODELS["a"],
+        "phase_spread_deg": {1: 9.0},      # order 1 of module a is not phase-stable in the paper
+        "default_phase_spread_deg": 2.6,   # Figure 7: stable orders vary by about 10 deg
+        "amp_spread": 0.03,
+        "weak_wandering": {2: 3.0, 3: 2.75, 5: 2.55, 6: 2.3, 7: 2.55, 9: 2.05, 10: 2.05, 11: 1.85, 13: 2.3, 17: 1.6},
+        "weak_stable": {},
+        "noise_arcsec": 0.9,
+        "nulling_arcsec": 1.5,
+    },
+    "b": {
+        "seed": 20200368,
+        "published": PAPER_MODELS["b"],
+        "phase_spread_deg": {},
+        "default_phase_spread_deg": 2.6,
+        "amp_spread": 0.03,
+        "weak_wandering": {2: 2.15, 3: 1.9, 5: 1.9, 9: 1.7, 10: 1.7, 11: 1.45, 13: 1.7, 15: 1.9, 17: 1.2},
+        "weak_stable": {6: (2.0, 300.0)},  # stable phase but too small to keep (paper: order 6 of b)
+        "noise_arcsec": 0.7,
+        "nulling_arcsec": 1.5,
+    },
+}
+
+
+def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, two_way: bool = False,
+                     start=dt.datetime(2020, 1, 6, 9, 0, tzinfo=dt.timezone.utc), hidden=None):
+    """Simulate one joint module's campaign.
+
+    Parameters
+    ----------
+    module : str
+    config : dict
+        See :data:`ENCODER_FIXTURE`.
+    runs, faces : int
+    two_way : bool
+        Go round and come back (2 * faces + 1 readings, direction -1 on the way back).
+    hidden : dict, optional
+        Extra effect: ``{"effect": "direction", "arcsec": h}`` (half hysteresis),
+        ``{"effect": "drift", "arcsec_per_h": d}``, ``{"effect": "temperature", "arcsec_per_K": k}``
+        or ``{"effect": "harmonic", "order": i, "arcsec": c}``.
+
+    Returns
+    -------
+    frame : DataFrame in the contract's encoder format
+    truth : dict of every drawn parameter
+    """
+    rng = np.random.default_rng(config["seed"])
+    pitch = 360.0 / faces
+    published = config["published"]
+    rows, truth_runs = [], []
+    hidden = hidden or {}
+    for r in range(1, runs + 1):
+        comp = []
+        for i, (C, phi) in sorted(published.items()):
+            spread = config["phase_spread_deg"].get(i, config["default_phase_spread_deg"])
+            comp.append((i, C * (1 + rng.normal(0, config["amp_spread"])), phi + rng.normal(0, spread)))
+        for j, c in sorted(config["weak_wandering"].items()):
+            comp.append((j, c * (1 + rng.normal(0, 0.1)), rng.uniform(0, 360)))
+        for j, (c, psi) in sorted(config["weak_stable"].items()):
+            comp.append((j, c, psi + rng.normal(0, 3.0)))
+        if hidden.get("effect") == "harmonic":
+            comp.append((int(hidden["order"]), float(hidden["arcsec"]), float(hidden.get("phase_deg", 0.0))))
+        orders = np.array([c[0] for c in comp], float)
+        amps = np.array([c[1] for c in comp])
+        phases = np.deg2rad([c[2] for c in comp])
+
+        def err(theta_deg):
+            th = np.deg2rad(np.asarray(theta_deg, float))[:, None]
+            return (amps * np.sin(orders * th + phases)).sum(axis=1)
+
+        k = np.arange(faces + 1)
+        steps = np.concatenate([k, k[-2::-1]]) if two_way else k
+        direction = np.concatenate([np.ones(faces + 1), -np.ones(faces)]) if two_way else np.ones(faces + 1)
+        n = steps.size
+        nominal = steps * pitch
+        ac = np.round(rng.uniform(-config["nulling_arcsec"], config["nulling_arcsec"], n), 2)
+        true_deg = nominal + ac / 3600.0
+        t_start = start + dt.timedelta(days=3 * (r - 1), minutes=float(rng.uniform(0, 120)))
+        t_s = np.cumsum(np.concatenate([[0.0], rng.uniform(50, 70, n - 1)]))
+        temp = 20.0 + rng.normal(0, 0.1) + 0.3 * t_s / t_s[-1]
+        e = err(true_deg) + rng.normal(0, config["noise_arcsec"], n)
+        if hidden.get("effect") == "direction":
+            e = e + float(hidden["arcsec"]) * direction
+        if hidden.get("effect") == "drift":
+            e = e + float(hidden["arcsec_per_h"]) * t_s / 3600.0
+        if hidden.get("effect") == "temperature":
+            temp = 20.0 + rng.uniform(-3, 3) + rng.uniform(1, 4) * t_s / t_s[-1]
+            e = e + float(hidden["arcsec_per_K"]) * (temp - 20.0)
+        encoder = true_deg + e / 3600.0
+        stamps = [(t_start + dt.timedelta(seconds=float(s))).strftime("%Y-%m-%dT%H:%M:%SZ") for s in t_s]
+        for s in range(n):
+            rows.append({"module": module, "run": r, "step": s, "nominal_deg": nominal[s],
+                         "encoder_deg": np.mod(encoder[s], 360.0), "autocollimator_arcsec": ac[s],
+                         "direction": int(direction[s]), "timestamp": stamps[s],
+                         "temperature_c": round(float(temp[s]), 2)})
+        truth_runs.append({"run": r, "components": [{"order": int(o), "C_arcsec": float(a), "phi_deg": float(np.rad2deg(p) % 360)}
+                                                   for o, a, p in zip(orders, amps, phases)]})
+    frame = pd.DataFrame(rows)
+    truth = {"module": module, "generator": "pipeline.simulate.simulate_encoder", "config": _plain(config),
+             "hidden": hidden, "runs": truth_runs}
+    return frame, truth
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, tuple):
+        return [_plain(v) for v in obj]
+    return obj
+
+
+def format_encoder_csv(frame: pd.DataFrame) -> str:
+    """Contract CSV text with fixed number formats (same data, same bytes)."""
+    out = frame.copy()
+    out["nominal_deg"] = out["nominal_deg"].map(lambda v: f"{v:.1f}")
+    out["encoder_deg"] = out["encoder_deg"].map(lambda v: f"{v:.7f}")
+    out["autocollimator_arcsec"] = out["autocollimator_arcsec"].map(lambda v: f"{v:.2f}")
+    out["temperature_c"] = out["temperature_c"].map(lambda v: f"{v:.2f}")
+    return out.to_csv(index=False, lineterminator="\n")
+
+
+def hidden_encoder_effect(text: str, seed: int) -> dict:
+    """Parse ``EFFECT[:TARGET]`` and draw a realistic size for it (seeded).
+
+    Sizes are drawn between "barely above the reading noise" and "large":
+    direction 1-8 arcsec half-hysteresis, drift 2-15 arcsec/h, temperature 1-6 arcsec/K,
+    harmonic 2-10 arcsec at a random phase.
+    """
+    rng = np.random.default_rng([seed, 7])
+    name, _, target = text.partition(":")
+    if name == "direction":
+        return {"effect": "direction", "arcsec": float(rng.uniform(1, 8))}
+    if name == "drift":
+        return {"effect": "drift", "arcsec_per_h": float(rng.choice([-1, 1]) * rng.uniform(2, 15))}
+    if name == "temperature":
+        return {"effect": "temperature", "arcsec_per_K": float(rng.choice([-1, 1]) * rng.uniform(1, 6))}
+    if name == "harmonic":
+        order = int(target) if target else int(rng.choice([2, 3, 5, 6, 9, 10, 11, 13]))
+        return {"effect": "harmonic", "order": order, "arcsec": float(rng.uniform(2, 10)),
+                "phase_deg": float(rng.uniform(0, 360))}
+    raise ValueError(f"unknown hidden encoder effect {name!r}; use direction, drift, temperature or harmonic:ORDER")

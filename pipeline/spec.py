@@ -1,0 +1,128 @@
+"""Model specifications (``specs/*.toml``, contract section 3): a kind and a list of effects."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .effects import Effect, effect_names, make_effect
+from .errors import InputError
+
+
+@dataclass
+class Spec:
+    """A parsed model specification.
+
+    Attributes
+    ----------
+    kind : str
+        ``"encoder"`` or ``"robot"``.
+    effects : list of Effect
+        In the order of the spec; the waterfall of diagnosis adds them in this order.
+    model : dict
+        The ``[model]`` table (options of the fit beyond ``kind``).
+    select : dict
+        The ``[select]`` table (order selection thresholds; encoder only).
+    path : str or None
+    """
+
+    kind: str
+    effects: list[Effect]
+    model: dict = field(default_factory=dict)
+    select: dict = field(default_factory=dict)
+    path: str | None = None
+
+    def effect(self, name):
+        for e in self.effects:
+            if e.name == name:
+                return e
+        return None
+
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+    def with_effect(self, effect: Effect) -> "Spec":
+        return Spec(self.kind, [*self.effects, effect], dict(self.model), dict(self.select), self.path)
+
+    def to_toml(self) -> str:
+        lines = ["[model]", f'kind = "{self.kind}"']
+        from .effects import _toml_value
+
+        for key, value in self.model.items():
+            if key != "kind":
+                lines.append(f"{key} = {_toml_value(value)}")
+        if self.select:
+            lines += ["", "[select]"] + [f"{k} = {_toml_value(v)}" for k, v in self.select.items()]
+        for e in self.effects:
+            lines += ["", e.spec_lines()]
+        return "\n".join(lines) + "\n"
+
+
+def _locate(text: str, pattern: str) -> tuple[int | None, int | None]:
+    match = re.search(pattern, text, flags=re.MULTILINE)
+    if not match:
+        return None, None
+    line = text.count("\n", 0, match.start()) + 1
+    col = match.start() - (text.rfind("\n", 0, match.start()) + 1) + 1
+    return line, col
+
+
+def parse_spec(text: str, path: str = "<spec>") -> Spec:
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+), column (\d+)", str(exc))
+        line, col = (int(m.group(1)), int(m.group(2))) if m else (None, None)
+        raise InputError(path, f"not valid TOML: {str(exc).split(' (at')[0]}", line, col) from None
+
+    model = doc.get("model")
+    if not isinstance(model, dict) or "kind" not in model:
+        raise InputError(path, "missing [model] table with kind = \"encoder\" or \"robot\"", 1, 1)
+    kind = model["kind"]
+    if kind not in ("encoder", "robot"):
+        line, col = _locate(text, r"^\s*kind\s*=")
+        raise InputError(path, f"unknown model kind {kind!r}; expected \"encoder\" or \"robot\"", line, col)
+
+    effects = []
+    tables = doc.get("effect", [])
+    if not isinstance(tables, list):
+        raise InputError(path, "effects must be [[effect]] tables", *_locate(text, r"^\s*\[?effect"))
+    for index, table in enumerate(tables):
+        name = table.get("name")
+        if not isinstance(name, str):
+            line, col = _nth_effect_line(text, index)
+            raise InputError(path, "[[effect]] table without name = \"...\"", line, col)
+        params = {k: v for k, v in table.items() if k != "name"}
+        try:
+            effect = make_effect(kind, name, **params)
+        except KeyError:
+            line, col = _locate(text, r"^\s*name\s*=\s*[\"']" + re.escape(name) + r"[\"']")
+            raise InputError(path, f"unknown {kind} effect {name!r}; known: {', '.join(effect_names(kind))}",
+                             line, col) from None
+        problems = effect.check()
+        if problems:
+            line, col = _locate(text, r"^\s*name\s*=\s*[\"']" + re.escape(name) + r"[\"']")
+            raise InputError(path, problems[0], line, col)
+        effects.append(effect)
+    return Spec(kind, effects, {k: v for k, v in model.items() if k != "kind"}, dict(doc.get("select", {})), path)
+
+
+def _nth_effect_line(text, index):
+    hits = [m.start() for m in re.finditer(r"^\s*\[\[effect\]\]", text, flags=re.MULTILINE)]
+    if index < len(hits):
+        pos = hits[index]
+        return text.count("\n", 0, pos) + 1, 1
+    return None, None
+
+
+def load_spec(path) -> Spec:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(path, "spec file not found") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"spec is not UTF-8 text ({exc.reason})", 1, 1) from None
+    return parse_spec(text, str(path))

@@ -53,7 +53,26 @@ def campaign_kind(folder) -> str:
     return "encoder"
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class BadInput(click.ClickException):
+    """Bad input as click sees it: exit status 2, one line, no traceback."""
+
+    exit_code = 2
+
+    def show(self, file=None):
+        click.echo(f"jointcal: error: {self.message}", err=True)
+
+
+class JointcalGroup(click.Group):
+    """Turns :class:`InputError` raised anywhere in a command into exit 2 with one line."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            raise BadInput(exc.one_line()) from None
+
+
+@click.group(cls=JointcalGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(package_name="jointcal")
 def cli():
     """jointcal: calibrate robot joints and robots.
@@ -431,20 +450,9 @@ _register_optional()
 
 
 def main(argv=None):
-    """Entry point: run the CLI; bad input -> one line on stderr and exit status 2."""
+    """Entry point. Bad input -> one line on stderr and exit status 2 (see :class:`BadInput`)."""
     try:
-        cli.main(args=argv, prog_name="jointcal", standalone_mode=False)
-    except InputError as exc:
+        cli.main(args=argv, prog_name="jointcal")
+    except InputError as exc:  # raised outside a subcommand (e.g. while registering)
         click.echo(f"jointcal: error: {exc.one_line()}", err=True)
         sys.exit(2)
-    except click.exceptions.Exit as exc:
-        sys.exit(exc.exit_code)
-    except click.ClickException as exc:
-        exc.show()
-        sys.exit(2)
-    except click.Abort:
-        click.echo("jointcal: aborted", err=True)
-        sys.exit(1)
-    except KeyboardInterrupt:
-        sys.exit(130)
-    sys.exit(0)

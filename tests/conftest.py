@@ -1,0 +1,35 @@
+"""Shared test helpers."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def runner():
+    return CliRunner()
+
+
+@pytest.fixture
+def invoke(runner):
+    """Invoke ``jointcal`` in-process; returns click's Result (exit_code, output, stderr)."""
+    from pipeline.cli import cli
+
+    def run(*args):
+        return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+    return run
+
+
+@pytest.fixture
+def campaign_copy(tmp_path):
+    """A writable copy of a shipped encoder campaign (module a)."""
+    dst = tmp_path / "a"
+    shutil.copytree(ROOT / "raw" / "encoder" / "a", dst)
+    return dst

@@ -1,0 +1,73 @@
+"""Harmonic analysis (paper 1, Eqs. 1-4): exactness, LSQ vs FFT, aliasing."""
+
+import numpy as np
+import pytest
+
+from pipeline.aliasing import OrderTooHighError, alias_table, check_orders, fold
+from pipeline.harmonic import amplitude_phase, fft_coefficients, lsq_coefficients
+
+
+def signal(theta_deg, terms, c0=0.0):
+    th = np.deg2rad(theta_deg)
+    return c0 + sum(C * np.sin(i * th + np.deg2rad(phi)) for i, (C, phi) in terms.items())
+
+
+TERMS = {1: (14.1, 243.75), 4: (6.91, 26.73), 8: (18.05, 46.5), 14: (33.36, 20.82), 17: (2.5, 300.0)}
+
+
+@pytest.mark.parametrize("uneven", [False, True])
+def test_lsq_recovers_amplitude_and_phase_exactly(uneven):
+    rng = np.random.default_rng(1)
+    theta = np.arange(37) * 10.0
+    if uneven:
+        theta = np.sort(rng.uniform(0, 360, 61))
+    y = signal(theta, TERMS, c0=-11.47)
+    orders = list(range(18))
+    A, B = lsq_coefficients(theta, y, orders)
+    C, phi = amplitude_phase(A, B)
+    assert A[0] == pytest.approx(-11.47, abs=1e-9)
+    for i in range(1, 18):
+        want_C, want_phi = TERMS.get(i, (0.0, None))
+        assert C[i] == pytest.approx(want_C, abs=1e-9)
+        if want_phi is not None:
+            assert phi[i] == pytest.approx(want_phi, abs=1e-9)
+
+
+def test_lsq_and_fft_agree_on_even_angles():
+    rng = np.random.default_rng(2)
+    theta0 = 3.7
+    theta = theta0 + np.arange(36) * 10.0
+    y = signal(theta, TERMS, 1.0) + rng.normal(0, 2.0, theta.size)  # noise too: the two must still agree
+    A, B = lsq_coefficients(theta, y, range(18))
+    Af, Bf = fft_coefficients(y, 17, theta0_deg=theta0)
+    np.testing.assert_allclose(Af, A, atol=1e-9)
+    np.testing.assert_allclose(Bf, B, atol=1e-9)
+
+
+def test_order_22_at_36_angles_lands_on_order_14_as_eq3_says():
+    theta = np.arange(36) * 10.0
+    A22, B22 = 3.0, 5.0
+    th = np.deg2rad(theta)
+    y = A22 * np.cos(22 * th) + B22 * np.sin(22 * th)
+    A, B = lsq_coefficients(theta, y, range(18))
+    # Eq. 3 with N = 36, i = 14, k = 1: a_14 = A_14 + A_(36-14) ;  b_14 = B_14 - B_(36-14)
+    assert A[14] == pytest.approx(A22, abs=1e-9)
+    assert B[14] == pytest.approx(-B22, abs=1e-9)
+    others = np.delete(np.hypot(A, B), 14)
+    assert np.all(others < 1e-9)
+    assert fold(22, 36) == (14, -1)
+    assert fold(50, 36) == (14, +1)
+
+
+def test_alias_table_lists_eq4_sources():
+    rows = {r["order"]: r for r in alias_table(37, 18, highest=80)}
+    # the paper's Eq. 4 for N = 37: a_1 = A1 + A36 + A38 + A73 ...; a_17 = A17 + A20 + A54 + A57
+    assert rows[1]["cos_from"][:3] == [36, 38, 73]
+    assert rows[17]["cos_from"][:4] == [20, 54, 57, 91][:len(rows[17]["cos_from"][:4])]
+    assert 19 in rows[18]["sin_minus"] and 55 in rows[18]["sin_plus"]
+
+
+def test_orders_above_nyquist_are_refused():
+    check_orders([18], 36)
+    with pytest.raises(OrderTooHighError, match="N/2 = 18"):
+        check_orders([19], 36)

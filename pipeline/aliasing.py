@@ -66,14 +66,21 @@ def alias_table(n_distinct: int, n_fit: int, highest: int = 100) -> list[dict]:
     """
     rows = []
     for i in range(n_fit + 1):
-        plus, minus = [], []
+        plus, minus, cos = [], [], []
         for j in range(n_fit + 1, highest + 1):
             k, s = fold(j, n_distinct)
             if k == i:
-                (minus if s < 0 else plus).append(j)
-        cos_from = sorted(plus + minus)
+                cos.append(j)
+                if s > 0:
+                    plus.append(j)
+                elif s < 0:
+                    minus.append(j)  # s == 0: the sine of j vanishes at every sample (order 0, N/2)
+        cos_from = sorted(cos)
         a = " + ".join([f"A{i}"] + [f"A{j}" for j in cos_from[:4]]) + (" + ..." if len(cos_from) > 4 else "")
         b = f"B{i}" + "".join(f" + B{j}" for j in plus[:2]) + "".join(f" - B{j}" for j in minus[:2])
-        rows.append({"order": i, "cos_from": cos_from, "sin_plus": plus, "sin_minus": minus,
-                     "equation": f"a{i} = {a};  b{i} = {b} ..." if i else f"a0 = {a}"})
+        nyquist = 2 * i == int(n_distinct)
+        eq = f"a{i} = {a}" if i == 0 or nyquist else f"a{i} = {a};  b{i} = {b} ..."
+        if nyquist:
+            eq += f";  b{i} not estimable (sin({i} theta) = 0 at every sample)"
+        rows.append({"order": i, "cos_from": cos_from, "sin_plus": plus, "sin_minus": minus, "equation": eq})
     return rows

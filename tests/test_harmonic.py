@@ -71,3 +71,11 @@ def test_orders_above_nyquist_are_refused():
     check_orders([18], 36)
     with pytest.raises(OrderTooHighError, match="N/2 = 18"):
         check_orders([19], 36)
+
+
+def test_nyquist_order_has_no_sine_sources():
+    rows = {r["order"]: r for r in alias_table(36, 18, highest=100)}
+    assert rows[18]["sin_plus"] == [] and rows[18]["sin_minus"] == []
+    assert rows[18]["cos_from"][:2] == [54, 90]
+    assert "not estimable" in rows[18]["equation"]
+    assert rows[0]["sin_plus"] == [] and rows[0]["cos_from"][:2] == [36, 72]

@@ -6,7 +6,7 @@ The joint's true angle error is
 
     e_r(theta) = sum_i C_i (1 + a_ri) sin(i theta + phi_i + p_ri)     published orders (Eqs. 7, 8)
                + sum_j c_j sin(j theta + psi_rj)                      weaker orders, phase wandering
-               + drift_r * t + noise
+               + (a hidden effect, when asked: see hidden_encoder_effect) + noise
 
 per run r: a_ri ~ N(0, amp_spread), p_ri ~ N(0, phase_spread_i) is the run-to-run spread of
 Figure 4; psi_rj is drawn per run (the weak orders' phases wander); a few weak orders keep
@@ -114,15 +114,24 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
         true_deg = nominal + ac / 3600.0
         t_start = start + dt.timedelta(days=3 * (r - 1), minutes=float(rng.uniform(0, 120)))
         t_s = np.cumsum(np.concatenate([[0.0], rng.uniform(50, 70, n - 1)]))
-        temp = 20.0 + rng.normal(0, 0.1) + 0.3 * t_s / t_s[-1]
+        rng.normal(0, 0.1)  # kept so the main random stream (and the fixture) is unchanged
+        temp = lab_temperature(config["seed"], r, t_s)
         e = err(true_deg) + rng.normal(0, config["noise_arcsec"], n)
         if hidden.get("effect") == "direction":
             e = e + float(hidden["arcsec"]) * direction
         if hidden.get("effect") == "drift":
             e = e + float(hidden["arcsec_per_h"]) * t_s / 3600.0
         if hidden.get("effect") == "temperature":
-            temp = 20.0 + rng.uniform(-3, 3) + rng.uniform(1, 4) * t_s / t_s[-1]
+            temp = lab_temperature(config["seed"], r, t_s, swing_k=3.0)
             e = e + float(hidden["arcsec_per_K"]) * (temp - 20.0)
+        if config.get("error_of") == "reading":
+            # error as a function of the joint's own reading (the contract's theta): solve
+            # reading = true + e(reading) by fixed-point iteration (|de/dtheta| << 1)
+            other = e - err(true_deg)  # noise and any hidden non-harmonic effect
+            reading = true_deg + e / 3600.0
+            for _ in range(4):
+                reading = true_deg + (err(reading) + other) / 3600.0
+            e = (reading - true_deg) * 3600.0
         encoder = true_deg + e / 3600.0
         stamps = [(t_start + dt.timedelta(seconds=float(s))).strftime("%Y-%m-%dT%H:%M:%SZ") for s in t_s]
         for s in range(n):
@@ -136,6 +145,18 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
     truth = {"module": module, "generator": "pipeline.simulate.simulate_encoder", "config": _plain(config),
              "hidden": hidden, "runs": truth_runs}
     return frame, truth
+
+
+def lab_temperature(seed: int, run: int, t_s, swing_k: float = 0.4):
+    """Temperature (degC) during a run: its own start, trend and slow wander per run.
+
+    A separate random stream (seed, run) so that the temperature does not change the other
+    draws. ``swing_k`` scales how much it moves within a run (about +-swing_k K).
+    """
+    g = np.random.default_rng([seed, run, 11])
+    u = np.asarray(t_s, float) / max(float(t_s[-1]), 1.0)
+    wander = sum(g.normal(0, swing_k / 3) * np.sin(np.pi * (k + 1) * u + g.uniform(0, 2 * np.pi)) for k in range(3))
+    return 20.0 + g.normal(0, 0.5) + g.uniform(-swing_k, swing_k) * u + wander
 
 
 def _plain(obj):
@@ -176,3 +197,17 @@ def hidden_encoder_effect(text: str, seed: int) -> dict:
         return {"effect": "harmonic", "order": order, "arcsec": float(rng.uniform(2, 10)),
                 "phase_deg": float(rng.uniform(0, 360))}
     raise ValueError(f"unknown hidden encoder effect {name!r}; use direction, drift, temperature or harmonic:ORDER")
+
+
+def clean_encoder_config(module: str = "a", seed: int = 0, noise_arcsec: float = 0.9) -> dict:
+    """A module with the paper's published terms, fixed from run to run, and iid reading noise.
+
+    The error is defined on the joint's reading (the contract's ``theta_deg``), so a model
+    with the right effects meets the noise floor ``noise_arcsec`` exactly. (Defined on the
+    true angle, as in the fixture, the strong orders also leave sum and difference orders of
+    about 0.1-0.2 arcsec on the reading axis, which a long clean campaign can resolve.)
+    Used by tests and tutorials of diagnosis.
+    """
+    return {"seed": seed, "published": PAPER_MODELS[module], "phase_spread_deg": {},
+            "default_phase_spread_deg": 0.0, "amp_spread": 0.0, "weak_wandering": {}, "weak_stable": {},
+            "noise_arcsec": noise_arcsec, "nulling_arcsec": 1.5, "error_of": "reading"}

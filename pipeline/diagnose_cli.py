@@ -1,0 +1,67 @@
+"""``jointcal diagnose``: thin command around :func:`pipeline.diagnose.diagnose`."""
+
+from __future__ import annotations
+
+import click
+
+
+def _adapter_and_data(campaign, kind):
+    if kind == "encoder":
+        from .diagnose_encoder import EncoderAdapter, encoder_data_from_campaign
+
+        return EncoderAdapter(), encoder_data_from_campaign(campaign)
+    from .robot_diagnose import RobotAdapter, robot_data_from_campaign
+
+    return RobotAdapter(), robot_data_from_campaign(campaign)
+
+
+def run_diagnosis(campaign, spec_path, progress=None):
+    """Load a raw campaign and a spec, check they match, and diagnose. Returns the result dict."""
+    from .cli import campaign_kind
+    from .diagnose import diagnose
+    from .errors import InputError
+    from .spec import _locate, load_spec
+
+    spec = load_spec(spec_path)
+    kind = campaign_kind(campaign)
+    if spec.kind != kind:
+        text = open(spec_path, encoding="utf-8").read()
+        raise InputError(spec_path, f"the spec is for a {spec.kind} model but {campaign} is a {kind} campaign",
+                         *_locate(text, r"^\s*kind\s*="))
+    adapter, data = _adapter_and_data(campaign, kind)
+    return diagnose(adapter, spec, data, progress=progress), (adapter, spec, data)
+
+
+def register(cli):
+    @cli.command()
+    @click.option("--campaign", required=True, type=click.Path(), help="Raw campaign folder (encoder or robot).")
+    @click.option("--spec", "spec_path", required=True, type=click.Path(), help="Model spec (specs/*.toml).")
+    @click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False),
+                  help="Where to write the diagnosis (contract section 4).")
+    @click.option("--report", "report_out", default=None, type=click.Path(dir_okay=False),
+                  help="Also write a PDF: residuals against every signature, the candidates' gains.")
+    @click.option("--quiet", is_flag=True, help="Do not print the table.")
+    def diagnose(campaign, spec_path, json_out, report_out, quiet):
+        """Find where the spec's model fails and which physical effect is missing.
+
+        Fits the spec's model with cross-validation (folds by run for an encoder, by pose
+        for a robot), then fits it once more with each effect the spec lacks, and ranks them
+        by the cross-validated gain. Prints the evidence in the residuals, the physical
+        explanation and the [[effect]] lines to paste into the spec. Effects these data
+        cannot reveal are named with the reason, not ranked.
+        """
+        from .diagnose import format_table
+        from .io import write_json
+
+        def progress(msg):
+            if not quiet:
+                click.echo(f"  {msg}", err=True)
+
+        result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress)
+        write_json(json_out, result)
+        if report_out:
+            from .diagnose_report import diagnosis_report
+
+            diagnosis_report(result, adapter, spec, data, report_out)
+        if not quiet:
+            click.echo(format_table(result))

@@ -103,7 +103,7 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     say(f"baseline: {', '.join(e.name for e in base_effects)}")
     base = adapter.cross_validate(base_effects, data)
     residual_view = adapter.residual_view(base, data)
-    candidates, unrevealable = [], []
+    candidates, unrevealable, cand_objects = [], [], {}
     for cand in adapter.candidates(spec, data, base_effects):
         ok, why = cand.can_reveal(data)
         if not ok:
@@ -125,11 +125,14 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             "evidence": adapter.evidence(cand, base, data),
             "explanation": cand.explanation, "spec_line": cand.spec_lines(),
         })
+        cand_objects[id(candidates[-1])] = cand
     # Bonferroni over the candidates tried: the chance that any candidate of a model that
     # lacks nothing is marked meaningful stays below alpha.
     p_max = alpha / max(1, len(candidates))
     for c in candidates:
         c["meaningful"] = bool(c["gain"] >= min_gain and c["p"] <= p_max)
+    candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
+    _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say)
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     if not any(c["meaningful"] for c in candidates):
         say("no candidate is meaningful: the model explains the data down to their noise")
@@ -144,6 +147,41 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     }
 
 
+def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max, min_gain, say):
+    """Re-test each further meaningful candidate given the ones already accepted.
+
+    Candidates are tested one at a time against the baseline; two can both look meaningful
+    when one only mimics the other (in a two-way run, time within the run follows the
+    direction of approach, so drift mimics hysteresis). Going down the meaningful ones by
+    gain, each is refitted on top of those accepted so far; if what it adds there is within
+    noise it is marked not meaningful, with ``explained_by`` naming what explains it.
+    """
+    accepted = []
+    current_effects, current = list(base_effects), base
+    for c in [c for c in candidates if c["meaningful"]]:
+        if not accepted:
+            accepted.append(c)
+            current_effects = adapter.add(current_effects, objects[id(c)])
+            current = adapter.cross_validate(current_effects, data)
+            continue
+        cand = objects[id(c)]
+        say(f"re-testing {c['effect']} {c['target'] if c['target'] is not None else ''} given "
+            f"{', '.join(a['effect'] for a in accepted)}")
+        trial_effects = adapter.add(current_effects, cand)
+        trial = adapter.cross_validate(trial_effects, data)
+        extra_gain = 1.0 - trial.rms / current.rms if current.rms > 0 else 0.0
+        test = adapter.significance(cand, current, trial, data)
+        c["given_accepted"] = {"effects": [a["effect"] for a in accepted], "extra_gain": extra_gain, "p": test["p"]}
+        if extra_gain >= min_gain and test["p"] <= p_max:
+            accepted.append(c)
+            current_effects, current = trial_effects, trial
+        else:
+            c["meaningful"] = False
+            c["explained_by"] = accepted[-1]["effect"] if len(accepted) == 1 else [a["effect"] for a in accepted]
+            c["evidence"] += (f"; but with {' + '.join(a['effect'] for a in accepted)} in the model it adds only "
+                              f"{100 * extra_gain:.1f} % (p = {test['p']:.2g}): it was mimicking that effect")
+
+
 def format_table(result: dict, width: int = 110) -> str:
     """The diagnosis as a plain-text table for the terminal."""
     unit = result["baseline"]["unit"]
@@ -154,7 +192,7 @@ def format_table(result: dict, width: int = 110) -> str:
     for k, c in enumerate(result["candidates"], 1):
         tgt = "-" if c["target"] is None else str(c["target"])
         lines.append(f"{k:>2}  {c['effect']:<15}{tgt:>6}  {c['cv_rms_with']:>11.4g}  {100 * c['gain']:>6.1f}%  "
-                     f"{c['p']:>8.1e}  {'yes' if c['meaningful'] else 'no (within noise)'}")
+                     f"{c['p']:>8.1e}  {'yes' if c['meaningful'] else ('no (explained by ' + str(c['explained_by']) + ')' if c.get('explained_by') else 'no (within noise)')}")
     best = [c for c in result["candidates"] if c["meaningful"]]
     lines.append("")
     if best:

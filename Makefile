@@ -19,7 +19,9 @@ ENC_ORDERS := $(MODULES:%=results/encoder/%_orders.json)
 ENC_MODELS := $(MODULES:%=results/encoder/%_model.json)
 ENC_TABLES := $(MODULES:%=results/encoder/%_table.csv)
 SUMMARY_DEPS := $(ENC_MODELS)
-ALL_TARGETS := encoder
+ALL_TARGETS := encoder diagnosis
+# diagnosis: campaign, spec and JSON name; mk/*.mk may append (DIAG_PAIRS += ...)
+DIAG_PAIRS := raw/encoder/a:$(ENC_SPEC):a raw/encoder/b:$(ENC_SPEC):b
 
 .DEFAULT_GOAL := all
 .SECONDEXPANSION:
@@ -27,7 +29,7 @@ ALL_TARGETS := encoder
 
 -include mk/*.mk
 
-.PHONY: all help encoder test bench fixtures clean distclean
+.PHONY: all help encoder diagnosis test bench fixtures clean distclean
 
 all: $(ALL_TARGETS) results/summary.json ## set up .venv and run the whole pipeline on raw/
 
@@ -67,6 +69,16 @@ reports/encoder.pdf: $(ENC_INTERIM) $(ENC_HARM) $(ENC_ORDERS) $(ENC_MODELS) $(EN
 
 results/summary.json: $(SUMMARY_DEPS) pipeline/summary.py ## contract section 5
 	$(JC) summary --out $@
+
+# ------------------------------------------------------------------ diagnosis (beyond the papers)
+DIAG_JSON = $(foreach p,$(DIAG_PAIRS),results/diagnosis/$(word 3,$(subst :, ,$(p))).json)
+DIAG_DEPS = $(foreach p,$(DIAG_PAIRS),$(wildcard $(word 1,$(subst :, ,$(p)))/*) $(word 2,$(subst :, ,$(p))))
+DIAG_ARGS = $(foreach p,$(DIAG_PAIRS),--pair $(subst :, ,$(word 1,$(subst :, ,$(p)))) $(word 2,$(subst :, ,$(p))) results/diagnosis/$(word 3,$(subst :, ,$(p))).json)
+
+diagnosis: reports/diagnosis.pdf ## diagnose every campaign with its spec: what effect is missing
+
+reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) pipeline/diagnose.py pipeline/diagnose_encoder.py pipeline/diagnose_report.py | $(STAMP) ## residuals, candidates, waterfall
+	$(JC) diagnose-all $(DIAG_ARGS) --report reports/diagnosis.pdf
 
 # ------------------------------------------------------------------ checks and upkeep
 test: $(STAMP) ## run the test suite (pytest)

@@ -29,7 +29,9 @@ def run_diagnosis(campaign, spec_path, progress=None):
         raise InputError(spec_path, f"the spec is for a {spec.kind} model but {campaign} is a {kind} campaign",
                          *_locate(text, r"^\s*kind\s*="))
     adapter, data = _adapter_and_data(campaign, kind)
-    return diagnose(adapter, spec, data, progress=progress), (adapter, spec, data)
+    result = diagnose(adapter, spec, data, progress=progress)
+    result = {"kind": result.pop("kind"), "campaign": str(campaign), "spec": str(spec_path), **result}
+    return result, (adapter, spec, data)
 
 
 def register(cli):
@@ -65,3 +67,27 @@ def register(cli):
             diagnosis_report(result, adapter, spec, data, report_out)
         if not quiet:
             click.echo(format_table(result))
+
+    @cli.command("diagnose-all")
+    @click.option("--pair", "pairs", multiple=True, required=True, nargs=3,
+                  type=(click.Path(), click.Path(), click.Path(dir_okay=False)),
+                  metavar="CAMPAIGN SPEC JSON", help="A campaign, the spec to diagnose it with, and where to write its JSON.")
+    @click.option("--report", "report_out", required=True, type=click.Path(dir_okay=False),
+                  help="One PDF with every campaign's diagnosis.")
+    def diagnose_all(pairs, report_out):
+        """Diagnose several campaigns, each with its spec: a JSON each and one PDF (make all uses this)."""
+        from .diagnose_report import diagnosis_report_many
+        from .io import write_json
+
+        items = []
+        for campaign, spec_path, json_out in pairs:
+            click.echo(f"diagnosing {campaign} with {spec_path}", err=True)
+            result, (adapter, spec, data) = run_diagnosis(campaign, spec_path)
+            write_json(json_out, result)
+            best = [c for c in result["candidates"] if c["meaningful"]]
+            click.echo(f"  {json_out}: baseline CV RMS {result['baseline']['cv_rms']:.4g} {result['baseline']['unit']}; "
+                       + (f"missing: {', '.join(c['effect'] + ('' if c['target'] is None else ' ' + str(c['target'])) for c in best)}"
+                          if best else "nothing meaningful missing"), err=True)
+            items.append((result, adapter, spec, data))
+        diagnosis_report_many(items, report_out)
+        click.echo(f"{report_out}: written", err=True)

@@ -478,18 +478,31 @@ def _waterfall_page(pdf, result, steps, base_effects, suggested=()):
 
 
 # ------------------------------------------------------------------------------ entry
-def diagnosis_report(result, adapter, spec, data, out, progress=None):
-    """Write the diagnosis PDF to ``out`` (see the module docstring for the pages)."""
+def diagnosis_pages(pdf, result, adapter, spec, data, progress=None):
+    """Add one campaign's diagnosis pages to an open PDF."""
     base_effects = adapter.baseline_effects(spec, data)
     base = adapter.cross_validate(base_effects, data)
     steps = waterfall(adapter, spec, data, progress)
     suggested = suggested_steps(result, adapter, spec, data, base_effects)
+    _summary_pages(pdf, result, base_effects)
+    _residual_pages(pdf, result, adapter, base, data, base_effects)
+    _candidates_page(pdf, result)
+    _waterfall_page(pdf, result, steps, base_effects, suggested)
+
+
+def diagnosis_report(result, adapter, spec, data, out, progress=None):
+    """Write the diagnosis PDF to ``out`` (see the module docstring for the pages)."""
     with pdf_pages(out, f"jointcal diagnosis ({result['kind']})") as pdf:
-        _summary_pages(pdf, result, base_effects)
-        _residual_pages(pdf, result, adapter, base, data, base_effects)
-        _candidates_page(pdf, result)
-        _waterfall_page(pdf, result, steps, base_effects, suggested)
+        diagnosis_pages(pdf, result, adapter, spec, data, progress)
     return out
 
 
-__all__ = ["diagnosis_report", "residual_spectrum", "suggested_steps", "summary_lines"]
+def diagnosis_report_many(items, out, progress=None):
+    """One PDF for several campaigns: ``items`` is a list of (result, adapter, spec, data)."""
+    with pdf_pages(out, "jointcal diagnosis") as pdf:
+        for result, adapter, spec, data in items:
+            diagnosis_pages(pdf, result, adapter, spec, data, progress)
+    return out
+
+
+__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "residual_spectrum", "suggested_steps", "summary_lines"]

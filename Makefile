@@ -9,6 +9,7 @@ JC := $(BIN)/jointcal
 STAMP := $(VENV)/.installed
 export SOURCE_DATE_EPOCH := 1577836800
 export MPLBACKEND := Agg
+export OPENBLAS_NUM_THREADS := 1
 
 MODULES := a b
 ENC_SPEC := specs/encoder_paper.toml
@@ -77,7 +78,7 @@ DIAG_ARGS = $(foreach p,$(DIAG_PAIRS),--pair $(subst :, ,$(word 1,$(subst :, ,$(
 
 diagnosis: reports/diagnosis.pdf ## diagnose every campaign with its spec: what effect is missing
 
-reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) pipeline/diagnose.py pipeline/diagnose_encoder.py pipeline/diagnose_report.py | $(STAMP) ## residuals, candidates, waterfall
+reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) pipeline/diagnose.py pipeline/diagnose_encoder.py pipeline/robot_diagnose.py pipeline/diagnose_report.py | $(STAMP) ## residuals, candidates, waterfall
 	$(JC) diagnose-all $(DIAG_ARGS) --report reports/diagnosis.pdf
 
 # ------------------------------------------------------------------ checks and upkeep

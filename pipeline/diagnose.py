@@ -25,6 +25,7 @@ not ranked; they are listed under ``not_revealable`` with the reason.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,7 +80,39 @@ def paired_test(base: CVResult, other: CVResult) -> dict:
     return {"stat": t, "p": float(stats.t.sf(t, uniq.size - 1)), "method": method}
 
 
-def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GAIN, progress=None) -> dict:
+def _cv_one(job):
+    adapter, data, base_effects, cand = job
+    try:
+        return adapter.cross_validate(adapter.add(base_effects, cand), data)
+    except np.linalg.LinAlgError:
+        return None
+
+
+_SHARED = None
+
+
+def _cv_shared(k):
+    adapter, data, base_effects, cands = _SHARED
+    return _cv_one((adapter, data, base_effects, cands[k]))
+
+
+def _cross_validate_all(adapter, data, base_effects, cands, jobs):
+    """Cross-validate the model with each candidate added; in ``jobs`` forked processes."""
+    global _SHARED
+    if jobs <= 1 or len(cands) < 2:
+        return [_cv_one((adapter, data, base_effects, c)) for c in cands]
+    import multiprocessing as mp
+
+    _SHARED = (adapter, data, base_effects, cands)
+    try:
+        with mp.get_context("fork").Pool(jobs) as pool:
+            return pool.map(_cv_shared, range(len(cands)), chunksize=1)
+    finally:
+        _SHARED = None
+
+
+def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GAIN, progress=None,
+             workers: int | None = None) -> dict:
     """Rank the effects the spec lacks by cross-validated gain.
 
     Parameters
@@ -92,6 +125,8 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
         at most alpha / (number of candidates tried) and its gain at least ``min_gain``.
     min_gain : float
     progress : callable(str), optional
+    workers : int, optional
+        Processes for the candidates' fits (default: 2 for adapters marked ``parallel``).
 
     Returns
     -------
@@ -104,16 +139,19 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     base = adapter.cross_validate(base_effects, data)
     residual_view = adapter.residual_view(base, data)
     candidates, unrevealable, cand_objects = [], [], {}
+    revealable = []
     for cand in adapter.candidates(spec, data, base_effects):
         ok, why = cand.can_reveal(data)
-        if not ok:
+        if ok:
+            revealable.append(cand)
+        else:
             unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
                                  "explanation": cand.explanation})
-            continue
-        say(f"candidate {cand.name} {cand.target() if cand.target() is not None else ''}".rstrip())
-        try:
-            with_cv = adapter.cross_validate(adapter.add(base_effects, cand), data)
-        except np.linalg.LinAlgError:
+    jobs = workers if workers is not None else (min(2, os.cpu_count() or 1) if getattr(adapter, "parallel", False) else 1)
+    say(f"{len(revealable)} candidates, {jobs} process(es)")
+    fits = _cross_validate_all(adapter, data, base_effects, revealable, jobs)
+    for cand, with_cv in zip(revealable, fits):
+        if with_cv is None:
             unrevealable.append({"effect": cand.name, "target": cand.target(),
                                  "reason": "the fit with this effect is singular on these data", "explanation": cand.explanation})
             continue

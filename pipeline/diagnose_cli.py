@@ -12,7 +12,8 @@ def _adapter_and_data(campaign, kind):
         return EncoderAdapter(), encoder_data_from_campaign(campaign)
     from .robot_diagnose import RobotAdapter, robot_data_from_campaign
 
-    return RobotAdapter(), robot_data_from_campaign(campaign)
+    robot, data = robot_data_from_campaign(campaign)
+    return RobotAdapter(robot), data
 
 
 def run_diagnosis(campaign, spec_path, progress=None):

@@ -1,0 +1,45 @@
+# ------------------------------------------------------------------ robot (paper 2, issue #3)
+# Included by the Makefile. Real files with real dependencies; `make robot` runs the chain.
+ROBOT := kr210
+ROBOT_RAW := raw/robot/$(ROBOT)
+ROBOT_TOML := $(ROBOT_RAW)/robot.toml
+ROBOT_SPEC := specs/robot_paper.toml
+ROBOT_INTERIM := interim/robot/poses.parquet
+ROBOT_RES := results/robot
+ROBOT_ARGS := --interim $(ROBOT_INTERIM) --robot $(ROBOT_TOML)
+# the problems are small: one BLAS thread is faster and steadier than many spinning ones
+ROBOT_ENV := OPENBLAS_NUM_THREADS=1
+
+ALL_TARGETS += robot
+SUMMARY_DEPS += $(ROBOT_RES)/table2.json
+
+.PHONY: robot fixtures-robot
+
+robot: $(ROBOT_RES)/table2.json $(ROBOT_RES)/closed_loop.json reports/robot.pdf ## robot chain: MDH, Chebyshev, mapping, loop, Table 2, report
+
+interim/robot/poses.parquet: $(ROBOT_RAW)/poses.csv $(ROBOT_RAW)/tracker.csv $(ROBOT_TOML) pipeline/robot_ingest.py pipeline/robot.py | $(STAMP) ## validated robot poses joined with tracker points
+	$(ROBOT_ENV) $(JC) ingest --campaign $(ROBOT_RAW) --out $@
+
+results/robot/mdh.json: $(ROBOT_INTERIM) $(ROBOT_SPEC) pipeline/calibrate.py pipeline/robot_effects.py pipeline/robot_cli.py | $(STAMP) ## MDH calibration (Eqs. 3-6) + identifiability
+	$(ROBOT_ENV) $(JC) robot calibrate $(ROBOT_ARGS) --spec $(ROBOT_SPEC) --out $@
+
+results/robot/chebyshev.json: $(ROBOT_INTERIM) $(ROBOT_SPEC) pipeline/chebyshev.py pipeline/lm.py pipeline/calibrate.py pipeline/robot_effects.py pipeline/robot_cli.py | $(STAMP) ## Chebyshev model, improved L-M vs scipy
+	$(ROBOT_ENV) $(JC) robot chebyshev $(ROBOT_ARGS) --spec $(ROBOT_SPEC) --out $@
+
+results/robot/corrected_targets.csv: $(ROBOT_INTERIM) $(ROBOT_RES)/chebyshev.json pipeline/mapping.py pipeline/robot_cli.py | $(STAMP) ## joint mapping of the targets (Eqs. 22-24)
+	$(ROBOT_ENV) $(JC) robot map-joints $(ROBOT_ARGS) --spec $(ROBOT_SPEC) --model $(ROBOT_RES)/chebyshev.json --out $@
+
+results/robot/closed_loop.json: $(ROBOT_INTERIM) $(ROBOT_RES)/corrected_targets.csv pipeline/closedloop.py pipeline/robot_simulate.py pipeline/robot_cli.py | $(STAMP) ## grating closed loop on the virtual cell (Eq. 26)
+	$(ROBOT_ENV) $(JC) robot closed-loop $(ROBOT_ARGS) --corrected $(ROBOT_RES)/corrected_targets.csv --out $@
+
+results/robot/table2.json: $(ROBOT_INTERIM) $(ROBOT_RES)/mdh.json $(ROBOT_RES)/corrected_targets.csv pipeline/robot_evaluate.py pipeline/closedloop.py pipeline/robot_simulate.py pipeline/robot_cli.py | $(STAMP) ## Table 2, per-target errors, ISO 9283 vAP
+	$(ROBOT_ENV) $(JC) robot evaluate $(ROBOT_ARGS) --spec $(ROBOT_SPEC) --mdh $(ROBOT_RES)/mdh.json --corrected $(ROBOT_RES)/corrected_targets.csv --out $@
+
+reports/robot.pdf: $(ROBOT_RES)/table2.json $(ROBOT_RES)/mdh.json $(ROBOT_RES)/chebyshev.json $(ROBOT_RES)/closed_loop.json pipeline/robot_report.py pipeline/robot_cli.py | $(STAMP) ## Figures 6-11 and Table 2 beside the paper's
+	$(ROBOT_ENV) $(JC) robot report --results $(ROBOT_RES) --out $@
+
+fixtures-robot: $(STAMP) ## regenerate raw/robot/kr210 poses.csv, tracker.csv and the truth byte for byte
+	$(ROBOT_ENV) $(JC) simulate robot --campaign $(ROBOT_RAW) --truth raw/truth/robot/$(ROBOT).json
+
+# the robot campaign is diagnosed with the paper's spec too (reports/diagnosis.pdf)
+DIAG_PAIRS += $(ROBOT_RAW):$(ROBOT_SPEC):$(ROBOT)

@@ -1,0 +1,438 @@
+"""Robot commands: ``jointcal simulate robot`` and the ``jointcal robot`` group (thin wrappers).
+
+Chain (the second paper): ingest -> calibrate (MDH, Eqs. 3-6) -> chebyshev (Eqs. 7-21)
+-> map-joints (Eqs. 22-24) -> closed-loop (Eq. 26) -> evaluate (Table 2, Figs. 6-11) -> report.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .errors import InputError
+
+DEFAULT_SPEC = "specs/robot_paper.toml"
+DEFAULT_ROBOT = "raw/robot/kr210/robot.toml"
+DEFAULT_INTERIM = "interim/robot/poses.parquet"
+
+
+def _edge():
+    from .lm import limit_blas_threads
+
+    limit_blas_threads(1)
+
+
+def _read_json(path):
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, "file not found (run the stage that makes it first, or `make robot`)") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
+
+
+def _interim(path):
+    from .io import read_parquet
+
+    if not Path(path).exists():
+        raise InputError(path, "file not found (run `jointcal ingest --campaign raw/robot/<robot>` first)")
+    return read_parquet(path)
+
+
+def _robot(path):
+    from .robot import load_robot
+
+    return load_robot(path)
+
+
+def _spec(path):
+    from .spec import load_spec
+
+    spec = load_spec(path)
+    if spec.kind != "robot":
+        raise InputError(path, f"a robot stage needs a spec with kind = \"robot\", found {spec.kind!r}", 1, 1)
+    return spec
+
+
+def stage_effects(spec, stage: str):
+    """Effects of a stage: ``[model] kinematic_effects`` / ``feedback_effects`` name them;
+    by default the kinematic stage takes every effect except ``chebyshev`` and the feedback
+    stage the ``chebyshev`` effect."""
+    key = f"{stage}_effects"
+    names = spec.model.get(key)
+    if names is None:
+        return [e for e in spec.effects if (e.name == "chebyshev") == (stage == "feedback")]
+    missing = [n for n in names if spec.effect(n) is None]
+    if missing:
+        from .spec import _locate
+
+        text = Path(spec.path).read_text(encoding="utf-8")
+        raise InputError(spec.path, f"{key} names {missing[0]!r}, which has no [[effect]] table",
+                         *_locate(text, rf"^\s*{key}\s*="))
+    return [e for e in spec.effects if e.name in names]
+
+
+# ---------------------------------------------------------------------- ingest / validate
+def ingest_robot_to(campaign, out):
+    """``jointcal ingest`` for a robot campaign folder."""
+    from .io import write_parquet
+    from .robot_ingest import ingest_robot
+
+    robot, frame = ingest_robot(campaign)
+    write_parquet(out, frame)
+    counts = frame["set"].value_counts().to_dict()
+    click.echo(f"{out}: {len(frame)} poses of {robot.name} ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))})",
+               err=True)
+
+
+def validate_robot(campaign, problems):
+    """``jointcal validate`` for a robot campaign folder: collect every problem."""
+    from .robot_ingest import load_robot_campaign
+
+    try:
+        load_robot_campaign(campaign, problems)
+    except InputError as exc:  # pragma: no cover - collected mode does not raise
+        problems.append(exc)
+
+
+# ------------------------------------------------------------------------------ simulate
+@click.command("robot")
+@click.option("--campaign", default="raw/robot/kr210", show_default=True, type=click.Path(file_okay=False),
+              help="Campaign folder holding robot.toml; receives poses.csv and tracker.csv.")
+@click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
+              type=click.Path(dir_okay=False), help="Where the generator's truth goes (never read by the pipeline).")
+@click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
+@click.option("--hidden", default=None, metavar="EFFECT[:JOINT]",
+              help="Add one effect the paper's spec lacks, at a random realistic size: thermal, tool, base, "
+                   "joint_harmonic:J, backlash:J or compliance:J.")
+def simulate_robot_cmd(campaign, truth_path, seed, hidden):
+    """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
+
+    100 sample + 104 target poses in the paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm
+    box with the end orientation within +-10 deg, visited in random order, and ISO 9283 repeat rows
+    (P1-P3, 30 cycles, three 100 mm approaches). Physics: docs/robot_raw.md.
+    """
+    from .io import write_json, write_text
+    from .robot_simulate import (ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, hidden_robot_effect,
+                                 simulate_robot)
+
+    _edge()
+    robot = _robot(Path(campaign) / "robot.toml")
+    config = dict(ROBOT_FIXTURE)
+    if seed is not None:
+        config["seed"] = seed
+    try:
+        hid = hidden_robot_effect(hidden, config["seed"]) if hidden else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--hidden") from None
+    poses, tracker, truth = simulate_robot(robot, config, hid)
+    write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
+    write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
+    write_json(truth_path, truth)
+    click.echo(f"wrote {campaign}/poses.csv and tracker.csv ({len(poses)} poses){' with hidden ' + hidden if hidden else ''}",
+               err=True)
+
+
+# --------------------------------------------------------------------------- robot group
+@click.group("robot")
+def robot_group():
+    """Robot chain (second paper): calibrate -> chebyshev -> map-joints -> closed-loop -> evaluate -> report.
+
+    \b
+    Start with `jointcal ingest --campaign raw/robot/kr210 --out interim/robot/poses.parquet`.
+    Units: lengths and position errors mm, joint angles deg, angle errors arcsec.
+    """
+
+
+def _common(f):
+    f = click.option("--interim", default=DEFAULT_INTERIM, show_default=True, type=click.Path(),
+                     help="Ingested campaign (jointcal ingest).")(f)
+    f = click.option("--robot", "robot_path", default=DEFAULT_ROBOT, show_default=True, type=click.Path(),
+                     help="Nominal robot.toml of the campaign.")(f)
+    return f
+
+
+@robot_group.command("calibrate")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path(),
+              help="Robot spec; [model] kinematic_effects names the effects of this stage.")
+@click.option("--out", default="results/robot/mdh.json", show_default=True, type=click.Path(dir_okay=False))
+def calibrate_cmd(interim, robot_path, spec_path, out):
+    """MDH kinematic calibration on the sample poses (Eqs. 3-6, least squares iterated).
+
+    Reports rank and condition number of the scaled Jacobian and the parameters that the poses
+    cannot identify (fixed at 0). Parameters in mm and arcsec.
+    """
+    from .calibrate import calibrate_mdh
+    from .io import provenance, write_json
+    from .robot_ingest import robot_data
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    effects = stage_effects(spec, "kinematic")
+    sample = frame[frame["set"] == "sample"]
+    _, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
+    report["provenance"] = provenance([interim, robot_path], spec_path)
+    write_json(out, report)
+    click.echo(f"{out}: rank {report['rank']}/{report['n_params']}, condition {report['condition_number']:.0f}, "
+               f"fixed {', '.join(report['not_identifiable']) or 'none'}; RMS {report['rms_before_mm']:.3f} -> "
+               f"{report['rms_after_mm']:.3f} mm", err=True)
+
+
+@robot_group.command("chebyshev")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path(),
+              help="Robot spec with a chebyshev effect (order, joints).")
+@click.option("--gratings/--no-gratings", default=True, show_default=True,
+              help="Use the grating readings of joints 1-3 (grating1_deg..) as their angles when present.")
+@click.option("--out", default="results/robot/chebyshev.json", show_default=True, type=click.Path(dir_okay=False))
+def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
+    """Identify the Chebyshev error transfer matrices (Eqs. 7-13) with the improved L-M (Eqs. 14-21).
+
+    scipy.optimize.least_squares is run beside it as a cross-check; both costs (0.5 ||F||^2, mm^2),
+    iterations and times are reported. Coefficients gamma in mm, lambda in arcsec.
+    """
+    from .chebyshev import identify
+    from .io import provenance, write_json
+    from .robot_ingest import has_gratings, robot_data
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    effects = stage_effects(spec, "feedback")
+    if not effects:
+        raise InputError(spec_path, "the spec has no chebyshev effect (add [[effect]] name = \"chebyshev\")", 1, 1)
+    sample = frame[frame["set"] == "sample"]
+    use = gratings and has_gratings(sample)
+    result = identify(robot, robot_data(robot, sample, use_gratings=use), effects, spec.model.get("lm", {}))
+    result["uses_gratings"] = bool(use)
+    result["provenance"] = provenance([interim, robot_path], spec_path)
+    write_json(out, result)
+    lm, sp = result["lm"], result["scipy"]
+    click.echo(f"{out}: {result['n_params']} coefficients, rank {result['rank']}; improved L-M cost {lm['cost_mm2']:.5f} "
+               f"({lm['iterations']} it, {lm['seconds']:.2f} s), scipy {sp['cost_mm2']:.5f} ({sp['iterations']} ev, "
+               f"{sp['seconds']:.2f} s)", err=True)
+
+
+@robot_group.command("map-joints")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path())
+@click.option("--model", "model_path", default="results/robot/chebyshev.json", show_default=True, type=click.Path(),
+              help="Chebyshev model (jointcal robot chebyshev).")
+@click.option("--out", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path(dir_okay=False))
+def map_joints_cmd(interim, robot_path, spec_path, model_path, out):
+    """Corrected commands of joints 1-3 for every target (Eqs. 22-24), deg.
+
+    Columns: point_id, q1..q6 (commanded, deg), q1_corrected..q3_corrected (deg), dq1..dq3 (deg,
+    the Eq. 23 angle errors; corrected = commanded - dq), dx_mm, dy_mm, dz_mm (predicted error).
+    """
+    from .chebyshev import model_from_json
+    from .io import write_csv
+    from .mapping import joint_mapping
+    from .robot_ingest import robot_data
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
+    tg = frame[frame["set"] == "target"]
+    data = robot_data(robot, tg)
+    dP = model.predict_error(data)
+    joints = tuple(spec.model.get("grating_joints", [1, 2, 3]))
+    dth, qc = joint_mapping(robot, data.q_deg, dP, joints)
+    import pandas as pd
+
+    table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
+    for j in range(6):
+        table[f"q{j + 1}"] = data.q_deg[:, j]
+    for k, j in enumerate(joints):
+        table[f"q{j}_corrected"] = qc[:, j - 1]
+    for k, j in enumerate(joints):
+        table[f"dq{j}"] = dth[:, k]
+    for k, c in enumerate("xyz"):
+        table[f"d{c}_mm"] = dP[:, k]
+    write_csv(out, table, float_format="%.7f")
+    click.echo(f"{out}: {len(table)} targets, |dq| up to {np.abs(dth).max() * 3600:.1f} arcsec", err=True)
+
+
+def _corrected(path, robot):
+    from .tables import FLOAT, STR, read_table
+
+    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in range(1, 7)}},
+                   {f"q{j}_corrected": FLOAT for j in range(1, 7)})
+    q = t[[f"q{j}" for j in range(1, 7)]].to_numpy(float).copy()
+    for j in range(1, 7):
+        c = f"q{j}_corrected"
+        if c in t:
+            q[:, j - 1] = t[c].to_numpy(float)
+    return t["point_id"].to_numpy(object), q
+
+
+@robot_group.command("closed-loop")
+@_common
+@click.option("--corrected", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path(),
+              help="Corrected commands (jointcal robot map-joints).")
+@click.option("--seed", type=int, default=None, help="Seed of the virtual cell (default: the fixture's).")
+@click.option("--out", default="results/robot/closed_loop.json", show_default=True, type=click.Path(dir_okay=False))
+def closed_loop_cmd(interim, robot_path, corrected, seed, out):
+    """Grating closed loop of joints 1-3 on the virtual cell (Eq. 26): 12 ms cycle, rough
+    +-0.002 deg/cycle until |e| < 0.007 deg, then PD with kP = 0.05, kD = 0.65.
+
+    Writes the loop's poles, cycles to converge per target and joint, and an error trace
+    (deg per 12 ms cycle) for the convergence figure.
+    """
+    from .closedloop import CYCLE_S, KD, KP, pd_poles
+    from .io import write_json
+    from .robot_simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
+
+    _edge()
+    robot, frame = _robot(robot_path), _interim(interim)
+    ids, q = _corrected(corrected, robot)
+    config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
+    cell = make_cell(robot, config)
+    tg = frame.set_index("point_id").loc[ids]
+    mid = (robot.lower_deg + robot.upper_deg) / 2
+    dirs = directions_from_sequence(q, start_deg=mid)
+    _, res = cell.closed_loop(q, dirs, q[:, :3], tg["payload_kg"].to_numpy(float), rng_for(config["seed"], EXECUTE, 2),
+                              trace=True)
+    cycles = res["cycles"].reshape(-1, 3)
+    k = int(np.argsort(cycles[:, 1])[len(cycles) // 2])       # a typical target (median cycles of joint 2)
+    stop = int(cycles[k].max()) + 25
+    poles = pd_poles()
+    out_json = {"cycle_s": CYCLE_S, "kP": KP, "kD": KD, "rough_step_deg": 0.002, "rough_limit_deg": 0.007,
+                "poles": [float(p) for p in poles], "stable": bool(np.all(np.abs(poles) < 1)),
+                "cycles_median": float(np.median(cycles)), "cycles_max": int(cycles.max()),
+                "seconds_max": float(cycles.max() * CYCLE_S),
+                "final_error_arcsec_max": float(np.abs(res["final_error_deg"]).max() * 3600),
+                "converged": bool(np.all(cycles < 6000)),
+                "trace_point": str(ids[k]),
+                "trace_error_deg": {f"joint{j + 1}": res["error_deg"][:stop, 3 * k + j].tolist() for j in range(3)},
+                "trace_fine": {f"joint{j + 1}": res["fine"][:stop, 3 * k + j].astype(int).tolist() for j in range(3)}}
+    write_json(out, out_json)
+    click.echo(f"{out}: poles {', '.join(f'{p:.3f}' for p in poles)}; median {out_json['cycles_median']:.0f} cycles, "
+               f"max {out_json['cycles_max']} ({out_json['seconds_max']:.1f} s); final |e| <= "
+               f"{out_json['final_error_arcsec_max']:.3f} arcsec", err=True)
+
+
+@robot_group.command("evaluate")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path())
+@click.option("--mdh", "mdh_path", default="results/robot/mdh.json", show_default=True, type=click.Path())
+@click.option("--corrected", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path())
+@click.option("--tracker", "tracker_path", default=None, type=click.Path(),
+              help="Re-measured tracker.csv of a real robot (point_ids <id>@kinematic, <id>@feedback); "
+                   "default: the virtual cell executes the commands.")
+@click.option("--seed", type=int, default=None, help="Seed of the virtual cell (default: the fixture's).")
+@click.option("--out", default="results/robot/table2.json", show_default=True, type=click.Path(dir_okay=False))
+def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_path, seed, out):
+    """Table 2 (before / kinematic / feedback: range, mean, std of the absolute error, mm), the
+    per-target errors (Figs. 7-11) and ISO 9283 vAP at P1-P3 with and without the loop (Fig. 6).
+
+    Also writes <out dir>/target_errors.csv, iso9283.json and kinematic_commands.csv.
+    """
+    import pandas as pd
+
+    from .calibrate import RobotErrorModel
+    from .io import provenance, write_csv, write_json
+    from .mapping import inverse_commands
+    from .robot_evaluate import execute_virtual, table2, vap
+    from .robot_ingest import robot_data
+    from .robot_simulate import ROBOT_FIXTURE, make_cell
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    mdh_json = _read_json(mdh_path)
+    mdh = RobotErrorModel.from_parameters(robot, stage_effects(spec, "kinematic"), mdh_json["parameters"])
+    tg = frame[frame["set"] == "target"].reset_index(drop=True)
+    data = robot_data(robot, tg)
+    qk = inverse_commands(mdh, robot, data)
+    ids, qf = _corrected(corrected, robot)
+    if list(ids) != list(tg["point_id"]):
+        raise InputError(corrected, "point_ids differ from the campaign's targets (run map-joints again)", 2, "point_id")
+    nominal = tg[["xn_mm", "yn_mm", "zn_mm"]].to_numpy(float)
+    before = tg[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - nominal
+    rep = frame[frame["set"] == "repeat"].reset_index(drop=True)
+    if tracker_path:
+        from .tables import FLOAT, STR, read_table
+
+        t = read_table(tracker_path, {"point_id": STR, "x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT}).set_index("point_id")
+
+        def get(keys):
+            missing = [k for k in keys if k not in t.index]
+            if missing:
+                raise InputError(tracker_path, f"no measurement of '{missing[0]}'", None, "point_id")
+            return t.loc[keys, ["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+
+        Pk = get([f"{i}@kinematic" for i in tg["point_id"]])
+        Pf = get([f"{i}@feedback" for i in tg["point_id"]])
+        Pr = get([f"{i}@feedback" for i in rep["point_id"]]) if len(rep) else None
+        source = str(tracker_path)
+    else:
+        config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
+        cell = make_cell(robot, config)
+        run = execute_virtual(cell, robot, frame, qk, qf, config["seed"])
+        Pk, Pf, Pr = run["kinematic"], run["feedback"], run.get("repeat_loop")
+        source = f"virtual cell, seed {config['seed']}"
+    result = table2(before, Pk - nominal, Pf - nominal)
+    result["source"] = source
+    iso = {}
+    if len(rep):
+        rep_meas = rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+        iso["open_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), rep_meas)
+        if Pr is not None:
+            iso["closed_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), Pr)
+        result["vAP_mm"] = {k: {p: v["vAP_mm"] for p, v in d.items()} for k, d in iso.items()}
+    result["provenance"] = provenance([interim, robot_path, mdh_path, corrected] + ([tracker_path] if tracker_path else []),
+                                      spec_path)
+    outdir = Path(out).parent
+    errs = pd.DataFrame({"point_id": tg["point_id"]})
+    for name, e in (("before", before), ("kinematic", Pk - nominal), ("feedback", Pf - nominal)):
+        for k, c in enumerate("xyz"):
+            errs[f"{name}_d{c}_mm"] = e[:, k]
+        errs[f"{name}_abs_mm"] = np.linalg.norm(e, axis=1)
+    write_csv(outdir / "target_errors.csv", errs, float_format="%.5f")
+    kc = pd.DataFrame({"point_id": tg["point_id"]})
+    for j in range(6):
+        kc[f"q{j + 1}"] = qk[:, j]
+    write_csv(outdir / "kinematic_commands.csv", kc, float_format="%.7f")
+    if len(rep):
+        rows = {"open_loop": rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)}
+        if Pr is not None:
+            rows["closed_loop"] = Pr
+        rr = pd.DataFrame({"point_id": rep["point_id"], "pose": rep["pose"], "approach": rep["approach"],
+                           "cycle": rep["cycle"]})
+        for k, v in rows.items():
+            for i, c in enumerate("xyz"):
+                rr[f"{k}_{c}_mm"] = v[:, i]
+        write_csv(outdir / "repeat_positions.csv", rr, float_format="%.5f")
+        write_json(outdir / "iso9283.json", iso)
+    write_json(out, result)
+    b, k, f = result["before"], result["kinematic"], result["feedback"]
+    click.echo(f"{out}: max {b['max_mm']:.3f} -> kinematic {k['max_mm']:.3f} -> feedback {f['max_mm']:.3f} mm "
+               f"(mean {b['mean_mm']:.3f} / {k['mean_mm']:.3f} / {f['mean_mm']:.3f}); max reduced by "
+               f"{result['max_reduction_pct']:.1f} %", err=True)
+
+
+@robot_group.command("report")
+@click.option("--results", "results_dir", default="results/robot", show_default=True, type=click.Path())
+@click.option("--out", default="reports/robot.pdf", show_default=True, type=click.Path(dir_okay=False))
+def report_cmd(results_dir, out):
+    """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec)."""
+    from .robot_report import robot_report
+
+    _edge()
+    r = Path(results_dir)
+    robot_report({"table2": _read_json(r / "table2.json"), "mdh": _read_json(r / "mdh.json"),
+                  "chebyshev": _read_json(r / "chebyshev.json"), "closed_loop": _read_json(r / "closed_loop.json"),
+                  "iso": _read_json(r / "iso9283.json") if (r / "iso9283.json").exists() else {},
+                  "errors": r / "target_errors.csv", "repeat": r / "repeat_positions.csv"}, out)
+    click.echo(f"{out}: written", err=True)
+
+
+def register(cli):
+    """Add the robot commands to the ``jointcal`` group."""
+    cli.add_command(robot_group)
+    sim = cli.commands.get("simulate")
+    if sim is not None:
+        sim.add_command(simulate_robot_cmd)

@@ -1,0 +1,163 @@
+"""The robot side of diagnosis: folds by pose over the sample set, candidates per joint.
+
+The model is :class:`pipeline.calibrate.RobotErrorModel` (Gauss-Newton over the sum of the
+effects, pinocchio Jacobians). Poses are independent (each is its own tracker measurement),
+so a candidate's held-out gain is tested with a paired t test over poses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .diagnose import CVResult, paired_test
+from .effects import make_effect
+
+N_FOLDS = 5
+PER_JOINT = ("backlash", "compliance", "joint_harmonic", "chebyshev")
+WHOLE = ("geometry", "base", "tool", "thermal")
+
+
+def robot_data_from_campaign(folder, sets=("sample",)):
+    """(robot, RobotData) of a raw robot campaign's poses in ``sets``.
+
+    Joints 1-3 use the grating readings where the campaign has them (the paper's cell reads
+    the true angle of those joints), else the commanded angles.
+    """
+    from .robot_ingest import has_gratings, ingest_robot, robot_data
+
+    robot, frame = ingest_robot(folder)
+    frame = frame[frame["set"].isin(list(sets))].reset_index(drop=True)
+    return robot, robot_data(robot, frame, use_gratings=has_gratings(frame))
+
+
+def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:
+    """Fold of each pose: a seeded permutation cut into k nearly equal parts."""
+    perm = np.random.default_rng(seed).permutation(n)
+    folds = np.empty(n, int)
+    folds[perm] = np.arange(n) % k
+    return folds
+
+
+class RobotAdapter:
+    """How diagnosis fits, cross-validates and explains a robot model."""
+
+    unit = "mm"
+    parallel = True  # each candidate is 5 L-M fits: worth a process each
+
+    def __init__(self, robot, n_folds: int = N_FOLDS):
+        self.robot = robot
+        self.n_folds = n_folds
+
+    # ------------------------------------------------------------------ model assembly
+    def baseline_effects(self, spec, data):
+        return list(spec.effects)
+
+    def candidates(self, spec, data, base_effects):
+        present = {}
+        for e in base_effects:
+            joints = e.joints() if hasattr(e, "joints") and "joints" in e.allowed_params else None
+            present.setdefault(e.name, set()).update(joints or range(1, 7))
+        out = []
+        for name in WHOLE:
+            if name not in present:
+                out.append(make_effect("robot", name))
+        for name in PER_JOINT:
+            for j in range(1, 7):
+                if j not in present.get(name, set()):
+                    out.append(make_effect("robot", name, joints=[j]))
+        return out
+
+    @staticmethod
+    def add(base_effects, cand):
+        return [*base_effects, cand]
+
+    # ------------------------------------------------------------------ cross-validation
+    def fold_description(self, data):
+        return f"{self.n_folds}-fold by pose over {data.n} sample poses"
+
+    def _fit_predict(self, effects, train, test):
+        from .calibrate import RobotErrorModel
+
+        if not effects:
+            from .calibrate import Design
+
+            return Design(self.robot, [], test).predict(np.zeros(0))
+        # the improved L-M (paper 2): damped, so a candidate with redundant parameters (Chebyshev
+        # terms overlap the MDH ones) cannot send the fit off; plain Gauss-Newton can diverge there
+        model = RobotErrorModel(self.robot, effects, solver="lm").fit(train)
+        return model.predict(test)
+
+    def cross_validate(self, effects, data) -> CVResult:
+        folds = fold_ids(data.n, self.n_folds)
+        res = np.empty((data.n, 3))
+        for f in range(self.n_folds):
+            test = folds == f
+            pred = self._fit_predict(effects, data.subset(~test), data.subset(test))
+            res[test] = data.measured_mm[test] - pred
+        return CVResult(res, np.arange(data.n))
+
+    def significance(self, cand, base: CVResult, with_cv: CVResult, data) -> dict:
+        """Paired one-sided t test of the drop in squared held-out residual, pose by pose."""
+        return paired_test(base, with_cv)
+
+    # ------------------------------------------------------------------ evidence
+    def _signature(self, cand, data):
+        """Jacobian of the SMR position w.r.t. the candidate's parameters at nominal: (n, 3, k)."""
+        from .calibrate import Design
+
+        d = Design(self.robot, [cand], data)
+        _, J = d.predict_and_jacobian(np.zeros(d.p))
+        return J, d.names, d.units
+
+    def evidence(self, cand, base: CVResult, data) -> str:
+        J, names, units = self._signature(cand, data)
+        r = base.residuals.reshape(-1)
+        X = J.reshape(-1, J.shape[-1])
+        coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+        fit = X @ coef
+        dof = max(1, r.size - X.shape[1])
+        s2 = float(np.sum((r - fit) ** 2) / dof)
+        try:
+            se = np.sqrt(np.maximum(np.diag(s2 * np.linalg.pinv(X.T @ X)), 1e-300))
+        except np.linalg.LinAlgError:
+            se = np.full(coef.size, np.inf)
+        t = coef / se
+        k = int(np.argmax(np.abs(t)))
+        unit, factor = units[k]
+        share = 1.0 - float(np.sum((r - fit) ** 2) / max(np.sum(r ** 2), 1e-300))
+        text = (f"the held-out residuals contain this effect's signature: {names[k]} = {coef[k] * factor:+.3g} {unit} "
+                f"(t = {t[k]:.1f}); it explains {100 * share:.1f} % of the residual variance")
+        return text
+
+    def signature_variables(self, data) -> dict:
+        out = {}
+        for j in range(6):
+            out[f"q{j + 1}"] = (data.q_deg[:, j], "deg", "continuous")
+        for j in range(6):
+            out[f"gravity torque {j + 1}"] = (data.torque_nm[:, j], "N m", "continuous")
+        for j in range(6):
+            out[f"direction of last motion {j + 1}"] = (data.dir[:, j].astype(float), "+1/-1", "categorical")
+        out["temperature"] = (data.temperature_c, "degC", "continuous")
+        out["payload"] = (data.payload_kg, "kg", "categorical" if np.unique(data.payload_kg).size <= 6 else "continuous")
+        return out
+
+    def residual_view(self, base: CVResult, data) -> list[dict]:
+        """For every signature variable, the strongest linear trend of a residual component on it."""
+        out = []
+        for name, (values, unit, kind) in self.signature_variables(data).items():
+            x = np.asarray(values, float)
+            if np.ptp(x) == 0:
+                out.append({"signature": name, "statistic": "constant in these data"})
+                continue
+            xc = (x - x.mean()) / x.std()
+            best = None
+            for c, axis in enumerate("xyz"):
+                y = base.residuals[:, c] - base.residuals[:, c].mean()
+                slope = float(xc @ y / (xc @ xc))
+                s = float(np.sqrt(np.sum((y - slope * xc) ** 2) / max(1, y.size - 2) / (xc @ xc)))
+                t = slope / s if s > 0 else 0.0
+                if best is None or abs(t) > abs(best[2]):
+                    best = (axis, slope, t)
+            axis, slope, t = best
+            out.append({"signature": name, "statistic": f"{axis}: {slope:+.3f} mm per standard deviation of {name} (t = {t:.1f})"})
+        return out

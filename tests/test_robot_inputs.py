@@ -1,0 +1,109 @@
+"""Bad robot inputs end with exit status 2 and one line naming file, line and column."""
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+RAW = Path("raw/robot/kr210")
+JC = str(Path(sys.executable).parent / "jointcal")
+
+
+def _campaign(tmp_path):
+    dst = tmp_path / "kr210"
+    shutil.copytree(RAW, dst)
+    return dst
+
+
+def _edit(path, fn):
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(fn(lines)))
+
+
+def _cell(line, col, value):
+    parts = line.rstrip("\n").split(",")
+    parts[col] = value
+    return ",".join(parts) + "\n"
+
+
+def rename_col(lines):
+    lines[0] = lines[0].replace("q3,", "q_3,")
+    return lines
+
+
+def nan_q2(lines):
+    lines[5] = _cell(lines[5], 3, "nan")
+    return lines
+
+
+def dup_id(lines):
+    lines[7] = _cell(lines[7], 0, lines[6].split(",")[0])
+    return lines
+
+
+def radians(lines):
+    lines[4] = _cell(lines[4], 3, "-1.6")
+    return lines
+
+
+def outside(lines):
+    lines[9] = _cell(lines[9], 2, "40.0")
+    return lines
+
+
+def extra_tracker(lines):
+    return lines + ["Z999,1.0,2.0,3.0,0.015\n"]
+
+
+def drop_tracker(lines):
+    return lines[:3] + lines[4:]
+
+
+def metres(lines):
+    out = [lines[0]]
+    for line in lines[1:]:
+        p = line.rstrip("\n").split(",")
+        out.append(",".join([p[0]] + [f"{float(v) / 1000:.6f}" for v in p[1:4]] + p[4:]) + "\n")
+    return out
+
+
+def toml_missing_a(lines):
+    # drop a_mm of the third [[joint]] table
+    starts = [i for i, s in enumerate(lines) if s.startswith("[[joint]]")]
+    k = next(i for i in range(starts[2], len(lines)) if lines[i].startswith("a_mm"))
+    return lines[:k] + lines[k + 1:]
+
+
+CASES = [
+    ("poses.csv", rename_col, "poses.csv:1:q3", "misspelled"),
+    ("poses.csv", nan_q2, "poses.csv:6:q2", "NaN"),
+    ("poses.csv", dup_id, "poses.csv:8:point_id", "duplicate"),
+    ("poses.csv", radians, "poses.csv:5:q2", "radians"),
+    ("poses.csv", outside, "poses.csv:10:q1", "outside"),
+    ("tracker.csv", extra_tracker, "tracker.csv:", "no row in poses.csv"),
+    ("tracker.csv", drop_tracker, "poses.csv:", "no tracker point"),
+    ("tracker.csv", metres, "tracker.csv:2:x_mm", "metres"),
+    ("robot.toml", toml_missing_a, "robot.toml:", "missing field 'a_mm'"),
+]
+
+
+@pytest.mark.parametrize("fname,edit,where,what", CASES, ids=[c[1].__name__ for c in CASES])
+def test_bad_input_exit_2_one_line(tmp_path, fname, edit, where, what):
+    camp = _campaign(tmp_path)
+    _edit(camp / fname, edit)
+    r = subprocess.run([JC, "ingest", "--campaign", str(camp), "--out", str(tmp_path / "p.parquet")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    lines = [s for s in r.stderr.splitlines() if s.strip()]
+    assert len(lines) == 1, r.stderr
+    assert where in lines[0] and what in lines[0], lines[0]
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "p.parquet").exists()
+    if fname == "robot.toml":
+        # the line of the [[joint]] table that lacks the field
+        text = (camp / "robot.toml").read_text().splitlines()
+        line = int(re.search(r"robot\.toml:(\d+):", lines[0]).group(1))
+        assert text[line - 1].startswith("[[joint]]")

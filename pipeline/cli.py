@@ -479,6 +479,11 @@ def summary(encoder_results, robot_results, out):
         models[m["module"]] = m
     robot_path = Path(robot_results) / "table2.json"
     robot = _read_json(robot_path) if robot_path.exists() else None
+    beyond_path = Path(robot_results) / "beyond" / "table2.json"
+    if robot is not None and beyond_path.exists():
+        b = _read_json(beyond_path)
+        robot["beyond_paper"] = {"spec": "specs/robot_beyond.toml", "added": "backlash of joints 4-6",
+                                 "feedback": b["feedback"], "max_reduction_pct": b["max_reduction_pct"]}
     write_json(out, build_summary(models, robot))
     click.echo(f"{out}: {len(models)} module(s){' and the robot' if robot else ''}", err=True)
 

@@ -53,7 +53,14 @@ def save(pdf, fig):
 
 def text_page(pdf, title: str, lines, fontsize=9):
     """A page of monospaced text (tables of numbers beside the paper's)."""
+    import textwrap
+
+    width = int(118 * 9 / fontsize)  # characters that fit across the page in monospace
+    wrapped = []
+    for line in lines:
+        indent = len(line) - len(line.lstrip())
+        wrapped += textwrap.wrap(line, width, subsequent_indent=" " * (indent + 2), drop_whitespace=False) or [""]
     fig = plt.figure(figsize=(8.27, 11.69))
     fig.text(0.06, 0.96, title, fontsize=13, weight="bold", va="top")
-    fig.text(0.06, 0.92, "\n".join(lines), family="monospace", fontsize=fontsize, va="top")
+    fig.text(0.06, 0.92, "\n".join(wrapped), family="monospace", fontsize=fontsize, va="top")
     save(pdf, fig)

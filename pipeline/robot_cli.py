@@ -236,8 +236,15 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out):
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
     model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
+    from dataclasses import replace
+
+    from .robot_simulate import directions_from_sequence
+
     tg = frame[frame["set"] == "target"]
     data = robot_data(robot, tg)
+    # the table is executed in its own order, from mid-range: a direction-aware effect
+    # (backlash) must be predicted with the directions of that run, not of the survey
+    data = replace(data, dir=directions_from_sequence(data.q_deg, start_deg=(robot.lower_deg + robot.upper_deg) / 2))
     dP = model.predict_error(data)
     joints = tuple(spec.model.get("grating_joints", [1, 2, 3]))
     dth, qc = joint_mapping(robot, data.q_deg, dP, joints)
@@ -416,14 +423,23 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
 
 @robot_group.command("report")
 @click.option("--results", "results_dir", default="results/robot", show_default=True, type=click.Path())
+@click.option("--beyond", "beyond_path", default=None, type=click.Path(),
+              help="Table 2 JSON of a spec beyond the paper's (e.g. results/robot/beyond/table2.json).")
+@click.option("--diagnosis", "diagnosis_path", default=None, type=click.Path(),
+              help="Diagnosis JSON of the paper's spec on this campaign (what was found missing).")
 @click.option("--out", default="reports/robot.pdf", show_default=True, type=click.Path(dir_okay=False))
-def report_cmd(results_dir, out):
-    """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec)."""
+def report_cmd(results_dir, beyond_path, diagnosis_path, out):
+    """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec);
+    with --beyond, a page with what adding the effects diagnosis found does to Table 2."""
     from .robot_report import robot_report
 
     _edge()
     r = Path(results_dir)
-    robot_report({"table2": _read_json(r / "table2.json"), "mdh": _read_json(r / "mdh.json"),
+    beyond = None
+    if beyond_path:
+        beyond = {"table2": _read_json(beyond_path),
+                  "diagnosis": _read_json(diagnosis_path) if diagnosis_path else None}
+    robot_report({"beyond": beyond, "table2": _read_json(r / "table2.json"), "mdh": _read_json(r / "mdh.json"),
                   "chebyshev": _read_json(r / "chebyshev.json"), "closed_loop": _read_json(r / "closed_loop.json"),
                   "iso": _read_json(r / "iso9283.json") if (r / "iso9283.json").exists() else {},
                   "errors": r / "target_errors.csv", "repeat": r / "repeat_positions.csv"}, out)

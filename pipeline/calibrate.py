@@ -231,17 +231,31 @@ class RobotErrorModel:
         free = np.arange(B.shape[1])
         result = None
         if self.solver == "gauss-newton":
+            # Gauss-Newton with step halving: a step that raises the cost is halved until it
+            # does not (up to 30 times), so redundant or badly scaled parameters cannot send
+            # the iteration off (undamped, it diverged on a Chebyshev + MDH model).
             xf = np.zeros(free.size)
             F, Jf = (P - meas).ravel(), J2 @ B
+            cost = 0.5 * float(F @ F)
             it = 0
             for it in range(1, self.max_iter + 1):
                 step = np.linalg.lstsq(Jf, -F, rcond=None)[0]
+                for _ in range(30):
+                    F_try = fun(xf + step)
+                    cost_try = 0.5 * float(F_try @ F_try)
+                    if cost_try <= cost:
+                        break
+                    step = step / 2
+                else:
+                    break
                 xf = xf + step
                 F, Jf = fun_and_jac(xf)
-                if np.max(np.abs(step)) < 1e-9:
+                cost_new = 0.5 * float(F @ F)
+                done = np.max(np.abs(step)) < 1e-9 or cost - cost_new <= 1e-12 * max(cost, 1e-30)
+                cost = cost_new
+                if done:
                     break
             self.n_iter_ = it
-            cost = 0.5 * float(F @ F)
         elif self.solver == "lm":
             result = improved_lm(fun, None, np.zeros(free.size), fun_and_jac=fun_and_jac, **(self.lm_options or {}))
             xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter

@@ -142,6 +142,9 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     revealable = []
     for cand in adapter.candidates(spec, data, base_effects):
         ok, why = cand.can_reveal(data)
+        extra = adapter.reveal_problem(cand, data, base_effects) if (ok and hasattr(adapter, "reveal_problem")) else ""
+        if extra:
+            ok, why = False, extra
         if ok:
             revealable.append(cand)
         else:

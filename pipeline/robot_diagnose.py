@@ -13,6 +13,8 @@ from .diagnose import CVResult, paired_test
 from .effects import make_effect
 
 N_FOLDS = 5
+JH_MAX_ORDER = 16
+REDUNDANT = 0.02
 PER_JOINT = ("backlash", "compliance", "joint_harmonic", "chebyshev")
 WHOLE = ("geometry", "base", "tool", "thermal")
 
@@ -27,7 +29,9 @@ def robot_data_from_campaign(folder, sets=("sample",)):
 
     robot, frame = ingest_robot(folder)
     frame = frame[frame["set"].isin(list(sets))].reset_index(drop=True)
-    return robot, robot_data(robot, frame, use_gratings=has_gratings(frame))
+    data = robot_data(robot, frame, use_gratings=has_gratings(frame))
+    data.grating_joints = (1, 2, 3) if has_gratings(frame) else ()
+    return robot, data
 
 
 def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:
@@ -36,6 +40,21 @@ def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:
     folds = np.empty(n, int)
     folds[perm] = np.arange(n) % k
     return folds
+
+
+def jh_orders(q_deg, top=16):
+    """Orders of a periodic joint error worth a candidate on these poses.
+
+    Over a joint range of R degrees, order k completes k R / 360 cycles. Below half a cycle
+    every order looks alike (an offset, a slope and a gentle curve, mostly taken up by the
+    joint's MDH offset), so order 1 stands for all of them; every order that completes half a
+    cycle or more, up to ``top``, is a candidate of its own.
+    """
+    R = float(np.ptp(q_deg))
+    if R <= 0:
+        return []
+    first = max(1, int(np.ceil(180.0 / R)))
+    return sorted({1} | set(range(min(first, top + 1), top + 1)))
 
 
 class RobotAdapter:
@@ -62,14 +81,57 @@ class RobotAdapter:
             if name not in present:
                 out.append(make_effect("robot", name))
         for name in PER_JOINT:
+            if name == "joint_harmonic":
+                continue
             for j in range(1, 7):
                 if j not in present.get(name, set()):
                     out.append(make_effect("robot", name, joints=[j]))
+        # a periodic joint error, one candidate per joint and order (1..16 cycles per turn,
+        # the orders of the first paper's joint modules), as for an encoder
+        have_jh = {(j, k) for e in base_effects if e.name == "joint_harmonic" for j in e.joints() for k in e.orders()}
+        for j in range(1, 7):
+            for k in jh_orders(data.q_deg[:, j - 1]):
+                if (j, k) not in have_jh:
+                    out.append(make_effect("robot", "joint_harmonic", joints=[j], orders=[k]))
         return out
 
     @staticmethod
     def add(base_effects, cand):
         return [*base_effects, cand]
+
+    def reveal_problem(self, cand, data, base_effects):
+        """Why these data cannot show ``cand`` on top of the baseline (or '').
+
+        * a joint read by a grating enters the model at its true angle: its angle errors
+          never reach the residuals (and the closed loop removes them);
+        * a candidate whose signature lies (almost) in the span of the baseline's - an SMR
+          offset on the flange against the last link's MDH parameters - cannot be told
+          apart from what the model already has: less than ``REDUNDANT`` of the norm of each
+          of its Jacobian columns is outside the baseline's column space.
+        """
+        gj = getattr(data, "grating_joints", ())
+        if cand.name in ("backlash", "compliance", "joint_harmonic") and cand.target() in gj:
+            return (f"joint {cand.target()} is read by its grating: the model takes its true angle, so its "
+                    "angle errors never reach the residuals (and the closed loop removes them)")
+        if base_effects:
+            Jc, _, _ = self._signature(cand, data)
+            Jb = self._jacobian(base_effects, data)
+            Xc = Jc.reshape(-1, Jc.shape[-1])
+            U, sv, _ = np.linalg.svd(Jb / np.maximum(np.linalg.norm(Jb, axis=0), 1e-300), full_matrices=False)
+            U = U[:, sv > 1e-9 * sv[0]]
+            outside = Xc - U @ (U.T @ Xc)
+            frac = np.linalg.norm(outside, axis=0) / np.maximum(np.linalg.norm(Xc, axis=0), 1e-300)
+            if np.all(frac < REDUNDANT):
+                return (f"on these poses its signature is that of {' + '.join(e.name for e in base_effects)} already "
+                        f"(at most {100 * frac.max():.1f} % of it lies outside): it cannot be told apart")
+        return ""
+
+    def _jacobian(self, effects, data):
+        from .calibrate import Design
+
+        d = Design(self.robot, list(effects), data)
+        _, J = d.predict_and_jacobian(np.zeros(d.p))
+        return J.reshape(-1, d.p)
 
     # ------------------------------------------------------------------ cross-validation
     def fold_description(self, data):
@@ -82,9 +144,19 @@ class RobotAdapter:
             from .calibrate import Design
 
             return Design(self.robot, [], test).predict(np.zeros(0))
-        # the improved L-M (paper 2): damped, so a candidate with redundant parameters (Chebyshev
-        # terms overlap the MDH ones) cannot send the fit off; plain Gauss-Newton can diverge there
-        model = RobotErrorModel(self.robot, effects, solver="lm").fit(train)
+        # Gauss-Newton with step halving and identifiability reduction: a few iterations, and a
+        # candidate with redundant parameters (Chebyshev terms overlap the MDH ones) cannot send
+        # it off
+        # with Chebyshev terms, the same estimator as the pipeline's Chebyshev stage: solve in the
+        # span of the leading singular directions (the coefficients overlap each other and the
+        # MDH parameters; the weak directions only fit noise)
+        if any(e.name == "chebyshev" for e in effects):
+            from .chebyshev import CHEB_RANK_TOL
+
+            model = RobotErrorModel(self.robot, effects, solver="gauss-newton", rank_tol=CHEB_RANK_TOL,
+                                    reduction="svd").fit(train)
+        else:
+            model = RobotErrorModel(self.robot, effects, solver="gauss-newton").fit(train)
         return model.predict(test)
 
     def cross_validate(self, effects, data) -> CVResult:

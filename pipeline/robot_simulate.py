@@ -341,7 +341,8 @@ def format_poses_csv(poses: pd.DataFrame) -> str:
     for j in range(1, 7):
         out[f"q{j}"] = out[f"q{j}"].map(lambda v: f"{v:.6f}")
     for j in range(1, 4):
-        out[f"grating{j}_deg"] = out[f"grating{j}_deg"].map(lambda v: f"{v:.7f}")
+        if f"grating{j}_deg" in out:
+            out[f"grating{j}_deg"] = out[f"grating{j}_deg"].map(lambda v: f"{v:.7f}")
     out["payload_kg"] = out["payload_kg"].map(lambda v: f"{v:.1f}")
     out["temperature_c"] = out["temperature_c"].map(lambda v: f"{v:.2f}")
     out["cycle"] = out["cycle"].map(lambda v: "" if v is None or pd.isna(v) else str(int(v)))

@@ -29,8 +29,6 @@ same well-posed problem and reach the same cost.
 
 from __future__ import annotations
 
-import numpy as np
-
 from .calibrate import RobotErrorModel
 
 #: numerical rank tolerance of the Chebyshev identification: the scaled Jacobian's singular

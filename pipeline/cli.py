@@ -6,7 +6,6 @@ Bad input ends with exit status 2 and one line ``file:line:column: message``.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from pathlib import Path
@@ -34,20 +33,15 @@ def _fail_spec(spec_path, message, pattern=r"^\s*(orders|n_max)\s*="):
 
 
 def _read_json(path):
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "file not found (run the stage that makes it first, or `make all`)") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
+    from .io import read_json_input
+
+    return read_json_input(path)
 
 
 def _read_interim(path):
-    from .io import read_parquet
+    from .io import read_parquet_input
 
-    if not Path(path).exists():
-        raise InputError(path, "file not found (run `jointcal ingest` first, or `make all`)")
-    return read_parquet(path)
+    return read_parquet_input(path)
 
 
 def campaign_kind(folder) -> str:
@@ -301,7 +295,6 @@ def fit(interim, campaign, spec_path, orders_path, out):
     model (the measure `jointcal diagnose` ranks effects by), so the effect of a line
     added to the spec is seen in both.
     """
-    import numpy as np
 
     from .aliasing import OrderTooHighError
     from .diagnose_encoder import EncoderAdapter

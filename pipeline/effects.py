@@ -48,7 +48,7 @@ def make_effect(domain: str, name: str, **params) -> "Effect":
 def _load_all():
     # robot effects live in their own module; importing it registers them.
     try:
-        from . import robot_effects  # noqa: F401
+        from . import robot_effects  # noqa: F401  (importing registers the robot effects)
     except ImportError:  # robot side not installed/built yet
         pass
 

@@ -30,3 +30,16 @@ class InputError(Exception):
         column = "-" if self.column is None else str(self.column)
         text = " ".join(str(self.message).split())
         return f"{self.path}:{line}:{column}: {text}"
+
+
+def parse_toml(text: str, path) -> dict:
+    """Parse TOML text; a syntax error becomes an InputError with its line and column."""
+    import re
+    import tomllib
+
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+), column (\d+)", str(exc))
+        line, col = (int(m.group(1)), int(m.group(2))) if m else (None, None)
+        raise InputError(path, f"not valid TOML: {str(exc).split(' (at')[0]}", line, col) from None

@@ -11,13 +11,13 @@ measurement of reading k of a run is
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from .errors import InputError, parse_toml
+from .io import read_text_input
 from .tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
 
 ENCODER_REQUIRED = {"module": STR, "run": INT, "step": INT, "nominal_deg": FLOAT,
@@ -34,14 +34,10 @@ def read_campaign_toml(folder: Path, problems: Problems) -> dict:
     if not path.exists():
         return {}
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        import re
-
-        m = re.search(r"line (\d+), column (\d+)", str(exc))
-        problems.add(path, f"not valid TOML: {str(exc).split(' (at')[0]}", *(map(int, m.groups()) if m else (None, None)))
+        return parse_toml(read_text_input(path, "campaign.toml"), path)
+    except InputError as exc:
+        problems.append(exc)
         return {}
-    return doc
 
 
 def load_encoder_campaign(folder, problems: Problems | None = None) -> tuple[pd.DataFrame | None, dict]:

@@ -105,3 +105,38 @@ def provenance(inputs, spec=None) -> dict:
     if spec is not None:
         out["spec"] = {str(spec): sha256_file(spec)}
     return out
+
+
+# ------------------------------------------------------------------ located input readers
+def read_text_input(path, what: str = "file") -> str:
+    """UTF-8 text of an input file; missing or undecodable -> InputError."""
+    from .errors import InputError
+
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(path, f"{what} not found") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"{what} is not UTF-8 text ({exc.reason})", 1, 1) from None
+
+
+def read_json_input(path, hint: str = "run the stage that makes it first, or `make all`"):
+    """A stage's JSON result; missing or invalid -> InputError naming the line and column."""
+    from .errors import InputError
+
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(path, f"file not found ({hint})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
+
+
+def read_parquet_input(path, hint: str = "run `jointcal ingest` first, or `make all`"):
+    """An interim Parquet table; missing -> InputError."""
+    from .errors import InputError
+
+    if not Path(path).exists():
+        raise InputError(path, f"file not found ({hint})")
+    return read_parquet(path)

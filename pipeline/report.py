@@ -198,13 +198,14 @@ def _numbers_page(pdf, inputs):
         clos = h.groupby("run", sort=True)["closure_arcsec"].first()
         L += _wrap("     closure (last reading - first, same face), arcsec: "
                    + "  ".join(f"run {int(r)}: {_fmt(float(c), '+.2f')}" for r, c in clos.items()))
-    L.append("   LSQ uses the 37 readings (the closing one twice weights face 0); the FFT the 36")
+    N = _n_distinct(inputs[modules[0]])
+    L.append(f"   LSQ uses all readings (the closing one weights face 0 twice); the FFT the {N}")
     L.append("   distinct angles, so they differ slightly; the closure is a repeatability check.")
     L.append("")
     L.append("4. Sampling")
-    L.append(f"   A 36-face polygon gives N = 36 distinct angles per turn; the 37th reading revisits")
+    L.append(f"   The polygon gives N = {N} distinct angles per turn; the closing reading revisits")
     L.append(f"   the first face (closure check, not a new angle). The paper counted N = {PAPER_N}.")
-    L.append("   Highest resolvable order N/2 = 18 (cosine only); the model uses orders up to 17.")
+    L.append(f"   Highest resolvable order N/2 = {N // 2} (cosine only); both terms up to {(N - 1) // 2}.")
     text_page(pdf, "Encoder report: this run's numbers beside the paper's (Hu et al. 2020)", L, fontsize=7.6)
 
 

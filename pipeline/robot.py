@@ -29,14 +29,13 @@ Two models are built from one description:
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from .errors import InputError
+from .errors import InputError, parse_toml
 
 JOINT_FIELDS = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "lower_deg", "upper_deg")
 GRAVITY_FIELDS = ("mass_kg", "com_mm")
@@ -117,12 +116,7 @@ def _key_line(text: str, start_line: int, key: str):
 
 def parse_robot(text: str, path="<robot.toml>") -> Robot:
     """Parse ``robot.toml`` text; every problem is an InputError with line and column."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+), column (\d+)", str(exc))
-        line, col = (int(m.group(1)), int(m.group(2))) if m else (None, None)
-        raise InputError(path, f"not valid TOML: {str(exc).split(' (at')[0]}", line, col) from None
+    doc = parse_toml(text, path)
     tables = doc.get("joint")
     starts = _table_lines(text, "joint")
     if not isinstance(tables, list) or len(tables) != N_JOINTS:
@@ -190,13 +184,9 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
 
 def load_robot(path) -> Robot:
     """Read ``robot.toml`` (raises InputError naming file, line and column)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, "robot.toml not found; a robot campaign needs the nominal kinematics") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(path, f"not UTF-8 text ({exc.reason})", 1, 1) from None
+    from .io import read_text_input
+
+    text = read_text_input(path, "robot.toml (a robot campaign needs the nominal kinematics)")
     return parse_robot(text, str(path))
 
 

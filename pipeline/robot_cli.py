@@ -6,7 +6,6 @@ Chain (the second paper): ingest -> calibrate (MDH, Eqs. 3-6) -> chebyshev (Eqs.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
@@ -26,20 +25,15 @@ def _edge():
 
 
 def _read_json(path):
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "file not found (run the stage that makes it first, or `make robot`)") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON: {exc.msg}", exc.lineno, exc.colno) from None
+    from .io import read_json_input
+
+    return read_json_input(path, "run the stage that makes it first, or `make robot`")
 
 
 def _interim(path):
-    from .io import read_parquet
+    from .io import read_parquet_input
 
-    if not Path(path).exists():
-        raise InputError(path, "file not found (run `jointcal ingest --campaign raw/robot/<robot>` first)")
-    return read_parquet(path)
+    return read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
 
 
 def _robot(path):

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from .effects import Effect, effect_names, make_effect
-from .errors import InputError
+from .errors import InputError, parse_toml
 
 
 @dataclass
@@ -70,12 +68,7 @@ def _locate(text: str, pattern: str) -> tuple[int | None, int | None]:
 
 
 def parse_spec(text: str, path: str = "<spec>") -> Spec:
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+), column (\d+)", str(exc))
-        line, col = (int(m.group(1)), int(m.group(2))) if m else (None, None)
-        raise InputError(path, f"not valid TOML: {str(exc).split(' (at')[0]}", line, col) from None
+    doc = parse_toml(text, path)
 
     model = doc.get("model")
     if not isinstance(model, dict) or "kind" not in model:
@@ -118,11 +111,6 @@ def _nth_effect_line(text, index):
 
 
 def load_spec(path) -> Spec:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, "spec file not found") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(path, f"spec is not UTF-8 text ({exc.reason})", 1, 1) from None
-    return parse_spec(text, str(path))
+    from .io import read_text_input
+
+    return parse_spec(read_text_input(path, "spec file"), str(path))

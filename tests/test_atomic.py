@@ -1,6 +1,5 @@
 """Nothing half-written: an interrupted stage never leaves a file make would take for up to date."""
 
-import os
 import signal
 import subprocess
 import sys

@@ -1,7 +1,6 @@
 """Diagnosis of encoder campaigns with one hidden effect: it must be named first, and adding it
 must bring the held-out error to the noise floor; with nothing hidden, nothing is meaningful."""
 
-import numpy as np
 import pandas as pd
 import pytest
 

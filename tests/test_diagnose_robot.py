@@ -3,7 +3,6 @@ differs from the robot.toml the pipeline reads (masses 20 % off): the effect mus
 first and adding it must bring the held-out error near the tracker's noise floor; with
 nothing hidden, nothing is meaningful."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest

@@ -56,7 +56,7 @@ def test_closed_loop_reduces_multidirectional_variation(table2):
 
 def test_pipeline_never_reads_the_truth(tmp_path, monkeypatch, table2):
     truth = str(ROOT / "raw/truth")
-    real_open, real_io_open, real_os_open = builtins.open, io.open, os.open
+    real_open, real_os_open = builtins.open, os.open
 
     def guard(path, *a, **k):
         if truth in os.path.abspath(os.fspath(path)) if isinstance(path, (str, os.PathLike)) else False:

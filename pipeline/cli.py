@@ -147,8 +147,11 @@ def ingest(campaign, out):
         return
     from .ingest import ingest_encoder
 
+    from .io import provenance
+
     frame = ingest_encoder(campaign)
-    write_parquet(out, frame)
+    files = sorted(Path(campaign).glob("*.csv")) + sorted(Path(campaign).glob("campaign.toml"))
+    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files)})
     click.echo(f"{out}: {len(frame)} readings, {frame['run'].nunique()} runs of module {frame['module'].iloc[0]}", err=True)
 
 

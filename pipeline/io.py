@@ -67,12 +67,19 @@ def write_json(path, obj) -> None:
     write_text(path, json.dumps(_jsonable(obj), indent=2) + "\n")
 
 
-def write_parquet(path, frame) -> None:
-    """Write a DataFrame to Parquet deterministically (no index, fixed compression)."""
+def write_parquet(path, frame, metadata: dict | None = None) -> None:
+    """Write a DataFrame to Parquet deterministically (no index, fixed compression).
+
+    ``metadata`` (e.g. :func:`provenance`) is stored as JSON under the schema key ``jointcal``.
+    """
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     table = pa.Table.from_pandas(frame, preserve_index=False)
+    if metadata is not None:
+        meta = dict(table.schema.metadata or {})
+        meta[b"jointcal"] = json.dumps(_jsonable(metadata), sort_keys=True).encode()
+        table = table.replace_schema_metadata(meta)
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp, compression="zstd", write_statistics=False)
 
@@ -81,6 +88,14 @@ def read_parquet(path):
     import pandas as pd
 
     return pd.read_parquet(path)
+
+
+def parquet_metadata(path) -> dict:
+    """The ``jointcal`` metadata of a Parquet file written by :func:`write_parquet` ({} if none)."""
+    import pyarrow.parquet as pq
+
+    meta = pq.read_schema(path).metadata or {}
+    return json.loads(meta[b"jointcal"]) if b"jointcal" in meta else {}
 
 
 def write_csv(path, frame, float_format="%.6f") -> None:

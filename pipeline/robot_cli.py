@@ -36,6 +36,27 @@ def _interim(path):
     return read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
 
 
+def outside_calibrated_range(sample, targets) -> list[dict]:
+    """Per joint, the targets whose angle lies outside the range the sample poses covered.
+
+    Returns a list of ``{joint, count, beyond_deg, low_deg, high_deg, point_id, line}`` (the
+    worst target of each joint; ``line`` is its line in poses.csv when known).
+    """
+    out = []
+    for j in range(1, 7):
+        lo, hi = sample[f"q{j}"].min(), sample[f"q{j}"].max()
+        q = targets[f"q{j}"].to_numpy(float)
+        beyond = np.maximum(lo - q, q - hi)
+        bad = beyond > 1e-9
+        if bad.any():
+            k = int(np.argmax(beyond))
+            row = targets.iloc[k]
+            line = int(row["visit"]) + 2 if "visit" in targets and np.isfinite(row["visit"]) else None
+            out.append({"joint": j, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo),
+                        "high_deg": float(hi), "point_id": str(row["point_id"]), "line": line})
+    return out
+
+
 def _robot(path):
     from .robot import load_robot
 
@@ -72,11 +93,12 @@ def stage_effects(spec, stage: str):
 # ---------------------------------------------------------------------- ingest / validate
 def ingest_robot_to(campaign, out):
     """``jointcal ingest`` for a robot campaign folder."""
-    from .io import write_parquet
+    from .io import provenance, write_parquet
     from .robot_ingest import ingest_robot
 
     robot, frame = ingest_robot(campaign)
-    write_parquet(out, frame)
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
+    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files)})
     counts = frame["set"].value_counts().to_dict()
     click.echo(f"{out}: {len(frame)} poses of {robot.name} ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))})",
                err=True)
@@ -216,8 +238,14 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
 @click.option("--model", "model_path", default="results/robot/chebyshev.json", show_default=True, type=click.Path(),
               help="Chebyshev model (jointcal robot chebyshev).")
 @click.option("--out", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path(dir_okay=False))
-def map_joints_cmd(interim, robot_path, spec_path, model_path, out):
+@click.option("--strict", is_flag=True,
+              help="Refuse (exit 2) when a target lies outside the joint range the sample poses covered, "
+                   "instead of warning: the model would extrapolate there.")
+def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict):
     """Corrected commands of joints 1-3 for every target (Eqs. 22-24), deg.
+
+    Targets outside the joint range covered by the sample poses (where the model was
+    identified) are named in a warning; with --strict they are refused.
 
     Columns: point_id, q1..q6 (commanded, deg), q1_corrected..q3_corrected (deg), dq1..dq3 (deg,
     the Eq. 23 angle errors; corrected = commanded - dq), dx_mm, dy_mm, dz_mm (predicted error).
@@ -235,6 +263,20 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out):
     from .robot_simulate import directions_from_sequence
 
     tg = frame[frame["set"] == "target"]
+    outside = outside_calibrated_range(frame[frame["set"] == "sample"], tg)
+    if outside:
+        first = outside[0]
+        message = ("targets outside the joint range the sample poses covered (the model extrapolates there): "
+                   + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
+                               f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" for o in outside))
+        if strict:
+            from .io import parquet_metadata
+
+            source = parquet_metadata(interim).get("campaign")
+            where = (Path(source) / "poses.csv", first.get("line")) if source else (interim, None)
+            raise InputError(where[0], f"{message} (first: {first['point_id']}); refused by --strict",
+                             where[1], f"q{first['joint']}")
+        click.echo(f"jointcal: warning: {message}", err=True)
     data = robot_data(robot, tg)
     # the table is executed in its own order, from mid-range: a direction-aware effect
     # (backlash) must be predicted with the directions of that run, not of the survey

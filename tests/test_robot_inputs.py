@@ -107,3 +107,48 @@ def test_bad_input_exit_2_one_line(tmp_path, fname, edit, where, what):
         text = (camp / "robot.toml").read_text().splitlines()
         line = int(re.search(r"robot\.toml:(\d+):", lines[0]).group(1))
         assert text[line - 1].startswith("[[joint]]")
+
+
+def test_targets_outside_the_sampled_range_warn_and_strict_refuses(tmp_path):
+    """A compensation asked outside the joint range the model was identified on: warning, or exit 2 with --strict."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    jc = [sys.executable, "-c", "from pipeline.cli import main; main()"]
+    interim = tmp_path / "poses.parquet"
+    subprocess.run(jc + ["ingest", "--campaign", str(ROOT / "raw/robot/kr210"), "--out", str(interim)], check=True,
+                   capture_output=True, cwd=ROOT)
+    common = ["robot", "--help"]
+    assert subprocess.run(jc + common, capture_output=True).returncode == 0
+    base = ["robot", "chebyshev", "--interim", str(interim), "--robot", str(ROOT / "raw/robot/kr210/robot.toml"),
+            "--out", str(tmp_path / "cheb.json")]
+    subprocess.run(jc + base, check=True, capture_output=True, cwd=ROOT)
+    mapping = ["robot", "map-joints", "--interim", str(interim), "--robot", str(ROOT / "raw/robot/kr210/robot.toml"),
+               "--model", str(tmp_path / "cheb.json")]
+    warn = subprocess.run(jc + mapping + ["--out", str(tmp_path / "a.csv")], capture_output=True, text=True, cwd=ROOT)
+    assert warn.returncode == 0 and "warning: targets outside the joint range" in warn.stderr
+    strict = subprocess.run(jc + mapping + ["--out", str(tmp_path / "b.csv"), "--strict"], capture_output=True, text=True,
+                            cwd=ROOT)
+    assert strict.returncode == 2 and not (tmp_path / "b.csv").exists()
+    line = [ln for ln in strict.stderr.splitlines() if ln.strip()]
+    assert len(line) == 1 and "poses.csv:" in line[0] and ":q" in line[0] and "Traceback" not in strict.stderr
+
+
+def test_interim_tables_record_their_provenance(tmp_path):
+    import hashlib
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+    from pipeline.io import parquet_metadata
+
+    jc = [sys.executable, "-c", "from pipeline.cli import main; main()"]
+    out = tmp_path / "a.parquet"
+    subprocess.run(jc + ["ingest", "--campaign", str(ROOT / "raw/encoder/a"), "--out", str(out)], check=True,
+                   capture_output=True, cwd=ROOT)
+    meta = parquet_metadata(out)
+    assert meta["jointcal_version"]
+    f = ROOT / "raw/encoder/a/a_run3.csv"
+    assert meta["inputs"][str(f)] == hashlib.sha256(f.read_bytes()).hexdigest()

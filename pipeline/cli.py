@@ -251,21 +251,19 @@ def select(interim, harmonics, spec_path, out):
     import numpy as np
 
     from .effects import EncoderData
-    from .evaluate import split_runs
     from .io import provenance, write_json
-    from .select import cv_select, paper_rule
+    from .select import cv_select, select_orders
     from .spec import load_spec
 
     spec = load_spec(spec_path)
     frame = _read_interim(interim)
     table = _read_interim(harmonics)
     try:
-        model_runs, _ = split_runs(frame["run"].unique(), spec.model)
+        paper_orders, model_runs, rule = select_orders(frame, spec, table)
     except ValueError as exc:
         _fail_spec(spec_path, str(exc), r"^\s*(modelling_runs|validation_runs)\s*=")
     h = spec.effect("harmonic")
     explicit = h is not None and isinstance(h.params.get("orders"), list)
-    paper_orders, rule = paper_rule(table, model_runs, spec.select)
     data = EncoderData.from_frame(frame)
     n_fit = int(table["order"].max())
     train = data.subset(np.isin(data.run, model_runs))
@@ -302,10 +300,9 @@ def fit(interim, campaign, spec_path, orders_path, out):
     from .aliasing import OrderTooHighError
     from .diagnose_encoder import EncoderAdapter
     from .effects import EncoderData
-    from .evaluate import fit_encoder, split_runs
-    from .harmonic import analyse_runs
+    from .evaluate import fit_encoder
     from .io import provenance, write_json
-    from .select import paper_rule
+    from .select import select_orders
     from .spec import load_spec
 
     spec = load_spec(spec_path)
@@ -328,9 +325,7 @@ def fit(interim, campaign, spec_path, orders_path, out):
     h = spec.effect("harmonic")
     try:
         if h is not None and not isinstance(h.params.get("orders"), list) and orders is None:
-            model_runs, _ = split_runs(frame["run"].unique(), spec.model)
-            table = analyse_runs(frame[frame["run"].isin(model_runs)], n_max=h.params.get("n_max"))
-            orders, _ = paper_rule(table, model_runs, spec.select)
+            orders, _, _ = select_orders(frame, spec)
         result = fit_encoder(frame, spec, orders)
     except OrderTooHighError as exc:
         _fail_spec(spec_path, str(exc))

@@ -90,25 +90,6 @@ def amplitude_phase(A, B) -> tuple[np.ndarray, np.ndarray]:
     return np.hypot(A, B), np.mod(np.rad2deg(np.arctan2(A, B)), 360.0)
 
 
-def even_grid(theta_deg, tol_deg: float) -> tuple[bool, float, int]:
-    """Whether angles lie on an even grid of one turn (closing repeat ignored).
-
-    Returns (is_even, theta0_deg, N) where N is the number of distinct grid angles.
-    """
-    th = np.asarray(theta_deg, float)
-    base = th[0]
-    rel = np.mod(th - base, 360.0)
-    rel[rel > 360.0 - tol_deg] -= 360.0
-    distinct = np.unique(np.round(rel / max(tol_deg, 1e-9)))
-    N = distinct.size
-    if N < 3:
-        return False, base, N
-    pitch = 360.0 / N
-    k = np.round(rel / pitch)
-    ok = np.all(np.abs(rel - k * pitch) <= tol_deg) and np.unique(np.mod(k, N)).size == N
-    return bool(ok), base, N
-
-
 def _design(theta_rad, orders):
     """cos/sin columns, shape theta.shape + (1 + 2 * #positive orders,).
 

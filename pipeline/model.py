@@ -169,7 +169,9 @@ class EncoderModel:
         return out
 
     def other_coefficients(self) -> dict:
-        return {lab: float(v) for lab, v in zip(self.labels_, self.coef_) if not lab[:1] in ("A", "B") or not lab[1:].isdigit()}
+        """Coefficients of the non-harmonic effects (labels other than A<i>, B<i>)."""
+        harmonic = {f"{ab}{i}" for i in self.orders_ for ab in "AB"}
+        return {lab: float(v) for lab, v in zip(self.labels_, self.coef_) if lab not in harmonic}
 
 
 def residual_without_constant(y, yhat, run) -> np.ndarray:

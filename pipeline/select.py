@@ -100,3 +100,29 @@ def cv_select(data: EncoderData, n_max: int, min_gain: float = 0.01, fit_method=
         best = scores[i]
         path.append((i, best))
     return sorted(chosen), path
+
+
+def select_orders(frame, spec, harmonics=None):
+    """Orders the spec's [select] rule keeps, over the spec's modelling runs.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        Ingested readings (``jointcal ingest``).
+    spec : Spec
+    harmonics : DataFrame, optional
+        Per-run coefficients (``jointcal harmonic``); computed here when not given.
+
+    Returns
+    -------
+    orders : list of int, model_runs : list of int, table : DataFrame (see :func:`paper_rule`)
+    """
+    from .evaluate import split_runs
+    from .harmonic import analyse_runs
+
+    model_runs, _ = split_runs(frame["run"].unique(), spec.model)
+    if harmonics is None:
+        h = spec.effect("harmonic")
+        harmonics = analyse_runs(frame[frame["run"].isin(model_runs)], n_max=h.params.get("n_max") if h else None)
+    orders, table = paper_rule(harmonics, model_runs, spec.select)
+    return orders, model_runs, table

@@ -129,7 +129,7 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden):
 
     100 sample + 104 target poses in the paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm
     box with the end orientation within +-10 deg, visited in random order, and ISO 9283 repeat rows
-    (P1-P3, 30 cycles, three 100 mm approaches). Physics: docs/robot_raw.md.
+    (P1-P3, 30 cycles, three 100 mm approaches). Physics: raw/README.md.
     """
     from .io import write_json, write_text
     from .robot_simulate import (ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, hidden_robot_effect,

@@ -34,7 +34,7 @@ from .robot import Robot, build_model, gravity_torques, inverse_kinematics, plac
 TRUTH, POSES, MEASURE, EXECUTE = 1, 2, 3, 4
 
 ROBOT_FIXTURE = {
-    "seed": 15,                              # chosen among seeds 0-59: closest to Table 2 (docs/robot_raw.md)
+    "seed": 15,                              # chosen among seeds 0-59: closest to Table 2 (raw/README.md)
     "n_sample": 100,
     "n_target": 104,
     "box_mm": [600.0, 1000.0, 600.0],       # x, y, z sizes of the test region (paper Fig. 5)

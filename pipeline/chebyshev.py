@@ -38,6 +38,14 @@ CHEB_RANK_TOL = 3e-4
 LM_DEFAULTS = {"v1": 1.0, "m": 1e-6, "p0": 1e-4, "p1": 0.25, "p2": 0.75, "phi": 1e-5, "max_iter": 100}
 
 
+def chebyshev_estimator(robot, effects, solver="lm", lm_options=None) -> RobotErrorModel:
+    """The estimator of a model with Chebyshev terms: solved in the span of the leading singular
+    directions of the scaled Jacobian (relative singular value >= CHEB_RANK_TOL). The coefficients
+    overlap each other and the MDH parameters; the weak directions only fit noise."""
+    return RobotErrorModel(robot, effects, solver=solver, lm_options=lm_options, rank_tol=CHEB_RANK_TOL,
+                           reduction="svd")
+
+
 def identify(robot, data, effects, lm_options: dict | None = None) -> dict:
     """Fit the Chebyshev model with the improved L-M and with scipy; JSON-ready result.
 
@@ -51,9 +59,8 @@ def identify(robot, data, effects, lm_options: dict | None = None) -> dict:
         Overrides of :data:`LM_DEFAULTS` (from the spec's ``[model] lm`` table).
     """
     opts = {**LM_DEFAULTS, **(lm_options or {})}
-    lm = RobotErrorModel(robot, effects, solver="lm", lm_options=opts, rank_tol=CHEB_RANK_TOL,
-                         reduction="svd").fit(data)
-    sp = RobotErrorModel(robot, effects, solver="scipy", rank_tol=CHEB_RANK_TOL, reduction="svd").fit(data)
+    lm = chebyshev_estimator(robot, effects, "lm", opts).fit(data)
+    sp = chebyshev_estimator(robot, effects, "scipy").fit(data)
     ident = lm.identifiability_
     res_lm, res_sp = lm.solver_result_, sp.solver_result_
     return {

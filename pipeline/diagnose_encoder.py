@@ -14,21 +14,16 @@ import pandas as pd
 from .aliasing import max_full_order
 from .diagnose import CVResult, paired_test
 from .effects import Direction, Drift, EncoderData, Harmonic, Temperature
-from .harmonic import amplitude_phase, batch_lsq, lsq_coefficients
+from .harmonic import amplitude_phase, analyse_runs, lsq_coefficients
 from .model import EncoderModel, circular_range_deg, residual_without_constant
 from .select import paper_rule
 
 
 def per_run_harmonics(data: EncoderData, n_max: int) -> pd.DataFrame:
-    """Per-run LSQ harmonics (orders 0..n_max) of an EncoderData, as analyse_runs gives them."""
-    rows = []
-    for r in data.runs:
-        m = data.run == r
-        A, B = lsq_coefficients(data.theta_deg[m], data.error_arcsec[m], range(n_max + 1))
-        C, phi = amplitude_phase(A, B)
-        for i in range(n_max + 1):
-            rows.append({"run": int(r), "order": i, "A": A[i], "B": B[i], "C": C[i] if i else A[i], "phi_deg": phi[i]})
-    return pd.DataFrame(rows)
+    """Per-run harmonics (orders 0..n_max) of an EncoderData: :func:`pipeline.harmonic.analyse_runs`."""
+    frame = pd.DataFrame({"run": data.run, "step": data.step, "theta_deg": data.theta_deg,
+                          "error_arcsec": data.error_arcsec, "direction": data.direction})
+    return analyse_runs(frame, n_max=n_max)
 
 
 class EncoderAdapter:
@@ -244,4 +239,4 @@ def encoder_data_from_campaign(folder) -> EncoderData:
     return EncoderData.from_frame(ingest_encoder(folder))
 
 
-__all__ = ["EncoderAdapter", "encoder_data_from_campaign", "per_run_harmonics", "batch_lsq"]
+__all__ = ["EncoderAdapter", "encoder_data_from_campaign", "per_run_harmonics"]

@@ -144,17 +144,12 @@ class RobotAdapter:
             from .calibrate import Design
 
             return Design(self.robot, [], test).predict(np.zeros(0))
-        # Gauss-Newton with step halving and identifiability reduction: a few iterations, and a
-        # candidate with redundant parameters (Chebyshev terms overlap the MDH ones) cannot send
-        # it off
-        # with Chebyshev terms, the same estimator as the pipeline's Chebyshev stage: solve in the
-        # span of the leading singular directions (the coefficients overlap each other and the
-        # MDH parameters; the weak directions only fit noise)
+        # Gauss-Newton with step halving (a few iterations); a model with Chebyshev terms uses the
+        # same reduced estimator as the pipeline's Chebyshev stage
         if any(e.name == "chebyshev" for e in effects):
-            from .chebyshev import CHEB_RANK_TOL
+            from .chebyshev import chebyshev_estimator
 
-            model = RobotErrorModel(self.robot, effects, solver="gauss-newton", rank_tol=CHEB_RANK_TOL,
-                                    reduction="svd").fit(train)
+            model = chebyshev_estimator(self.robot, effects, "gauss-newton").fit(train)
         else:
             model = RobotErrorModel(self.robot, effects, solver="gauss-newton").fit(train)
         return model.predict(test)

@@ -21,15 +21,21 @@ def runner():
     return CliRunner()
 
 
-@pytest.fixture
-def invoke(runner):
-    """Invoke ``jointcal`` in-process; returns click's Result (exit_code, output, stderr)."""
+def cli_invoker():
+    """A function that runs ``jointcal`` in-process; it returns click's Result (exit_code, output, stderr)."""
     from pipeline.cli import cli
+
+    runner = CliRunner()
 
     def run(*args):
         return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
 
     return run
+
+
+@pytest.fixture
+def invoke():
+    return cli_invoker()
 
 
 @pytest.fixture

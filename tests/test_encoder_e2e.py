@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, cli_invoker
 from test_encoder_cli import run_chain
 
 PAPER = {"a": {"orders": [1, 4, 8, 12, 14, 15, 16], "reduction": 82.20, "before": 149.53, "after": 26.62},
@@ -31,15 +31,7 @@ sys.addaudithook(_TruthGuard.hook)
 
 @pytest.fixture(scope="module")
 def fixture_results(tmp_path_factory):
-    from click.testing import CliRunner
-
-    from pipeline.cli import cli
-
-    runner = CliRunner()
-
-    def invoke(*args):
-        return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
+    invoke = cli_invoker()
     out = {}
     _TruthGuard.armed = True
     try:

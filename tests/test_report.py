@@ -5,22 +5,15 @@ import re
 
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, cli_invoker
 from test_encoder_cli import run_chain
 
 
 @pytest.fixture(scope="module")
 def report_inputs(tmp_path_factory):
-    from click.testing import CliRunner
-
-    from pipeline.cli import cli
     from pipeline.io import read_parquet
 
-    runner = CliRunner()
-
-    def invoke(*args):
-        return runner.invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
+    invoke = cli_invoker()
     inputs = {}
     for m in "ab":
         work = run_chain(invoke, ROOT / "raw" / "encoder" / m, tmp_path_factory.mktemp(m))

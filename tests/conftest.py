@@ -44,3 +44,23 @@ def campaign_copy(tmp_path):
     dst = tmp_path / "a"
     shutil.copytree(ROOT / "raw" / "encoder" / "a", dst)
     return dst
+
+
+def ingest_fails_cleanly(folder, out, context=None) -> bool:
+    """Run ``jointcal ingest`` on ``folder``; assert it succeeds or fails as the contract says.
+
+    Exit 0 with ``out`` written, or exit 2 with one line ``jointcal: error: <folder>/...``, no
+    traceback and no ``out``. Returns whether it succeeded.
+    """
+    from pipeline.cli import cli
+
+    result = CliRunner().invoke(cli, ["ingest", "--campaign", str(folder), "--out", str(out)])
+    assert result.exit_code in (0, 2), (context, result.output, result.exception)
+    assert "Traceback" not in result.output
+    if result.exit_code == 2:
+        lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("jointcal: error: ") and str(folder) in lines[0], lines
+        assert not out.exists()
+        return False
+    assert out.exists()
+    return True

@@ -138,21 +138,12 @@ class RobotAdapter:
         return f"{self.n_folds}-fold by pose over {data.n} sample poses"
 
     def _fit_predict(self, effects, train, test):
-        from .calibrate import RobotErrorModel
+        from .calibrate import Design
+        from .robot_evaluate import fit_effects
 
         if not effects:
-            from .calibrate import Design
-
             return Design(self.robot, [], test).predict(np.zeros(0))
-        # Gauss-Newton with step halving (a few iterations); a model with Chebyshev terms uses the
-        # same reduced estimator as the pipeline's Chebyshev stage
-        if any(e.name == "chebyshev" for e in effects):
-            from .chebyshev import chebyshev_estimator
-
-            model = chebyshev_estimator(self.robot, effects, "gauss-newton").fit(train)
-        else:
-            model = RobotErrorModel(self.robot, effects, solver="gauss-newton").fit(train)
-        return model.predict(test)
+        return fit_effects(self.robot, effects, train).predict(test)
 
     def cross_validate(self, effects, data) -> CVResult:
         folds = fold_ids(data.n, self.n_folds)

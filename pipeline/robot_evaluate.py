@@ -99,3 +99,57 @@ def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, s
         out["repeat_loop"] = cell.measure(qt, rng, rep["temperature_c"].to_numpy(float))
         out["repeat_loop_cycles"] = loop_r["cycles"]
     return out
+
+
+def fit_effects(robot, effects, data):
+    """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
+
+    Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
+    leading singular directions, as the Chebyshev stage does (:func:`pipeline.chebyshev.chebyshev_estimator`).
+    """
+    from .calibrate import RobotErrorModel
+
+    if any(e.name == "chebyshev" for e in effects):
+        from .chebyshev import chebyshev_estimator
+
+        return chebyshev_estimator(robot, effects, "gauss-newton").fit(data)
+    return RobotErrorModel(robot, effects, solver="gauss-newton").fit(data)
+
+
+def heldout_fit(robot, effects, sample, target) -> dict:
+    """Fit the spec's model on the sample poses; its error on the held-out target poses.
+
+    Parameters
+    ----------
+    robot : Robot
+    effects : list of RobotEffect
+        The whole model (every stage's effects together).
+    sample, target : RobotData
+        Sample poses (fit) and target poses (held out), with tracker positions ``measured_mm``
+        of shape (n, 3), mm.
+
+    Returns
+    -------
+    dict: ``before`` (nominal model) and ``after`` (fitted model) error statistics of the targets
+    (mm, Eq. 27), ``rms_before_mm`` / ``rms_after_mm`` (RMS of the 3-D error), ``max_reduction_pct``,
+    ``rms_reduction_pct``, the fitted ``parameters`` and the fit's identifiability.
+    """
+    from .calibrate import Design
+
+    model = fit_effects(robot, effects, sample)
+    nominal = Design(robot, [], target).predict(np.zeros(0))
+    before = target.measured_mm - nominal
+    after = target.measured_mm - model.predict(target)
+
+    def rms(e):
+        return float(np.sqrt(np.mean(np.sum(e ** 2, axis=1))))
+
+    out = {"n_sample": int(sample.n), "n_target": int(target.n), "before": error_stats(before),
+           "after": error_stats(after), "rms_before_mm": rms(before), "rms_after_mm": rms(after)}
+    out["max_reduction_pct"] = 100.0 * (1.0 - out["after"]["max_mm"] / out["before"]["max_mm"])
+    out["rms_reduction_pct"] = 100.0 * (1.0 - out["rms_after_mm"] / out["rms_before_mm"])
+    ident = getattr(model, "identifiability_", None) or {}
+    out["identifiability"] = {k: ident[k] for k in ("rank", "n_params", "condition_number", "not_identifiable")
+                              if k in ident}
+    out["parameters"] = model.parameters()
+    return out

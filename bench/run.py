@@ -2,13 +2,19 @@
 
 Speed goals are shown here, never by timed unit tests. Each measurement runs in this
 process after set-up (imports done), with wall time from perf_counter and peak memory of
-the measured call from tracemalloc (Python allocations, numpy included).
+the measured call from tracemalloc (Python allocations, numpy included), in a separate
+call so that tracing does not slow the timed one.
+
+Jobs: ``encoder``, ``make`` and ``harmonic`` live here; the others are optional modules
+``bench/<module>.py`` with ``run() -> dict`` (see :data:`OPTIONAL_JOBS`), registered when
+they import. ``--only`` / ``--skip`` take job names. Every robot job sets one BLAS thread.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import importlib
 import json
 import os
 import platform
@@ -40,6 +46,19 @@ def measure(fn, repeat=3):
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return min(times), peak / 2**20
+
+
+def exponents(sizes, seconds, peak_mb=None) -> dict:
+    """Fitted exponents of time (and memory) against size: the least-squares slope of
+    log(time) on log(size) over all points and the slope over the last two (top decade)."""
+    x, y = np.log(np.asarray(sizes, float)), np.log(np.asarray(seconds, float))
+    out = {"time_exponent_fit": float(np.polyfit(x, y, 1)[0]) if len(x) > 1 else None,
+           "time_exponent_top_decade": float(np.polyfit(x[-2:], y[-2:], 1)[0]) if len(x) > 1 else None}
+    if peak_mb is not None and len(x) > 1:
+        m = np.log(np.asarray(peak_mb, float))
+        out["memory_exponent_fit"] = float(np.polyfit(x, m, 1)[0])
+        out["memory_exponent_top_decade"] = float(np.polyfit(x[-2:], m[-2:], 1)[0])
+    return out
 
 
 def synthetic_readings(n, per_run=37, seed=0):
@@ -107,45 +126,74 @@ def bench_harmonic_scaling(sizes=(10**3, 10**4, 10**5, 10**6)):
         frame = synthetic_readings(n)
         t, mem = measure(lambda: analyse_runs(frame), repeat=3 if n < 10**6 else 2)
         rows.append({"readings": len(frame), "runs": int(frame["run"].nunique()), "seconds": t, "peak_mb": mem})
-    x = np.log([r["readings"] for r in rows])
-    y = np.log([r["seconds"] for r in rows])
-    exponent = float(np.polyfit(x[-2:], y[-2:], 1)[0]) if len(rows) > 1 else None
     one = synthetic_readings(10**6, per_run=10**6)
     t1, mem1 = measure(lambda: analyse_runs(one), repeat=2)
     return {"what": "harmonic analysis (LSQ orders 0..17 per run + FFT), runs of 37 readings",
-            "rows": rows, "time_exponent_top_decade": exponent, "goal_seconds_at_1e6": 1.0,
-            "one_run_of_1e6": {"seconds": t1, "peak_mb": mem1}}
+            "rows": rows, **exponents([r["readings"] for r in rows], [r["seconds"] for r in rows],
+                                      [r["peak_mb"] for r in rows]),
+            "goal_seconds_at_1e6": 1.0, "one_run_of_1e6": {"seconds": t1, "peak_mb": mem1}}
+
+
+#: optional jobs: name -> module with ``run() -> dict``; a module that does not import (not
+#: written yet, or a dependency missing) is skipped and the reason recorded under "skipped".
+OPTIONAL_JOBS = {
+    "robot": "bench.robot_bench",          # MDH and Chebyshev identification at 10^2..10^4 poses
+    "lm_vs_scipy": "bench.solver_bench",   # improved L-M against scipy.optimize.least_squares
+    "diagnose": "bench.diagnose_bench",    # diagnosis of a 200-pose campaign, 8 encoder runs
+    "figaroh": "bench.figaroh_bench",      # FIGAROH comparison
+    "fleet": "bench.fleet_bench",          # fleet of robots
+}
+BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
+
+
+def available_jobs():
+    """(jobs, skipped): callables by name in run order, and the reason of each optional job skipped."""
+    jobs, skipped = dict(BUILTIN_JOBS), {}
+    for name, module in OPTIONAL_JOBS.items():
+        try:
+            jobs[name] = importlib.import_module(module).run
+        except ImportError as exc:
+            skipped[name] = f"{module} does not import: {exc}"
+    return jobs, skipped
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
+    names = ", ".join([*BUILTIN_JOBS, *OPTIONAL_JOBS])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="results/bench.json")
-    parser.add_argument("--only", default=None, help="comma-separated subset: encoder,make,harmonic,robot")
+    parser.add_argument("--only", default=None, help=f"comma-separated subset of: {names}")
+    parser.add_argument("--skip", default=None, help="comma-separated jobs not to run")
     args = parser.parse_args(argv)
     only = set(args.only.split(",")) if args.only else None
-    out = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(), "cpus": os.cpu_count()}}
-    jobs = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
-    try:
-        from bench import robot_bench
+    skip = set(args.skip.split(",")) if args.skip else set()
+    unknown = ((only or set()) | skip) - set(BUILTIN_JOBS) - set(OPTIONAL_JOBS)
+    if unknown:
+        parser.error(f"unknown job(s) {', '.join(sorted(unknown))}; jobs are: {names}")
+    from pipeline.lm import limit_blas_threads
 
-        jobs["robot"] = robot_bench.run
-    except ImportError:
-        pass
-    try:
-        from bench import diagnose_bench
-
-        jobs["diagnose"] = diagnose_bench.run
-    except ImportError:
-        pass
-    for name, job in jobs.items():
-        if only and name not in only:
+    limit_blas_threads(1)
+    jobs, skipped = available_jobs()
+    missing = sorted((only or set()) & set(skipped))
+    if missing:
+        parser.exit(2, "".join(f"bench: {n} was asked for but {skipped[n]}\n" for n in missing))
+    out = {"machine": {"python": sys.version.split()[0], "platform": platform.platform(), "cpus": os.cpu_count()},
+           "job_seconds": {}}
+    for name in [*BUILTIN_JOBS, *OPTIONAL_JOBS]:
+        if (only and name not in only) or name in skip:
+            continue
+        if name in skipped:
+            print(f"bench: {name} skipped ({skipped[name]})", file=sys.stderr, flush=True)
+            out.setdefault("skipped", {})[name] = skipped[name]
             continue
         print(f"bench: {name} ...", file=sys.stderr, flush=True)
-        out[name] = job()
+        t = time.perf_counter()
+        out[name] = jobs[name]()
+        out["job_seconds"][name] = time.perf_counter() - t
         print(json.dumps(out[name], indent=1, default=float)[:2000], file=sys.stderr)
+    out["job_seconds"]["total"] = sum(out["job_seconds"].values())
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=2, default=float) + "\n")
-    print(f"wrote {args.out}", file=sys.stderr)
+    print(f"wrote {args.out} ({out['job_seconds']['total']:.0f} s)", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -76,6 +76,10 @@ def _venv_python() -> Path:
     return VENV / "bin" / "python"
 
 
+def _shown(path: Path) -> str:
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def _installed_version() -> str | None:
     py = _venv_python()
     if not py.exists():
@@ -89,7 +93,7 @@ def ensure_venv(timeout=1800) -> tuple[bool, str, float]:
     """Create FIGAROH's venv when missing. Returns (ok, message, seconds spent)."""
     t0 = time.perf_counter()
     if _installed_version() == FIGAROH_VERSION:
-        return True, f"FIGAROH {FIGAROH_VERSION} venv present at {VENV.relative_to(ROOT)}", 0.0
+        return True, f"FIGAROH {FIGAROH_VERSION} venv present at {_shown(VENV)}", 0.0
     python = shutil.which("python3.11") or (sys.executable if sys.version_info[:2] == (3, 11) else None)
     if python is None:
         return False, "no python3.11 to create FIGAROH's venv", time.perf_counter() - t0
@@ -99,16 +103,18 @@ def ensure_venv(timeout=1800) -> tuple[bool, str, float]:
             subprocess.run([python, "-m", "venv", str(VENV)], check=True, capture_output=True, text=True,
                            timeout=300)
         r = subprocess.run([str(_venv_python()), "-m", "pip", "install", "--disable-pip-version-check", "-q",
+                            "--retries", "2", "--timeout", "30",
                             *FIGAROH_PACKAGES], capture_output=True, text=True, timeout=timeout)
     except (subprocess.SubprocessError, OSError) as exc:
         return False, f"could not create FIGAROH's venv: {type(exc).__name__}: {exc}", time.perf_counter() - t0
     if r.returncode != 0:
         tail = (r.stderr or r.stdout).strip().splitlines()[-3:]
-        return False, "pip install figaroh==1.0.2 failed (no network?): " + " | ".join(tail), time.perf_counter() - t0
+        return (False, f"pip install {' '.join(FIGAROH_PACKAGES)} failed (no network?): " + " | ".join(tail),
+                time.perf_counter() - t0)
     v = _installed_version()
     if v != FIGAROH_VERSION:
         return False, f"FIGAROH venv has figaroh {v!r}, expected {FIGAROH_VERSION}", time.perf_counter() - t0
-    return True, f"created FIGAROH {FIGAROH_VERSION} venv at {VENV.relative_to(ROOT)}", time.perf_counter() - t0
+    return True, f"created FIGAROH {FIGAROH_VERSION} venv at {_shown(VENV)}", time.perf_counter() - t0
 
 
 # ------------------------------------------------------------------------- campaigns
@@ -351,6 +357,16 @@ def run() -> dict:
     result["goal_met"] = {"accuracy": all(all_acc), "accuracy_within_1pct": all(all_acc_tol),
                           "speed": all(all_speed), "all": all(all_acc) and all(all_speed),
                           "all_within_1pct": all(all_acc_tol) and all(all_speed)}
+    verdict = []
+    for r in result["summary"]:
+        worse = [f"{m} worse by {1000 * (r[f'jointcal_{k}_mm'] - r[f'figaroh_{k}_mm']):.1f} um"
+                 for m, k in (("RMS", "rms"), ("max", "max")) if r[f"jointcal_{k}_mm"] > r[f"figaroh_{k}_mm"]]
+        acc = "at least as accurate" if not worse else "less accurate: " + ", ".join(worse)
+        verdict.append(f"{r['campaign']}/{r['model']}: jointcal {acc} (RMS {r['jointcal_rms_mm']:.4f} vs "
+                       f"{r['figaroh_rms_mm']:.4f} mm, max {r['jointcal_max_mm']:.4f} vs {r['figaroh_max_mm']:.4f} mm), "
+                       f"{r['ratio']:.1f}x faster ({r['jointcal_s']:.3f} s vs {r['figaroh_s']:.3f} s): goal "
+                       f"{'met' if r['accuracy_met'] and r['speed_met'] else 'NOT met'}")
+    result["verdict"] = verdict
     result["total_seconds"] = time.perf_counter() - t_start
     return result
 

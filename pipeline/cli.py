@@ -298,11 +298,8 @@ def fit(interim, campaign, spec_path, orders_path, out):
     """
 
     from .aliasing import OrderTooHighError
-    from .diagnose_encoder import EncoderAdapter
-    from .effects import EncoderData
-    from .evaluate import fit_encoder
+    from .evaluate import fit_encoder_spec
     from .io import provenance, write_json
-    from .select import select_orders
     from .spec import load_spec
 
     spec = load_spec(spec_path)
@@ -322,19 +319,12 @@ def fit(interim, campaign, spec_path, orders_path, out):
     if spec.kind != "encoder":
         _fail_spec(spec_path, f"this is a {spec.kind} spec; the data are an encoder campaign", r"^\s*kind\s*=")
     orders = _read_json(orders_path)["orders"] if orders_path else None
-    h = spec.effect("harmonic")
     try:
-        if h is not None and not isinstance(h.params.get("orders"), list) and orders is None:
-            orders, _, _ = select_orders(frame, spec)
-        result = fit_encoder(frame, spec, orders)
+        result = fit_encoder_spec(frame, spec, orders)
     except OrderTooHighError as exc:
         _fail_spec(spec_path, str(exc))
     except ValueError as exc:
         _fail_spec(spec_path, str(exc), r"^\s*(modelling_runs|validation_runs)\s*=")
-    data = EncoderData.from_frame(frame)
-    adapter = EncoderAdapter()
-    effects = _with_orders(spec.effects, result["orders"])
-    result["cv_rms_arcsec"] = adapter.cross_validate(effects, data).rms
     inputs = [interim or campaign] + ([orders_path] if orders_path else [])
     result["provenance"] = provenance([p for p in inputs if p and not Path(p).is_dir()] +
                                       (sorted(str(f) for f in Path(campaign).glob("*.csv")) if campaign else []),
@@ -344,13 +334,6 @@ def fit(interim, campaign, spec_path, orders_path, out):
                f"{result['validation_runs']}: p2p {result['p2p_before_arcsec']:.2f} -> {result['p2p_after_arcsec']:.2f} "
                f"arcsec ({result['reduction_pct']:.2f} % less); cross-validated RMS {result['cv_rms_arcsec']:.3f} arcsec",
                err=True)
-
-
-def _with_orders(effects, orders):
-    """The spec's effects with the harmonic orders the fit used."""
-    from .effects import Harmonic
-
-    return [Harmonic(orders=orders) if isinstance(e, Harmonic) else e for e in effects]
 
 
 # ------------------------------------------------------------------------------ compensate
@@ -481,7 +464,7 @@ def summary(encoder_results, robot_results, out):
 
 def _register_optional():
     """Robot and diagnosis commands live in their own modules."""
-    for name in ("robot_cli", "diagnose_cli"):
+    for name in ("robot_cli", "diagnose_cli", "fleet_cli"):
         try:
             module = __import__(f"pipeline.{name}", fromlist=["register"])
         except ImportError:

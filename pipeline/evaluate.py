@@ -75,6 +75,32 @@ def fit_encoder(frame, spec, orders) -> dict:
     return out
 
 
+def with_orders(effects, orders):
+    """The spec's effects with the harmonic orders the fit used."""
+    return [Harmonic(orders=orders) if isinstance(e, Harmonic) else e for e in effects]
+
+
+def fit_encoder_spec(frame, spec, orders=None) -> dict:
+    """The whole ``fit`` stage on one module: orders, fit, held-out run, cross-validated RMS.
+
+    Orders the spec leaves open (a ``harmonic`` effect without ``orders``) and not given are
+    chosen by the spec's ``[select]`` rule over the modelling runs. Returns
+    :func:`fit_encoder`'s dict plus ``cv_rms_arcsec``, the leave-one-run-out RMS that
+    ``jointcal diagnose`` ranks effects by. Raises ValueError (or OrderTooHighError) when the
+    spec and the data disagree.
+    """
+    from .diagnose_encoder import EncoderAdapter
+    from .select import select_orders
+
+    h = spec.effect("harmonic")
+    if h is not None and not isinstance(h.params.get("orders"), list) and orders is None:
+        orders, _, _ = select_orders(frame, spec)
+    result = fit_encoder(frame, spec, orders)
+    result["cv_rms_arcsec"] = EncoderAdapter().cross_validate(with_orders(spec.effects, result["orders"]),
+                                                              EncoderData.from_frame(frame)).rms
+    return result
+
+
 def _harmonic_n_max(spec):
     h = spec.effect("harmonic")
     return None if h is None else h.params.get("n_max")

@@ -55,7 +55,8 @@ def text_page(pdf, title: str, lines, fontsize=9):
     """A page of monospaced text (tables of numbers beside the paper's)."""
     import textwrap
 
-    width = int(118 * 9 / fontsize)  # characters that fit across the page in monospace
+    # characters that fit across the page in monospace: 88 % of 8.27 in at 0.602 em a character
+    width = int(0.88 * 8.27 * 72 / (0.602 * fontsize))
     wrapped = []
     for line in lines:
         indent = len(line) - len(line.lstrip())

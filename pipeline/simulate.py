@@ -211,3 +211,62 @@ def clean_encoder_config(module: str = "a", seed: int = 0, noise_arcsec: float =
     return {"seed": seed, "published": PAPER_MODELS[module], "phase_spread_deg": {},
             "default_phase_spread_deg": 0.0, "amp_spread": 0.0, "weak_wandering": {}, "weak_stable": {},
             "noise_arcsec": noise_arcsec, "nulling_arcsec": 1.5, "error_of": "reading"}
+
+
+# ------------------------------------------------------------------------------ fleet
+#: a simulated production week: modules of both published designs, each with its own
+#: amplitudes and phases; some share a missing effect, a few are out of family
+FLEET_FIXTURE = {"units": 50, "seed": 2026, "runs": 6,
+                 "share_harmonic6": 0.3,   # a reducer batch: stable order 6, 2.5-3.5 arcsec (below the paper's 4)
+                 "share_drift": 0.1,       # a warm-up drift of 6-12 arcsec/h during the runs
+                 "out_of_family": {"bearing": 2, "loose_mount": 1}}
+
+
+def fleet_unit(k: int, seed: int, role: str) -> tuple[str, dict, dict | None, dict]:
+    """Name, generator config, hidden effect and truth note of the fleet's unit ``k``.
+
+    ``role`` is ``"normal"``, ``"harmonic6"``, ``"drift"``, ``"bearing"`` (a damaged bearing:
+    an order-3 error of 18-24 arcsec whose phase changes from run to run, so no fixed model can
+    follow it) or ``"loose_mount"`` (the autocollimator reads with 10 arcsec noise).
+    """
+    g = np.random.default_rng([seed, k, 3])
+    family = "a" if g.random() < 0.5 else "b"
+    base = ENCODER_FIXTURE[family]
+    published = {o: (C * g.uniform(0.8, 1.2), float((phi + g.normal(0, 15)) % 360))
+                 for o, (C, phi) in PAPER_MODELS[family].items()}
+    weak = {o: c * g.uniform(0.8, 1.2) for o, c in base["weak_wandering"].items()}
+    config = {"seed": int(seed * 100000 + k), "published": published, "phase_spread_deg": {},
+              "default_phase_spread_deg": 2.6, "amp_spread": 0.03, "weak_wandering": weak, "weak_stable": {},
+              "noise_arcsec": float(g.uniform(0.6, 1.0)), "nulling_arcsec": 1.5}
+    hidden = None
+    if role == "harmonic6":
+        hidden = {"effect": "harmonic", "order": 6, "arcsec": float(g.uniform(2.5, 3.5)),
+                  "phase_deg": float(300 + g.normal(0, 10))}
+    elif role == "drift":
+        hidden = {"effect": "drift", "arcsec_per_h": float(g.choice([-1, 1]) * g.uniform(6, 12))}
+    elif role == "bearing":
+        config["weak_wandering"] = {**weak, 3: float(g.uniform(18, 24))}
+    elif role == "loose_mount":
+        config["noise_arcsec"] = 10.0
+    name = f"m{k + 1:04d}"
+    return name, config, hidden, {"unit": name, "family": family, "role": role}
+
+
+def fleet_roles(n: int, seed: int, spec: dict | None = None) -> list[str]:
+    """Role of every unit (seeded shuffle): shares of shared effects, a count of out-of-family ones."""
+    spec = {**FLEET_FIXTURE, **(spec or {})}
+    roles = []
+    for name, count in spec["out_of_family"].items():
+        roles += [name] * (count if n >= 20 else 0)
+    roles += ["harmonic6"] * int(round(spec["share_harmonic6"] * n))
+    roles += ["drift"] * int(round(spec["share_drift"] * n))
+    roles = roles[:n] + ["normal"] * max(0, n - len(roles))
+    return [str(r) for r in np.random.default_rng([seed, 5]).permutation(roles)]
+
+
+def simulate_fleet(n: int, seed: int, runs: int = 6):
+    """Yield ``(name, frame, truth)`` for ``n`` simulated joint modules (see :func:`fleet_unit`)."""
+    for k, role in enumerate(fleet_roles(n, seed)):
+        name, config, hidden, note = fleet_unit(k, seed, role)
+        frame, truth = simulate_encoder(name, config, runs=runs, hidden=hidden)
+        yield name, frame, {**note, **truth}

@@ -103,7 +103,7 @@ def bench_make_encoder():
     """`make encoder` from an empty interim/results in a scratch copy (one process per stage)."""
     with tempfile.TemporaryDirectory() as tmp:
         dst = Path(tmp) / "repo"
-        shutil.copytree(ROOT, dst, ignore=shutil.ignore_patterns(".venv", ".git", "interim", "results", "reports"),
+        shutil.copytree(ROOT, dst, ignore=shutil.ignore_patterns(".venv", ".bench", ".git", "interim", "results", "reports"),
                         symlinks=True)
         os.symlink(ROOT / ".venv", dst / ".venv")
         for d in ("interim", "results", "reports"):

@@ -240,6 +240,9 @@ class RobotErrorModel:
             it = 0
             for it in range(1, self.max_iter + 1):
                 step = np.linalg.lstsq(Jf, -F, rcond=None)[0]
+                r_lin = F + Jf @ step
+                if 0.5 * float(F @ F - r_lin @ r_lin) <= 1e-12 * max(cost, 1e-30):
+                    break  # converged: the linear model predicts no further decrease (do not halve 30 times)
                 for _ in range(30):
                     F_try = fun(xf + step)
                     cost_try = 0.5 * float(F_try @ F_try)

@@ -231,6 +231,9 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
+    # one BLAS thread per worker process: the units are the parallelism (workers inherit this)
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     if scheduler:
         client = Client(scheduler, timeout="30s")
     else:

@@ -168,3 +168,24 @@ def test_out_of_family_rule_on_a_known_table():
     assert np.isnan(flagged.loc[5, "robust_z"])
     few = flag_out_of_family(frame.head(6))
     assert not few["out_of_family"].any()
+
+
+def test_a_fleet_of_robots(tmp_path):
+    """A plant re-checks its robots: two virtual cells, one with a hidden thermal expansion."""
+    run = cli_invoker()
+    for name, seed, hidden in (("cell1", 31, None), ("cell2", 32, "thermal")):
+        (tmp_path / "raw" / name).mkdir(parents=True)
+        shutil.copy(ROOT / "raw" / "robot" / "kr210" / "robot.toml", tmp_path / "raw" / name)
+        args = ["simulate", "robot", "--campaign", tmp_path / "raw" / name, "--truth", tmp_path / f"{name}.json",
+                "--seed", seed] + (["--hidden", hidden] if hidden else [])
+        assert run(*args).exit_code == 0
+    r = run("fleet", "--campaigns", f"{tmp_path}/raw/*", "--spec", ROOT / "specs" / "robot_paper.toml",
+            "--out-dir", tmp_path / "res", "--table", tmp_path / "fleet.parquet", "--report", tmp_path / "fleet.pdf",
+            "--serial", "--no-diagnose")
+    assert r.exit_code == 0, r.output
+    t = pd.read_parquet(tmp_path / "fleet.parquet")
+    assert list(t["unit"]) == ["cell1", "cell2"] and (t["unit_of_error"] == "mm").all()
+    assert (t["after"] < 0.5 * t["before"]).all()  # the fitted model beats the nominal one on held-out targets
+    assert "not judged" in r.output  # two robots are not a family
+    fit = json.loads((tmp_path / "res" / "cell2_fit.json").read_text())
+    assert fit["heldout"]["n_target"] > 0 and fit["effects"] == ["geometry", "base", "chebyshev"]

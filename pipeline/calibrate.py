@@ -108,6 +108,10 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
     zero = norms <= 1e-12 * max(norms.max(initial=0.0), 1e-300)
     Js = J / np.where(zero, 1.0, norms)
     Js[:, zero] = 0.0
+    if Js.shape[0] > Js.shape[1]:
+        # J = Q R with orthonormal Q: every column subset of R has the singular values of the
+        # same subset of J, so the rank tests below cost O(p^3) whatever the number of poses
+        Js = np.linalg.qr(Js, mode="r")
     s = np.linalg.svd(Js, compute_uv=False)
     rank = int(np.sum(s > tol * s[0])) if s.size else 0
     keep = np.zeros(J.shape[1], bool)

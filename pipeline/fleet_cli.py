@@ -53,7 +53,7 @@ def register(cli):
     @click.option("--diagnose/--no-diagnose", default=True, show_default=True,
                   help="Run the diagnosis on every unit (the missing-effect counts need it).")
     @click.option("--z-out", type=float, default=None,
-                  help="Robust z of the log held-out RMS above which a unit is out of family [default: 3.5].")
+                  help="Robust z of the log cross-validated RMS above which a unit is out of family [default: 3.5].")
     def fleet(patterns, spec_path, out_dir, table_out, report_out, scheduler, workers, serial, diagnose, z_out):
         """Run the per-unit pipeline over many campaigns on Dask and compare the units.
 
@@ -61,7 +61,7 @@ def register(cli):
         ingest, orders by the spec's rule, fit on the modelling runs, held-out run, compensation
         table, diagnosis; a robot: the spec's model fitted on the sample poses, error on the
         held-out targets, diagnosis). Then the fleet: the distribution of reductions, units whose
-        held-out residual is out of family, and the effects the diagnosis finds most often.
+        cross-validated residual is out of family, and the effects the diagnosis finds most often.
 
         A unit with bad input does not stop the others: it is listed with its one-line error,
         its stale results are removed, and the command exits with status 2 at the end.
@@ -79,8 +79,15 @@ def register(cli):
         n_workers = workers or os.cpu_count() or 1
         where = "this process" if serial else (scheduler or f"a local Dask cluster of {n_workers} worker(s)")
         click.echo(f"fleet: {len(campaigns)} {spec.kind} campaign(s) with {spec_path} on {where}", err=True)
-        results = run_units(campaigns, spec_text, spec_path, diagnose=diagnose, scheduler=scheduler,
-                            workers=n_workers, serial=serial, progress=Progress(lambda s: click.echo(s, err=True)))
+        try:
+            results = run_units(campaigns, spec_text, spec_path, diagnose=diagnose, scheduler=scheduler,
+                                workers=n_workers, serial=serial, progress=Progress(lambda s: click.echo(s, err=True)))
+        except (OSError, TimeoutError) as exc:
+            if not scheduler:
+                raise
+            click.echo(f"jointcal: error: cannot reach the Dask scheduler at {scheduler}: {' '.join(str(exc).split())}",
+                       err=True)
+            sys.exit(2)
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         for r in results:

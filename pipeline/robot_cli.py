@@ -90,6 +90,15 @@ def stage_effects(spec, stage: str):
     return [e for e in spec.effects if e.name in names]
 
 
+def warn_unstaged(spec) -> None:
+    """Warn about effects that neither stage of the paper's chain takes (``fit`` and ``diagnose`` do)."""
+    staged = {id(e) for stage in ("kinematic", "feedback") for e in stage_effects(spec, stage)}
+    left = list(dict.fromkeys(e.name for e in spec.effects if id(e) not in staged))
+    if left:
+        click.echo(f"jointcal: warning: {spec.path}: {', '.join(left)} in no stage of [model] kinematic_effects / "
+                   "feedback_effects: this chain leaves them out (jointcal fit and diagnose use every effect)", err=True)
+
+
 # ---------------------------------------------------------------------- ingest / validate
 def ingest_robot_to(campaign, out):
     """``jointcal ingest`` for a robot campaign folder."""
@@ -188,6 +197,7 @@ def calibrate_cmd(interim, robot_path, spec_path, out):
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    warn_unstaged(spec)
     effects = stage_effects(spec, "kinematic")
     sample = frame[frame["set"] == "sample"]
     _, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
@@ -218,6 +228,7 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    warn_unstaged(spec)
     effects = stage_effects(spec, "feedback")
     if not effects:
         raise InputError(spec_path, "the spec has no chebyshev effect (add [[effect]] name = \"chebyshev\")", 1, 1)

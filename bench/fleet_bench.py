@@ -21,17 +21,9 @@ SEED = 99
 
 
 def _simulate(folder: Path, n: int, seed: int) -> list[str]:
-    from pipeline.io import write_text
-    from pipeline.simulate import format_encoder_csv, simulate_fleet
+    from pipeline.simulate import simulate_fleet, write_encoder_campaign
 
-    out = []
-    for name, frame, _truth in simulate_fleet(n, seed):
-        d = folder / name
-        d.mkdir(parents=True)
-        for r, g in frame.groupby("run", sort=True):
-            write_text(d / f"{name}_run{r}.csv", format_encoder_csv(g))
-        out.append(str(d))
-    return out
+    return [str(write_encoder_campaign(folder, name, frame)) for name, frame, _truth in simulate_fleet(n, seed)]
 
 
 def run(units: int = UNITS) -> dict:
@@ -53,7 +45,7 @@ def run(units: int = UNITS) -> dict:
         dask = run_units(campaigns, spec_text, spec_path, workers=workers)
         dask_s = time.perf_counter() - t
         t = time.perf_counter()
-        dask_nodiag = run_units(campaigns[:200], spec_text, spec_path, workers=workers, diagnose=False)
+        run_units(campaigns[:200], spec_text, spec_path, workers=workers, diagnose=False)
         nodiag_s = time.perf_counter() - t
     same = fleet_table(serial, "encoder").equals(fleet_table(dask, "encoder"))
     summary = fleet_summary(fleet_table(dask, "encoder"))

@@ -109,8 +109,7 @@ def simulate():
               help="Hide one effect the paper's spec lacks: direction, drift, temperature or harmonic:ORDER.")
 def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidden):
     """Simulate encoder campaigns in the contract's format (default: the shipped fixture)."""
-    from .io import write_json, write_text
-    from .simulate import ENCODER_FIXTURE, format_encoder_csv, hidden_encoder_effect, simulate_encoder
+    from .simulate import ENCODER_FIXTURE, hidden_encoder_effect, simulate_encoder, write_encoder_campaign
 
     for module in modules:
         config = dict(ENCODER_FIXTURE.get(module, ENCODER_FIXTURE["a"]))
@@ -120,11 +119,7 @@ def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidde
         if hid and hid["effect"] == "direction":
             two_way = True
         frame, truth = simulate_encoder(module, config, runs=runs, two_way=two_way, hidden=hid)
-        folder = Path(out_dir) / module
-        folder.mkdir(parents=True, exist_ok=True)
-        for r, g in frame.groupby("run", sort=True):
-            write_text(folder / f"{module}_run{r}.csv", format_encoder_csv(g))
-        write_json(Path(truth_dir) / f"{module}.json", truth)
+        folder = write_encoder_campaign(out_dir, module, frame, truth, truth_dir)
         click.echo(f"wrote {folder}/ ({len(frame)} readings, {runs} runs){' with hidden ' + hidden if hidden else ''}", err=True)
 
 

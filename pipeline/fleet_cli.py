@@ -140,13 +140,8 @@ def register(cli):
         reducer batch with a stable order-6 error below the paper's threshold, 10 % with a warm-up
         drift; with 20 units or more, two with a damaged bearing and one with a loose autocollimator.
         """
-        from .io import write_json, write_text
-        from .simulate import format_encoder_csv, simulate_fleet
+        from .simulate import simulate_fleet, write_encoder_campaign
 
         for name, frame, truth in simulate_fleet(units, seed):
-            folder = Path(out_dir) / name
-            folder.mkdir(parents=True, exist_ok=True)
-            for r, g in frame.groupby("run", sort=True):
-                write_text(folder / f"{name}_run{r}.csv", format_encoder_csv(g))
-            write_json(Path(truth_dir) / f"{name}.json", truth)
+            write_encoder_campaign(out_dir, name, frame, truth, truth_dir)
         click.echo(f"wrote {units} modules to {out_dir}/ (truth in {truth_dir}/)", err=True)

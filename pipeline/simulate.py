@@ -177,6 +177,22 @@ def format_encoder_csv(frame: pd.DataFrame) -> str:
     return out.to_csv(index=False, lineterminator="\n")
 
 
+def write_encoder_campaign(out_dir, module: str, frame: pd.DataFrame, truth: dict | None = None, truth_dir=None):
+    """Write a simulated module as ``<out_dir>/<module>/<module>_run<r>.csv`` (and its truth
+    as ``<truth_dir>/<module>.json``, outside the campaign). Returns the campaign folder."""
+    from pathlib import Path
+
+    from .io import write_json, write_text
+
+    folder = Path(out_dir) / module
+    folder.mkdir(parents=True, exist_ok=True)
+    for r, g in frame.groupby("run", sort=True):
+        write_text(folder / f"{module}_run{r}.csv", format_encoder_csv(g))
+    if truth is not None and truth_dir is not None:
+        write_json(Path(truth_dir) / f"{module}.json", truth)
+    return folder
+
+
 def hidden_encoder_effect(text: str, seed: int) -> dict:
     """Parse ``EFFECT[:TARGET]`` and draw a realistic size for it (seeded).
 

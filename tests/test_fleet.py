@@ -189,3 +189,13 @@ def test_a_fleet_of_robots(tmp_path):
     assert "not judged" in r.output  # two robots are not a family
     fit = json.loads((tmp_path / "res" / "cell2_fit.json").read_text())
     assert fit["heldout"]["n_target"] > 0 and fit["effects"] == ["geometry", "base", "chebyshev"]
+
+
+def test_the_shipped_fleet_regenerates_byte_for_byte(tmp_path):
+    r = cli_invoker()("simulate", "fleet", "--out", tmp_path / "raw", "--truth", tmp_path / "truth")
+    assert r.exit_code == 0
+    shipped = sorted(p.relative_to(ROOT / "raw" / "fleet") for p in (ROOT / "raw" / "fleet").rglob("*.csv"))
+    assert len(shipped) == 50 * 6
+    assert shipped == sorted(p.relative_to(tmp_path / "raw") for p in (tmp_path / "raw").rglob("*.csv"))
+    for rel in shipped:
+        assert (tmp_path / "raw" / rel).read_bytes() == (ROOT / "raw" / "fleet" / rel).read_bytes(), rel

@@ -88,7 +88,7 @@ reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) pipeline/diagnose.py pipeline
 test: $(STAMP) ## run the test suite (pytest)
 	$(BIN)/python -m pytest
 
-bench: $(STAMP) ## speed and scale benchmarks -> results/bench.json
+bench: $(STAMP) ## speed, scale, FIGAROH side by side (own venv in .bench/), 1,000-module fleet: about 7 min -> results/bench.json
 	$(BIN)/python -m bench.run --out results/bench.json
 
 fixtures: $(STAMP) $(COMMON) ## regenerate the synthetic fixtures in raw/ byte for byte

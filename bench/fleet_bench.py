@@ -26,6 +26,27 @@ def _simulate(folder: Path, n: int, seed: int) -> list[str]:
     return [str(write_encoder_campaign(folder, name, frame)) for name, frame, _truth in simulate_fleet(n, seed)]
 
 
+def _pool_ceiling(campaigns, spec_text, spec_path, workers) -> dict:
+    """Speed-up of a plain multiprocessing pool (fork, one unit per task) over one process, 200 units."""
+    import multiprocessing as mp
+    from functools import partial
+
+    from pipeline.fleet import process_unit
+
+    job = partial(process_unit, spec_text=spec_text, spec_path=spec_path)
+    t = time.perf_counter()
+    for c in campaigns:
+        job(c)
+    one = time.perf_counter() - t
+    t = time.perf_counter()
+    with mp.get_context("fork").Pool(workers) as pool:
+        pool.map(job, campaigns, chunksize=1)
+    pooled = time.perf_counter() - t
+    return {"units": len(campaigns), "one_process_seconds": one, "pool_seconds": pooled, "speedup": one / pooled,
+            "what": "multiprocessing.Pool (fork) of one process per core on the same units: what this machine "
+                    "allows without a scheduler"}
+
+
 def run(units: int = UNITS) -> dict:
     from pipeline.fleet import fleet_summary, fleet_table, run_units
     from pipeline.lm import limit_blas_threads
@@ -47,6 +68,8 @@ def run(units: int = UNITS) -> dict:
         t = time.perf_counter()
         run_units(campaigns[:200], spec_text, spec_path, workers=workers, diagnose=False)
         nodiag_s = time.perf_counter() - t
+        # the machine's ceiling for the same work without Dask: a plain process pool on 200 units
+        ceiling = _pool_ceiling(campaigns[:200], spec_text, spec_path, workers)
     same = fleet_table(serial, "encoder").equals(fleet_table(dask, "encoder"))
     summary = fleet_summary(fleet_table(dask, "encoder"))
     return {
@@ -58,6 +81,7 @@ def run(units: int = UNITS) -> dict:
         "speedup": serial_s / dask_s, "ideal_speedup": workers,
         "same_results_both_ways": bool(same),
         "dask_200_units_without_diagnosis_seconds": nodiag_s,
+        "process_pool_ceiling": ceiling,
         "ok_units": summary["ok"], "out_of_family": len(summary["out_of_family"]),
         "most_frequent_missing_effects": summary["effects"][:3],
         "note": "wall times include starting and closing the LocalCluster (about 2-3 s); "

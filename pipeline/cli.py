@@ -311,8 +311,7 @@ def fit(interim, campaign, spec_path, orders_path, out):
         frame = ingest_encoder(campaign)
     else:
         frame = _read_interim(interim)
-    if spec.kind != "encoder":
-        _fail_spec(spec_path, f"this is a {spec.kind} spec; the data are an encoder campaign", r"^\s*kind\s*=")
+    spec.require_kind("encoder", campaign or interim)
     orders = _read_json(orders_path)["orders"] if orders_path else None
     try:
         result = fit_encoder_spec(frame, spec, orders)

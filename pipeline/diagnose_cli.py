@@ -20,15 +20,11 @@ def run_diagnosis(campaign, spec_path, progress=None):
     """Load a raw campaign and a spec, check they match, and diagnose. Returns the result dict."""
     from .cli import campaign_kind
     from .diagnose import diagnose
-    from .errors import InputError
-    from .spec import _locate, load_spec
+    from .spec import load_spec
 
     spec = load_spec(spec_path)
     kind = campaign_kind(campaign)
-    if spec.kind != kind:
-        text = open(spec_path, encoding="utf-8").read()
-        raise InputError(spec_path, f"the spec is for a {spec.kind} model but {campaign} is a {kind} campaign",
-                         *_locate(text, r"^\s*kind\s*="))
+    spec.require_kind(kind, campaign)
     adapter, data = _adapter_and_data(campaign, kind)
     result = diagnose(adapter, spec, data, progress=progress)
     result = {"kind": result.pop("kind"), "campaign": str(campaign), "spec": str(spec_path), **result}

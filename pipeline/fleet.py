@@ -30,7 +30,6 @@ from __future__ import annotations
 import glob
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -94,14 +93,9 @@ def process_unit(campaign: str, spec_text: str, spec_path: str, diagnose: bool =
         from .spec import parse_spec
 
         spec = parse_spec(spec_text, spec_path)
-        if _kind(campaign) != spec.kind:
-            from .spec import _locate
-
-            raise InputError(spec_path, f"the spec is for {'an' if spec.kind == 'encoder' else 'a'} {spec.kind} model "
-                             f"but {campaign} is {'an' if spec.kind != 'encoder' else 'a'} {_kind(campaign)} campaign",
-                             *_locate(spec_text, r"^\s*kind\s*="))
+        spec.require_kind(_kind(campaign), campaign)
         if spec.kind == "encoder":
-            row, files = _encoder_unit(campaign, spec, spec_path, diagnose)
+            row, files = _encoder_unit(campaign, spec, diagnose)
         else:
             row, files = _robot_unit(campaign, spec, diagnose)
         out["row"], out["files"] = row, files
@@ -134,7 +128,7 @@ def effect_key(candidate: dict) -> str:
     return candidate["effect"] if t is None else f"{candidate['effect']} {t}"
 
 
-def _encoder_unit(campaign, spec, spec_path, diagnose):
+def _encoder_unit(campaign, spec, diagnose):
     from .aliasing import OrderTooHighError
     from .compensate import compensation_table
     from .diagnose import diagnose as run_diagnose
@@ -142,22 +136,20 @@ def _encoder_unit(campaign, spec, spec_path, diagnose):
     from .effects import EncoderData
     from .evaluate import fit_encoder_spec, model_from_result
     from .ingest import ingest_encoder
-    from .spec import _locate
 
     frame = ingest_encoder(campaign)
     try:
         result = fit_encoder_spec(frame, spec)
     except OrderTooHighError as exc:
-        raise InputError(spec_path, str(exc), *_locate(spec_path_text(spec_path, spec), r"^\s*(orders|n_max)\s*=")) from None
+        raise spec.located(f"{campaign}: {exc}", r"^\s*(orders|n_max)\s*=") from None
     except ValueError as exc:
-        raise InputError(spec_path, f"{campaign}: {exc}",
-                         *_locate(spec_path_text(spec_path, spec), r"^\s*(modelling_runs|validation_runs)\s*=")) from None
+        raise spec.located(f"{campaign}: {exc}", r"^\s*(modelling_runs|validation_runs)\s*=") from None
     table = compensation_table(model_from_result(result), 0.1)
     files = {"model.json": result, "table.csv": table}
     diag = None
     if diagnose:
         diag = run_diagnose(EncoderAdapter(), spec, EncoderData.from_frame(frame), workers=1)
-        diag = {"kind": diag.pop("kind"), "campaign": str(campaign), "spec": spec_path, **diag}
+        diag = {"kind": diag.pop("kind"), "campaign": str(campaign), "spec": spec.path, **diag}
         files["diagnosis.json"] = diag
     v = result["validation"][0]
     row = {"n_runs": int(frame["run"].nunique()), "n_points": int(len(frame)),
@@ -168,14 +160,6 @@ def _encoder_unit(campaign, spec, spec_path, diagnose):
            "heldout_rms_before": float(v["rms_before_arcsec"]), "heldout_rms": float(v["rms_after_arcsec"]),
            "cv_rms": float(result["cv_rms_arcsec"]), **_diagnosis_columns(diag)}
     return row, files
-
-
-def spec_path_text(spec_path, spec) -> str:
-    """The spec's text for locating a line (the file if this process sees it, else rebuilt)."""
-    try:
-        return Path(spec_path).read_text(encoding="utf-8")
-    except OSError:
-        return spec.to_toml()
 
 
 def _robot_unit(campaign, spec, diagnose):

@@ -9,26 +9,27 @@ from pathlib import Path
 import click
 
 
-def _write_unit_files(out_dir: Path, result: dict, spec_path: str) -> list[str]:
-    """Write one unit's results as ``<unit>_<name>``; remove a failed unit's stale results."""
+def _write_unit_files(out_dir: Path, result: dict, spec_path: str) -> dict:
+    """Write one unit's results as ``<unit>_<name>``; remove a failed unit's stale results.
+
+    Returns the provenance of the unit's input files (path -> SHA-256), also for a failed unit.
+    """
     from .io import provenance, write_csv, write_json
 
     unit = result["unit"]
-    written = []
+    inputs = sorted(str(p) for p in Path(result["campaign"]).iterdir() if p.is_file())
+    prov = provenance(inputs, spec_path)
     if result["status"] != "ok":
         for old in out_dir.glob(f"{unit}_*"):
             old.unlink()
-        return written
-    inputs = sorted(str(p) for p in Path(result["campaign"]).iterdir() if p.is_file())
-    prov = provenance(inputs, spec_path)
+        return prov["inputs"]
     for name, obj in sorted(result["files"].items()):
         path = out_dir / f"{unit}_{name}"
         if name.endswith(".csv"):
             write_csv(path, obj, float_format="%.4f")
         else:
             write_json(path, {**obj, "provenance": prov})
-        written.append(str(path))
-    return written
+    return prov["inputs"]
 
 
 def register(cli):
@@ -90,13 +91,13 @@ def register(cli):
             sys.exit(2)
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
+        inputs = {}
         for r in results:
-            _write_unit_files(out, r, spec_path)
+            inputs.update(_write_unit_files(out, r, spec_path))
         table = fleet_table(results, spec.kind, z)
         summary = fleet_summary(table)
-        files = sorted(str(p) for c in campaigns for p in Path(c).iterdir() if p.is_file())
-        write_parquet(table_out, table, {"spec": spec_path, "z_out": z, "diagnose": diagnose,
-                                         "campaigns": campaigns, **provenance(files, spec_path)})
+        write_parquet(table_out, table, {"spec": spec_path, "z_out": z, "diagnose": diagnose, "campaigns": campaigns,
+                                         **provenance([], spec_path), "inputs": dict(sorted(inputs.items()))})
         fleet_report(table, summary, report_out, spec_path, z)
         red = summary["reduction_pct"]
         click.echo(f"{table_out}: {summary['ok']}/{summary['units']} units calibrated"

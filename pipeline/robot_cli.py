@@ -524,12 +524,7 @@ def fit_robot(campaign, spec, spec_path, out):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
     from .io import provenance, write_json
 
-    if spec.kind != "robot":
-        from .spec import _locate
-
-        text = Path(spec_path).read_text(encoding="utf-8")
-        raise InputError(spec_path, f"the spec is for an {spec.kind} model but {campaign} is a robot campaign",
-                         *_locate(text, r"^\s*kind\s*="))
+    spec.require_kind("robot", campaign)
     result = robot_fit_result(campaign, spec)
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
     result["provenance"] = provenance(files, spec_path)

@@ -24,6 +24,9 @@ class Spec:
     select : dict
         The ``[select]`` table (order selection thresholds; encoder only).
     path : str or None
+    text : str or None
+        The spec's text as parsed (to locate a line in messages, also where the file is not
+        at hand, e.g. on a Dask worker).
     """
 
     kind: str
@@ -31,6 +34,21 @@ class Spec:
     model: dict = field(default_factory=dict)
     select: dict = field(default_factory=dict)
     path: str | None = None
+    text: str | None = field(default=None, repr=False, compare=False)
+
+    def located(self, message: str, pattern: str) -> InputError:
+        """An InputError in this spec at the first line matching ``pattern`` (when known)."""
+        line, col = _locate(self.text, pattern) if self.text else (None, None)
+        return InputError(self.path or "<spec>", message, line, col)
+
+    def require_kind(self, kind: str, data: str) -> None:
+        """Refuse (at the spec's ``kind`` line) a spec that is not for a ``kind`` campaign ``data``."""
+        if self.kind != kind:
+            def a(word):
+                return "an" if word[0] in "aeiou" else "a"
+
+            raise self.located(f"the spec is for {a(self.kind)} {self.kind} model but {data} is {a(kind)} {kind} "
+                               "campaign", r"^\s*kind\s*=")
 
     def effect(self, name):
         for e in self.effects:
@@ -99,7 +117,7 @@ def parse_spec(text: str, path: str = "<spec>") -> Spec:
             line, col = _locate(text, r"^\s*name\s*=\s*[\"']" + re.escape(name) + r"[\"']")
             raise InputError(path, problems[0], line, col)
         effects.append(effect)
-    return Spec(kind, effects, {k: v for k, v in model.items() if k != "kind"}, dict(doc.get("select", {})), path)
+    return Spec(kind, effects, {k: v for k, v in model.items() if k != "kind"}, dict(doc.get("select", {})), path, text)
 
 
 def _nth_effect_line(text, index):

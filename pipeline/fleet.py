@@ -205,10 +205,11 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
     say = progress or (lambda done, total, failed: None)
     total = len(campaigns)
     if serial:
-        out = []
+        out, failed = [], 0
         for c in campaigns:
             out.append(process_unit(c, spec_text, spec_path, diagnose))
-            say(len(out), total, sum(r["status"] != "ok" for r in out))
+            failed += out[-1]["status"] != "ok"
+            say(len(out), total, failed)
         return out
     import logging
 

@@ -23,6 +23,7 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
         :func:`pipeline.fleet.fleet_summary` of the table.
     """
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     ok = table[table["status"] == "ok"]
     kind = str(table["kind"].iloc[0]) if len(table) else "encoder"
@@ -83,6 +84,9 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
         for _, f in flagged.iterrows():
             ax2.annotate(f["unit"], (f[FAMILY_MEASURE], 0.5), rotation=90, fontsize=7, va="bottom")
         ax2.set_xscale("log")
+        plain = FuncFormatter(lambda v, _: f"{v:g}")
+        ax2.xaxis.set_major_formatter(plain)
+        ax2.xaxis.set_minor_formatter(plain)
         ax2.set_xlabel(f"cross-validated RMS residual ({unit}, log scale): each run / fold predicted by a model "
                        "fitted without it")
         ax2.set_ylabel("units")

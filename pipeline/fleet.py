@@ -188,7 +188,7 @@ def _robot_unit(campaign, spec, diagnose):
 
 # ---------------------------------------------------------------------------- execution
 def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, workers=2, serial=False,
-              progress=None) -> list[dict]:
+              progress=None, on_result=None) -> list[dict]:
     """Run :func:`process_unit` over ``campaigns``: on Dask, or in this process with ``serial``.
 
     Parameters
@@ -197,17 +197,22 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
         Address of a running ``dask.distributed`` scheduler (``tcp://host:8786``). Without it a
         LocalCluster of ``workers`` processes (one thread each) is started and closed here.
     progress : callable(done, total, failed), optional
+    on_result : callable(result) -> result, optional
+        Called in this process with each unit's result as it arrives (e.g. to write its files);
+        what it returns is kept instead (e.g. the result without its files), so a long fleet
+        does not hold every unit's results in memory.
 
     Returns
     -------
-    list of :func:`process_unit` results, in the order of ``campaigns``.
+    list of :func:`process_unit` results (as ``on_result`` left them), in the order of ``campaigns``.
     """
     say = progress or (lambda done, total, failed: None)
+    keep = on_result or (lambda r: r)
     total = len(campaigns)
     if serial:
         out, failed = [], 0
         for c in campaigns:
-            out.append(process_unit(c, spec_text, spec_path, diagnose))
+            out.append(keep(process_unit(c, spec_text, spec_path, diagnose)))
             failed += out[-1]["status"] != "ok"
             say(len(out), total, failed)
         return out
@@ -229,16 +234,19 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
         futures = client.map(process_unit, campaigns, spec_text=spec_text, spec_path=spec_path,
                              diagnose=diagnose, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
+        pending = as_completed(futures)
+        del futures  # a future released after its result is taken frees the worker's copy
         results: list[dict | None] = [None] * total
         failed = 0
-        for done, fut in enumerate(as_completed(futures), start=1):
+        for done, fut in enumerate(pending, start=1):
             i = index[fut.key]
             try:
-                results[i] = fut.result()
+                r = fut.result()
             except Exception as exc:  # noqa: BLE001 - a lost worker: record the unit, go on
-                results[i] = {"unit": os.path.basename(os.path.normpath(campaigns[i])), "campaign": campaigns[i],
-                              "status": "failed", "error": f"{campaigns[i]}: {type(exc).__name__}: {exc}",
-                              "row": {}, "files": {}}
+                r = {"unit": os.path.basename(os.path.normpath(campaigns[i])), "campaign": campaigns[i],
+                     "status": "failed", "error": f"{campaigns[i]}: {type(exc).__name__}: {exc}", "row": {}, "files": {}}
+            fut.release()
+            results[i] = keep(r)
             failed += results[i]["status"] != "ok"
             say(done, total, failed)
         return results

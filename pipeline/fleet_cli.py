@@ -80,20 +80,24 @@ def register(cli):
         n_workers = workers or os.cpu_count() or 1
         where = "this process" if serial else (scheduler or f"a local Dask cluster of {n_workers} worker(s)")
         click.echo(f"fleet: {len(campaigns)} {spec.kind} campaign(s) with {spec_path} on {where}", err=True)
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        inputs = {}
+
+        def write_and_drop_files(result):
+            inputs.update(_write_unit_files(out, result, spec_path))
+            return {**result, "files": {}}
+
         try:
             results = run_units(campaigns, spec_text, spec_path, diagnose=diagnose, scheduler=scheduler,
-                                workers=n_workers, serial=serial, progress=Progress(lambda s: click.echo(s, err=True)))
+                                workers=n_workers, serial=serial, progress=Progress(lambda s: click.echo(s, err=True)),
+                                on_result=write_and_drop_files)
         except (OSError, TimeoutError) as exc:
             if not scheduler:
                 raise
             click.echo(f"jointcal: error: cannot reach the Dask scheduler at {scheduler}: {' '.join(str(exc).split())}",
                        err=True)
             sys.exit(2)
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        inputs = {}
-        for r in results:
-            inputs.update(_write_unit_files(out, r, spec_path))
         table = fleet_table(results, spec.kind, z)
         summary = fleet_summary(table)
         write_parquet(table_out, table, {"spec": spec_path, "z_out": z, "diagnose": diagnose, "campaigns": campaigns,

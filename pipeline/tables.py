@@ -124,7 +124,8 @@ def _convert(path, series, col, kind, problems, optional):
         problems.add(path, f"empty value; '{col}' is required", i + 2, col)
     if kind in (INT, SIGN):
         ok = np.isfinite(arr)
-        frac = ok & (np.abs(arr - np.round(arr)) > 1e-9)
+        finite = np.where(ok, arr, 0.0)  # inf - round(inf) would warn on stderr beside the one error line
+        frac = ok & (np.abs(finite - np.round(finite)) > 1e-9)
         if frac.any():
             i = int(np.argmax(frac))
             problems.add(path, f"'{series.iloc[i]}' is not an integer", i + 2, col)

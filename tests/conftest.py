@@ -52,9 +52,17 @@ def ingest_fails_cleanly(folder, out, context=None) -> bool:
     Exit 0 with ``out`` written, or exit 2 with one line ``jointcal: error: <folder>/...``, no
     traceback and no ``out``. Returns whether it succeeded.
     """
+    import warnings
+
     from pipeline.cli import cli
 
-    result = CliRunner().invoke(cli, ["ingest", "--campaign", str(folder), "--out", str(out)])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = CliRunner().invoke(cli, ["ingest", "--campaign", str(folder), "--out", str(out)])
+    # a warning would reach the user's stderr beside the one error line (deprecations are not shown)
+    shown = [f"{w.category.__name__}: {w.message}" for w in caught
+             if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
+    assert not shown, (context, shown)
     assert result.exit_code in (0, 2), (context, result.output, result.exception)
     assert "Traceback" not in result.output
     if result.exit_code == 2:

@@ -152,3 +152,18 @@ def test_interim_tables_record_their_provenance(tmp_path):
     assert meta["jointcal_version"]
     f = ROOT / "raw/encoder/a/a_run3.csv"
     assert meta["inputs"][str(f)] == hashlib.sha256(f.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
+def test_non_finite_integer_is_one_line_and_no_warning(tmp_path, value):
+    """'inf' in a direction column: one located line, and no numpy warning beside it on stderr."""
+    from conftest import ROOT, ingest_fails_cleanly
+
+    camp = tmp_path / "cell"
+    shutil.copytree(ROOT / "raw" / "robot" / "kr210", camp)
+    lines = (camp / "poses.csv").read_text().splitlines()
+    fields = lines[3].split(",")
+    fields[lines[0].split(",").index("dir1")] = value
+    lines[3] = ",".join(fields)
+    (camp / "poses.csv").write_text("\n".join(lines) + "\n")
+    assert not ingest_fails_cleanly(camp, tmp_path / "poses.parquet", value)

@@ -165,13 +165,13 @@ def _encoder_unit(campaign, spec, diagnose):
 def _robot_unit(campaign, spec, diagnose):
     from .diagnose import diagnose as run_diagnose
     from .robot_cli import robot_fit_result
-    from .robot_diagnose import RobotAdapter, robot_data_from_campaign
+    from .robot_diagnose import RobotAdapter, robot_data_sets
 
-    result = robot_fit_result(campaign, spec)
+    robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+    result = robot_fit_result(campaign, spec, (robot, sample, target))
     files = {"fit.json": result}
     diag = None
     if diagnose:
-        robot, sample = robot_data_from_campaign(campaign)
         diag = run_diagnose(RobotAdapter(robot), spec, sample, workers=1)
         diag = {"kind": diag.pop("kind"), "campaign": str(campaign), "spec": spec.path, **diag}
         files["diagnosis.json"] = diag

@@ -495,18 +495,21 @@ def report_cmd(results_dir, beyond_path, diagnosis_path, out):
     click.echo(f"{out}: written", err=True)
 
 
-def robot_fit_result(campaign, spec) -> dict:
+def robot_fit_result(campaign, spec, loaded=None) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
     (held-out error before/after in mm, the 5-fold cross-validated RMS over the sample poses
-    that ``jointcal diagnose`` ranks effects by, the fitted parameters).
+    that ``jointcal diagnose`` ranks effects by, the fitted parameters). ``loaded``: the
+    campaign already read, ``(robot, sample, target)``.
     """
-    from .robot_diagnose import RobotAdapter, robot_data_from_campaign
+    from .robot_diagnose import RobotAdapter, robot_data_sets
     from .robot_evaluate import heldout_fit
 
-    robot, sample = robot_data_from_campaign(campaign, ("sample",))
-    _, target = robot_data_from_campaign(campaign, ("target",))
+    if loaded is None:
+        robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+    else:
+        robot, sample, target = loaded
     if sample.n == 0:
         raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on", 1, 1)
     effects = list(spec.effects)

@@ -25,13 +25,23 @@ def robot_data_from_campaign(folder, sets=("sample",)):
     Joints 1-3 use the grating readings where the campaign has them (the paper's cell reads
     the true angle of those joints), else the commanded angles.
     """
+    robot, (data,) = robot_data_sets(folder, sets)
+    return robot, data
+
+
+def robot_data_sets(folder, *groups):
+    """(robot, [RobotData of each group of sets]) from one ingest of a raw robot campaign,
+    e.g. ``robot_data_sets(folder, ("sample",), ("target",))``; see :func:`robot_data_from_campaign`."""
     from .robot_ingest import has_gratings, ingest_robot, robot_data
 
     robot, frame = ingest_robot(folder)
-    frame = frame[frame["set"].isin(list(sets))].reset_index(drop=True)
-    data = robot_data(robot, frame, use_gratings=has_gratings(frame))
-    data.grating_joints = (1, 2, 3) if has_gratings(frame) else ()
-    return robot, data
+    out = []
+    for sets in groups:
+        part = frame[frame["set"].isin(list(sets))].reset_index(drop=True)
+        data = robot_data(robot, part, use_gratings=has_gratings(part))
+        data.grating_joints = (1, 2, 3) if has_gratings(part) else ()
+        out.append(data)
+    return robot, out
 
 
 def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:

@@ -1,0 +1,534 @@
+"""`jointcal import` (contract section 6): real UR10 exports, URDF robots, bad inputs."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.robot import Joint, Robot, build_model, load_robot, parse_robot, positions
+
+ROOT = Path(__file__).resolve().parents[1]
+FIX = ROOT / "raw" / "real" / "ur10-ipa"
+SERIES_C = FIX / "Series_C" / "measurements_random_poses.csv"
+SERIES_B = FIX / "Series_B" / "measurements_joint_configurations.csv"
+MAP = FIX / "map.toml"
+ROBOT = FIX / "robot.toml"
+URDF = Path("/work/shared/real/urdf/ur10e.urdf")
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+FILES = ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")
+ONE_LINE = re.compile(r"^jointcal: error: (?P<file>[^:]+):(?P<line>\d+|-):(?P<col>[^:]+): \S.*$")
+# UR's published UR10e DH (/work/shared/real/urdf/README.md): a, alpha, d per joint
+UR10E_DH = [(0.0, 90.0, 180.7), (-612.7, 0.0, 0.0), (-571.55, 0.0, 0.0), (0.0, 90.0, 174.15), (0.0, -90.0, 119.85),
+            (0.0, 0.0, 116.55)]
+
+
+def _source(path=SERIES_C) -> pd.DataFrame:
+    return pd.read_csv(path, sep=";", decimal=",")
+
+
+def _digest(folder) -> dict:
+    return {f: hashlib.sha256((Path(folder) / f).read_bytes()).hexdigest() for f in FILES}
+
+
+def _read(folder):
+    poses = pd.read_csv(Path(folder) / "poses.csv", dtype={"point_id": str})
+    tracker = pd.read_csv(Path(folder) / "tracker.csv", dtype={"point_id": str})
+    return poses, tracker
+
+
+def _fails(result, out, name=None):
+    """Exit 2, exactly one line file:line:column: message, nothing written."""
+    assert result.exit_code == 2, (result.exit_code, result.output)
+    assert "Traceback" not in result.output
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    m = ONE_LINE.match(lines[0])
+    assert m, lines[0]
+    assert not Path(out).exists()
+    assert not list(Path(out).parent.glob(f".{Path(out).name}.import-*")), "temporary folder left behind"
+    if name is not None:
+        assert Path(m["file"]).name == name, lines[0]
+    return m
+
+
+# ------------------------------------------------------------------------- the real data
+def test_series_c_import(invoke, tmp_path):
+    out = tmp_path / "ur10c"
+    t0 = time.perf_counter()
+    result = invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out)
+    elapsed = time.perf_counter() - t0
+    assert result.exit_code == 0, result.output
+    assert elapsed < 2.0, elapsed
+    assert sorted(p.name for p in out.iterdir()) == sorted(FILES)
+    poses, tracker = _read(out)
+    src = _source()
+    assert len(poses) == len(tracker) == 2773
+    q_rad = src[JOINTS].to_numpy(float)
+    np.testing.assert_allclose(poses[[f"q{j}" for j in range(1, 7)]].to_numpy(), q_rad * 180.0 / np.pi, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(tracker[["x_mm", "y_mm", "z_mm"]].to_numpy(),
+                               src[["measurement_x", "measurement_y", "measurement_z"]].to_numpy(float), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(poses["temperature_c"], src["measurement_temperature"], rtol=0, atol=1e-9)
+    assert list(poses["point_id"]) == list(tracker["point_id"]) == [f"{i:04d}" for i in range(1, 2774)]
+    assert "timestamp" not in poses and "sigma_mm" not in tracker
+    camp = (out / "campaign.toml").read_text()
+    assert re.search(r'^frame = "tracker"$', camp, re.M)
+    assert "measurements_random_poses.csv" in camp and "map.toml" in camp and str(tmp_path) not in camp
+    copied, given = load_robot(out / "robot.toml"), load_robot(ROBOT)
+    assert (copied.name, copied.joints, copied.tool_xyz_mm) == (given.name, given.joints, given.tool_xyz_mm)
+    # ~60/40 seeded split over the whole series
+    n_sample = int((poses["set"] == "sample").sum())
+    assert n_sample == round(0.6 * 2773) and set(poses["set"]) == {"sample", "target"}
+    first, last = (poses["set"].iloc[:1386] == "sample").mean(), (poses["set"].iloc[1386:] == "sample").mean()
+    assert abs(first - 0.6) < 0.05 and abs(last - 0.6) < 0.05  # random, not a block
+
+
+def test_split_is_seeded_same_bytes(invoke, tmp_path):
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    for out in (a, b):
+        assert invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    assert _digest(a) == _digest(b)
+    other = tmp_path / "seed2.toml"
+    other.write_text(MAP.read_text().replace("seed = 1", "seed = 2"))
+    assert invoke("import", "--source", SERIES_C, "--map", other, "--robot", ROBOT, "--out", c).exit_code == 0
+    sa, sc = _read(a)[0]["set"], _read(c)[0]["set"]
+    assert (sa == "sample").sum() == (sc == "sample").sum() and (sa != sc).any()
+    # importing again over an existing folder replaces its files with the same bytes
+    assert invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", c).exit_code == 0
+    assert _digest(c) == _digest(a)
+    assert not list(tmp_path.glob(".*import-*"))
+
+
+def test_one_map_for_both_series(invoke, tmp_path):
+    out = tmp_path / "ur10b"
+    assert invoke("import", "--source", SERIES_B, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    poses, tracker = _read(out)
+    src = _source(SERIES_B)
+    assert len(poses) == 1495
+    np.testing.assert_allclose(poses[[f"q{j}" for j in range(1, 7)]].to_numpy(), np.rad2deg(src[JOINTS].to_numpy(float)),
+                               rtol=0, atol=1e-9)
+    assert (poses["set"] == "sample").sum() == round(0.6 * 1495)
+
+
+def test_nominal_residual_is_a_robots(tmp_path, invoke):
+    """With the fixture's robot.toml the measured points sit a few mm from nominal (rigid fit)."""
+    from pipeline.robot_import import nominal_rms
+
+    out = tmp_path / "c"
+    assert invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    poses, tracker = _read(out)
+    rms = nominal_rms(load_robot(ROBOT), poses[[f"q{j}" for j in range(1, 7)]].to_numpy(),
+                      tracker[["x_mm", "y_mm", "z_mm"]].to_numpy(), "tracker")
+    assert 0.3 < rms < 10.0, rms
+
+
+def test_initial_transform_says_109_mm_where_the_hand_eye_fit_says_93():
+    """The planning transform puts the probe 109 mm along flange z; robot.toml takes the hand-eye
+    measurement instead (tests/test_real_reference.py refits it), which is about 16 mm shorter."""
+    T = np.loadtxt(FIX / "Series_C" / "Trafo_TM_F_init.txt")
+    smr = np.linalg.inv(T)[:3, 3]
+    assert abs(smr[2] - 109.0) < 1e-3
+    tool = np.array(load_robot(ROBOT).tool_xyz_mm)
+    assert 14.0 < smr[2] - tool[2] < 18.0 and np.abs(tool[:2]).max() < 1.0
+
+
+# ---------------------------------------------------------------------------------- URDF
+def _urdf_positions(base, tip, Q):
+    import pinocchio as pin
+
+    model = pin.buildModelFromUrdf(str(URDF))
+    data = model.createData()
+    fb, ft = model.getFrameId(base), model.getFrameId(tip)
+    ids = [model.joints[model.getJointId(n)].idx_q for n in JOINTS]
+    out = np.empty((len(Q), 3))
+    for k, q6 in enumerate(Q):
+        q = pin.neutral(model)
+        q[ids] = q6
+        pin.framesForwardKinematics(model, data, q)
+        out[k] = data.oMf[fb].actInv(data.oMf[ft]).translation * 1000.0
+    return out
+
+
+@pytest.mark.parametrize("base,tip", [("base", "tool0"), (None, "flange"), ("base_link", "tool0"),
+                                      ("base", "ur10e_tooltip_link")])
+def test_urdf_fk_matches_pinocchio(base, tip):
+    from pipeline.urdf import robot_from_urdf
+
+    robot, info = robot_from_urdf(URDF, tip, base)
+    assert info["chain"] == JOINTS and info["fk_max_error_mm"] < 1e-6
+    Q = np.random.default_rng(7).uniform(-np.pi, np.pi, size=(60, 6))
+    mine = positions(build_model(robot), Q, "smr")
+    theirs = _urdf_positions(base or "world", tip, Q)
+    assert np.abs(mine - theirs).max() < 1e-6
+    # round trip through robot.toml
+    again = parse_robot(robot.to_toml(), "x.toml")
+    assert again.joints == robot.joints and again.tool_xyz_mm == robot.tool_xyz_mm
+
+
+def test_urdf_gives_urs_published_dh():
+    """In UR's own base frame the derived parameters are UR's published UR10e DH."""
+    from pipeline.urdf import robot_from_urdf
+
+    robot, _ = robot_from_urdf(URDF, "tool0", "base")
+    got = np.array([(j.a_mm, j.alpha_deg, j.d_mm) for j in robot.joints])
+    np.testing.assert_allclose(got, np.array(UR10E_DH), rtol=0, atol=1e-6)
+    assert all(abs(j.theta_offset_deg) < 1e-6 and j.beta_deg == 0.0 for j in robot.joints)
+    assert robot.tool_xyz_mm == (0.0, 0.0, 0.0)
+    assert [j.mass_kg for j in robot.joints][:5] == [7.778, 12.93, 3.87, 1.96, 1.96]
+    assert robot.lower_deg[2] == -180.0 and robot.upper_deg[0] == 360.0
+    # the published DH, written out, predicts the URDF's flange positions
+    pub = Robot("ur10e", tuple(Joint(a_mm=a, alpha_deg=al, d_mm=d, theta_offset_deg=0.0, beta_deg=0.0,
+                                     lower_deg=-360.0, upper_deg=360.0) for a, al, d in UR10E_DH), (0.0, 0.0, 0.0))
+    Q = np.random.default_rng(3).uniform(-np.pi, np.pi, size=(50, 6))
+    assert np.abs(positions(build_model(pub), Q, "smr") - _urdf_positions("base", "tool0", Q)).max() < 1e-3
+
+
+def test_import_with_urdf_robot(invoke, tmp_path):
+    """A source generated from the URDF imports against the URDF (base frame, metres, degrees)."""
+    Q = np.random.default_rng(11).uniform(-150, 150, size=(40, 6))
+    P = _urdf_positions("base", "tool0", np.deg2rad(Q)) + np.array([0.0, 0.0, 0.0])
+    src = tmp_path / "export.csv"
+    lines = ["id,j1,j2,j3,j4,j5,j6,x,y,z,split"] + [
+        ",".join([f"P{i}"] + [f"{v:.9f}" for v in Q[i]] + [f"{v / 1000:.12f}" for v in P[i]]
+                 + ["sample" if i % 3 else "target"]) for i in range(len(Q))]
+    src.write_text("\n".join(lines) + "\n")
+    mp = tmp_path / "map.toml"
+    mp.write_text('[joints]\ncolumns = ["j1", "j2", "j3", "j4", "j5", "j6"]\nunit = "deg"\n'
+                  '[position]\ncolumns = ["x", "y", "z"]\nunit = "m"\nframe = "base"\n'
+                  '[columns]\npoint_id = "id"\n[split]\ncolumn = "split"\n')
+    out = tmp_path / "camp"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", URDF, "--tip", "tool0", "--base", "base", "--out", out)
+    assert r.exit_code == 0, r.output
+    robot = load_robot(out / "robot.toml")
+    assert np.allclose([j.d_mm for j in robot.joints], [d for _, _, d in UR10E_DH])
+    poses, tracker = _read(out)
+    assert list(poses["point_id"]) == [f"P{i}" for i in range(40)]
+    assert list(poses["set"]) == ["sample" if i % 3 else "target" for i in range(40)]
+    assert re.search(r'^frame = "base"$', (out / "campaign.toml").read_text(), re.M)
+    nominal = positions(build_model(robot), np.deg2rad(poses[[f"q{j}" for j in range(1, 7)]].to_numpy()))
+    assert np.abs(nominal - tracker[["x_mm", "y_mm", "z_mm"]].to_numpy()).max() < 1e-5
+    # the same with an SMR offset given in the tip's frame
+    out2 = tmp_path / "camp2"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", URDF, "--tip", "tool0", "--base", "base",
+               "--tool-mm", "0", "0", "0", "--out", out2)
+    assert r.exit_code == 0 and (out2 / "poses.csv").read_bytes() == (out / "poses.csv").read_bytes()
+
+
+def test_robot_toml_round_trips(invoke, tmp_path):
+    robot = load_robot(ROBOT)
+    again = parse_robot(robot.to_toml(), "copy.toml")
+    assert again.joints == robot.joints and again.tool_xyz_mm == robot.tool_xyz_mm and again.name == robot.name
+    out = tmp_path / "c"
+    assert invoke("import", "--source", SERIES_B, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    copied = load_robot(out / "robot.toml")
+    assert copied.joints == robot.joints and copied.tool_xyz_mm == robot.tool_xyz_mm
+    # the campaign's robot.toml imports again to the same bytes
+    out2 = tmp_path / "c2"
+    assert invoke("import", "--source", SERIES_B, "--map", MAP, "--robot", out / "robot.toml", "--out", out2).exit_code == 0
+    assert (out2 / "poses.csv").read_bytes() == (out / "poses.csv").read_bytes()
+
+
+# ---------------------------------------------------------------------------- bad inputs
+def _small_source(tmp_path, n=300, edit=None, path=SERIES_C):
+    lines = path.read_bytes().decode().split("\r\n")[: n + 1]
+    if edit:
+        lines = edit(lines)
+    out = tmp_path / "src.csv"
+    out.write_text("\r\n".join(lines) + "\r\n", newline="")
+    return out
+
+
+def _map(tmp_path, fn):
+    out = tmp_path / "bad_map.toml"
+    out.write_text(fn(MAP.read_text()))
+    return out
+
+
+def _cell(lines, row, col, value):
+    parts = lines[row].split(";")
+    parts[col] = value
+    lines[row] = ";".join(parts)
+    return lines
+
+
+def _metres(lines):
+    head = lines[0].split(";")
+    ix = [head.index(c) for c in ("measurement_x", "measurement_y", "measurement_z")]
+    for k in range(1, len(lines)):
+        parts = lines[k].split(";")
+        for i in ix:
+            parts[i] = f"{float(parts[i].replace(',', '.')) / 1000:.9f}".replace(".", ",")
+        lines[k] = ";".join(parts)
+    return lines
+
+
+BAD_MAPS = {
+    # name: (map edit, expected file name, expected line or None, text in the message)
+    "no joints section": (lambda t: re.sub(r"\[joints\].*?unit = \"rad\"\n", "", t, flags=re.S), "bad_map.toml", 1,
+                          "[joints]"),
+    "no position columns": (lambda t: t.replace('columns = ["measurement_x", "measurement_y", "measurement_z"]\n', ""),
+                            "bad_map.toml", None, "columns"),
+    "misspelled column": (lambda t: t.replace('"measurement_y"', '"measurment_y"'), "bad_map.toml", 18,
+                          "close: 'measurement_y'"),
+    "misspelled joint": (lambda t: t.replace('"elbow_joint"', '"elbow"'), "bad_map.toml", 13, "elbow_joint"),
+    "unknown joint unit": (lambda t: t.replace('unit = "rad"', 'unit = "radians"'), "bad_map.toml", 15, "rad"),
+    "unknown length unit": (lambda t: t.replace('unit = "mm"', 'unit = "cm"'), "bad_map.toml", 19, "cm"),
+    "bad delimiter": (lambda t: t.replace('delimiter = ";"', 'delimiter = ""'), "bad_map.toml", 9, "delimiter"),
+    "bad decimal": (lambda t: t.replace('decimal = ","', 'decimal = ";"'), "bad_map.toml", 10, "decimal"),
+    "wrong decimal": (lambda t: t.replace('decimal = ","', 'decimal = "."'), "src.csv", 2, "decimal comma"),
+    "wrong delimiter": (lambda t: t.replace('delimiter = ";"', 'delimiter = "\\t"'), "bad_map.toml", 13,
+                        "contains ';'"),
+    "fraction 1": (lambda t: t.replace("sample_fraction = 0.6", "sample_fraction = 1"), "bad_map.toml", 26, "between"),
+    "fraction 0": (lambda t: t.replace("sample_fraction = 0.6", "sample_fraction = 0.0"), "bad_map.toml", 26, "between"),
+    "no split": (lambda t: re.sub(r"\[split\].*", "", t, flags=re.S), "bad_map.toml", 1, "[split]"),
+    "radians labelled deg": (lambda t: t.replace('unit = "rad"', 'unit = "deg"'), "bad_map.toml", 15, 'unit = "rad"'),
+    "unknown section": (lambda t: t.replace("[columns]", "[colums]"), "bad_map.toml", 22, "columns"),
+    "unknown contract column": (lambda t: t.replace("temperature_c =", "temperature ="), "bad_map.toml", 23,
+                                "temperature_c"),
+    "split column missing": (lambda t: t.replace("sample_fraction = 0.6\nseed = 1", 'column = "set"'), "bad_map.toml",
+                             26, "'set' is not in the header"),
+    "not toml": (lambda t: t.replace("[split]", "[split"), "bad_map.toml", None, "TOML"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_MAPS))
+def test_bad_map(invoke, tmp_path, case):
+    edit, name, line, text = BAD_MAPS[case]
+    src = _small_source(tmp_path)
+    mp = _map(tmp_path, edit)
+    out = tmp_path / "deep" / "out"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", ROBOT, "--out", out)
+    m = _fails(r, out, name)
+    if line is not None:
+        assert m["line"] == str(line), r.stderr
+    assert text in r.stderr, r.stderr
+    assert not (tmp_path / "deep").exists()
+
+
+BAD_SOURCES = {
+    "word in a joint column": (lambda ls: _cell(ls, 7, 9, "abc"), 8, "elbow_joint", "'abc' is not a number"),
+    "nan position": (lambda ls: _cell(ls, 12, 14, "nan"), 13, "measurement_x", "finite"),
+    "empty joint": (lambda ls: _cell(ls, 20, 7, ""), 21, "shoulder_pan_joint", "empty"),
+    "short row": (lambda ls: ls[:30] + [";".join(ls[30].split(";")[:10])] + ls[31:], 31, "-", "fields"),
+    "metres labelled mm": (_metres, None, None, "metres"),
+    "out of range": (lambda ls: _cell(ls, 5, 8, "7,5"), 6, "shoulder_lift_joint", "range"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_SOURCES))
+def test_bad_source(invoke, tmp_path, case):
+    edit, line, col, text = BAD_SOURCES[case]
+    src = _small_source(tmp_path, edit=edit)
+    out = tmp_path / "out"
+    r = invoke("import", "--source", src, "--map", MAP, "--robot", ROBOT, "--out", out)
+    m = _fails(r, out)
+    if line is not None:
+        assert (m["file"], m["line"], m["col"]) == (str(src), str(line), col), r.stderr
+    else:
+        assert m["file"] == str(MAP), r.stderr
+    assert text in r.stderr, r.stderr
+
+
+def test_metres_far_from_the_tracker(invoke, tmp_path):
+    """Metres labelled mm beyond 5 m still show: the nominal fits them only as metres."""
+    def far(lines):
+        lines = _metres(lines)
+        head = lines[0].split(";")
+        i = head.index("measurement_y")
+        for k in range(1, len(lines)):
+            parts = lines[k].split(";")
+            parts[i] = f"{float(parts[i].replace(',', '.')) - 6.0:.9f}".replace(".", ",")
+            lines[k] = ";".join(parts)
+        return lines
+
+    src = _small_source(tmp_path, edit=far)
+    out = tmp_path / "out"
+    r = invoke("import", "--source", src, "--map", MAP, "--robot", ROBOT, "--out", out)
+    m = _fails(r, out, "map.toml")
+    assert m["line"] == "19" and 'unit = "m"' in r.stderr, r.stderr
+
+
+def test_error_found_by_ingest_is_named_in_the_source(invoke, tmp_path):
+    """ingest_robot runs on the built folder; what it refuses is named at the source's line and column."""
+    src = _small_source(tmp_path, edit=lambda ls: _cell(ls, 9, 13, "-1,5"))
+    mp = _map(tmp_path, lambda t: t.replace(
+        'temperature_c = "measurement_temperature"',
+        'temperature_c = "measurement_temperature"\npayload_kg = "measurement_temperature"'))
+    out = tmp_path / "out"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", ROBOT, "--out", out)
+    m = _fails(r, out, "src.csv")
+    assert (m["line"], m["col"]) == ("10", "measurement_temperature") and "payload_kg" in r.stderr
+
+
+def test_duplicate_point_id(invoke, tmp_path):
+    src = _small_source(tmp_path, edit=lambda ls: _cell(_cell(ls, 4, 1, "7"), 9, 1, "7"))
+    mp = _map(tmp_path, lambda t: t.replace('temperature_c = "measurement_temperature"', 'point_id = "Goal x"'))
+    out = tmp_path / "out"
+    m = _fails(invoke("import", "--source", src, "--map", mp, "--robot", ROBOT, "--out", out), out, "src.csv")
+    assert (m["line"], m["col"]) == ("10", "Goal x")
+
+
+def test_existing_folder_unchanged_on_error(invoke, tmp_path):
+    out = tmp_path / "camp"
+    assert invoke("import", "--source", _small_source(tmp_path), "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    before = _digest(out)
+    bad = _small_source(tmp_path, edit=lambda ls: _cell(ls, 7, 9, "abc"))
+    r = invoke("import", "--source", bad, "--map", MAP, "--robot", ROBOT, "--out", out)
+    assert r.exit_code == 2 and len(r.stderr.strip().splitlines()) == 1
+    assert _digest(out) == before and sorted(p.name for p in out.iterdir()) == sorted(FILES)
+    assert not list(tmp_path.glob(".camp.import-*"))
+
+
+@pytest.mark.parametrize("args,name,text", [
+    (["--tip", "tool9"], "ur10e.urdf", "close: tool0"),
+    ([], "ur10e.urdf", "--tip"),
+    (["--tip", "wrist_3-flange"], "ur10e.urdf", "is a joint"),
+    (["--tip", "tool0", "--base", "wall_link"], "ur10e.urdf", "--base LINK"),
+    (["--tip", "tool0", "--base", "shoulder_link"], "ur10e.urdf", "fixed base"),
+])
+def test_bad_urdf_options(invoke, tmp_path, args, name, text):
+    out = tmp_path / "out"
+    r = invoke("import", "--source", _small_source(tmp_path), "--map", MAP, "--robot", URDF, "--out", out, *args)
+    _fails(r, out, name)
+    assert text in r.stderr, r.stderr
+
+
+def test_tip_with_robot_toml_and_missing_files(invoke, tmp_path):
+    out = tmp_path / "out"
+    src = _small_source(tmp_path)
+    _fails(invoke("import", "--source", src, "--map", MAP, "--robot", ROBOT, "--tip", "tool0", "--out", out), out,
+           "robot.toml")
+    _fails(invoke("import", "--source", tmp_path / "nope.csv", "--map", MAP, "--robot", ROBOT, "--out", out), out,
+           "nope.csv")
+    _fails(invoke("import", "--source", src, "--map", tmp_path / "nope.toml", "--robot", ROBOT, "--out", out), out,
+           "nope.toml")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    _fails(invoke("import", "--source", empty, "--map", MAP, "--robot", ROBOT, "--out", out), out, "empty.csv")
+
+
+def test_urdf_base_not_on_joint_1_is_refused(tmp_path):
+    """A base frame whose z is not joint 1's axis cannot be written as DH: refused, located."""
+    from pipeline.errors import InputError
+    from pipeline.urdf import robot_from_urdf
+
+    text = URDF.read_text().replace('<origin rpy="0.0 0.0 -1.5707963" xyz="0.0 0.0 0.90"/>',
+                                    '<origin rpy="0.3 0.0 -1.5707963" xyz="0.0 0.0 0.90"/>')
+    bad = tmp_path / "tilted.urdf"
+    bad.write_text(text)
+    with pytest.raises(InputError) as exc:
+        robot_from_urdf(bad, "tool0")
+    assert exc.value.line and "--base LINK" in exc.value.message and "base_link" in exc.value.message
+    robot, info = robot_from_urdf(bad, "tool0", "base")   # UR's own base frame still works
+    assert info["fk_max_error_mm"] < 1e-6
+
+
+@pytest.mark.parametrize("what,file,line", [
+    ("swapped joints", "bad_map.toml", "13"),
+    ("base frame", "bad_map.toml", "20"),
+    ("wrong tool", "r.toml", "22"),
+])
+def test_nominal_check_refusals_point_at_the_fix(invoke, tmp_path, what, file, line):
+    """The nominal-consistency check of ingest runs on the imported folder; its refusal names the map or robot line."""
+    mp, robot = MAP, ROBOT
+    if what == "swapped joints":
+        mp = _map(tmp_path, lambda t: t.replace('"shoulder_lift_joint", "elbow_joint"', '"elbow_joint", "shoulder_lift_joint"'))
+    elif what == "base frame":
+        mp = _map(tmp_path, lambda t: t.replace('frame = "tracker"', 'frame = "base"'))
+    else:
+        robot = tmp_path / "r.toml"
+        text = ROBOT.read_text()
+        robot.write_text(text.replace("xyz_mm = [-0.26, 0.3, 93.21]", "xyz_mm = [0.0, 0.0, 600.0]"))
+        assert robot.read_text() != text
+    out = tmp_path / "out"
+    m = _fails(invoke("import", "--source", _small_source(tmp_path, 600), "--map", mp, "--robot", robot, "--out", out),
+               out, file)
+    assert m["line"] == line
+
+
+def test_imported_campaign_validates(invoke, tmp_path):
+    out = tmp_path / "c"
+    assert invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
+    r = invoke("validate", "--campaign", out)
+    assert r.exit_code == 0, r.stderr
+
+
+def _urdf_of(robot: Robot) -> str:
+    """A URDF of a contract robot: joint i at L_{i-1} Rz(theta_offset_i), link i's mass at L_i com_i, SMR link."""
+    import pinocchio as pin
+
+    from pipeline.robot import link_placement
+
+    def origin(M):
+        rpy = pin.rpy.matrixToRpy(M.rotation)
+        return (f'<origin xyz="{" ".join(repr(float(v)) for v in M.translation)}" '
+                f'rpy="{" ".join(repr(float(v)) for v in rpy)}"/>')
+
+    parts = ['<?xml version="1.0"?>', '<robot name="made">', '<link name="base"/>']
+    prev, parent = pin.SE3.Identity(), "base"
+    for i, j in enumerate(robot.joints):
+        M = prev * pin.SE3(pin.utils.rotate("z", np.deg2rad(j.theta_offset_deg)), np.zeros(3))
+        L = link_placement(j)
+        com = L.act(np.asarray(j.com_mm) / 1000.0)
+        parts += [f'<link name="l{i + 1}"><inertial><origin xyz="{" ".join(repr(float(v)) for v in com)}"/>'
+                  f'<mass value="{j.mass_kg!r}"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/>'
+                  '</inertial></link>',
+                  f'<joint name="j{i + 1}" type="revolute"><parent link="{parent}"/><child link="l{i + 1}"/>'
+                  f'{origin(M)}<axis xyz="0 0 1"/><limit lower="{float(np.deg2rad(j.lower_deg))!r}" '
+                  f'upper="{float(np.deg2rad(j.upper_deg))!r}" effort="1" velocity="1"/></joint>']
+        prev, parent = L, f"l{i + 1}"
+    tip = prev * pin.SE3(np.eye(3), np.asarray(robot.tool_xyz_mm) / 1000.0)
+    parts += ['<link name="smr"/>', f'<joint name="smr_fix" type="fixed"><parent link="l6"/><child link="smr"/>'
+              f'{origin(tip)}</joint>', "</robot>"]
+    return "\n".join(parts) + "\n"
+
+
+def _random_robot(seed) -> Robot:
+    rng = np.random.default_rng(seed)
+    joints = []
+    for i in range(6):
+        joints.append(Joint(a_mm=float(rng.choice([0.0, rng.uniform(-800, 800)])),
+                            alpha_deg=float(rng.choice([0.0, 90.0, -90.0, rng.uniform(-170, 170)])),
+                            d_mm=float(rng.choice([0.0, rng.uniform(-500, 500)])),
+                            theta_offset_deg=float(rng.choice([0.0, rng.uniform(-179, 179)])), beta_deg=0.0,
+                            lower_deg=-170.0, upper_deg=170.0, mass_kg=float(rng.uniform(0.5, 50)),
+                            com_mm=tuple(float(v) for v in rng.uniform(-200, 200, 3))))
+    return Robot(f"r{seed}", tuple(joints), tuple(float(v) for v in rng.uniform(-100, 200, 3)))
+
+
+@pytest.mark.parametrize("which", ["kr210", 1, 2, 3, 4, 5])
+def test_urdf_of_a_contract_robot_comes_back(tmp_path, which):
+    """robot.toml -> URDF -> derived robot: the same SMR positions and the same gravity torques."""
+    from pipeline.robot import gravity_torques
+    from pipeline.urdf import robot_from_urdf
+
+    robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml") if which == "kr210" else _random_robot(which)
+    path = tmp_path / "made.urdf"
+    path.write_text(_urdf_of(robot))
+    derived, info = robot_from_urdf(path, "smr")
+    assert info["fk_max_error_mm"] < 1e-6
+    Q = np.random.default_rng(5).uniform(np.deg2rad(robot.lower_deg), np.deg2rad(robot.upper_deg), size=(50, 6))
+    assert np.abs(positions(build_model(derived), Q) - positions(build_model(robot), Q)).max() < 1e-6
+    assert np.allclose(derived.lower_deg, robot.lower_deg) and np.allclose(derived.upper_deg, robot.upper_deg)
+    tau0 = gravity_torques(robot, np.rad2deg(Q))
+    tau1 = gravity_torques(derived, np.rad2deg(Q))
+    assert np.abs(tau1 - tau0).max() < 1e-6 * max(1.0, np.abs(tau0).max())
+
+
+def test_unreadable_urdf_is_one_located_line(invoke, tmp_path):
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(URDF.read_text().replace('lower="-3.141592653589793" upper="3.141592653589793"',
+                                            'lower="abc" upper="3.141592653589793"'))
+    out = tmp_path / "out"
+    m = _fails(invoke("import", "--source", _small_source(tmp_path), "--map", MAP, "--robot", bad, "--tip", "tool0",
+                      "--out", out), out, "bad.urdf")
+    assert m["line"] == "434"          # <joint name="elbow_joint" type="revolute">
+    broken = tmp_path / "broken.urdf"
+    broken.write_text(URDF.read_text().replace('<child link="shoulder_link"/>', '<child link="shoulder_link">'))
+    _fails(invoke("import", "--source", _small_source(tmp_path), "--map", MAP, "--robot", broken, "--tip", "tool0",
+                  "--out", out), out, "broken.urdf")

@@ -1,13 +1,21 @@
 """The second paper's improved Levenberg-Marquardt against ``scipy.optimize.least_squares``
-(issue #6): ``run() -> dict``.
+(issues #6 and #10): ``run() -> dict``; its ``table`` holds, for every problem the pipeline's
+Chebyshev stage solves, the improved L-M's and scipy's cost, their relative difference (the
+cross-check of ``jointcal robot chebyshev`` refuses more than 1 %), iterations, times and
+whether each converged (``table_text``: the same as text).
 
-Problems (the two robot stages of ``specs/robot_paper.toml``):
+Problems:
 
-* Chebyshev identification (order 3 on joints 1-6, 144 coefficients) on the shipped
-  fixture's 100 sample poses (``raw/robot/kr210``, grating angles as ``jointcal robot
-  chebyshev`` uses them) and on a synthetic campaign of 1,000 poses;
-* MDH calibration (geometry + base, 36 parameters) on the same fixture poses and on
-  1,000 synthetic poses.
+* the Chebyshev stage (``jointcal robot chebyshev``) of ``specs/robot_paper.toml`` (order 3 on
+  joints 1-6, 144 coefficients) and of ``specs/robot_beyond.toml`` (+ backlash of joints 4-6)
+  on the shipped fixture's 100 sample poses (``raw/robot/kr210``, grating angles as the command
+  uses them);
+* the same stage of ``specs/robot_paper.toml`` on each real series imported under
+  ``interim/real/<series>/`` (``jointcal import``; 1,664 sample poses of a UR10 for series C),
+  skipped, with the reason recorded, when none is there. ``JOINTCAL_BENCH_REAL`` (folders
+  separated by ``:``) names other real campaign folders;
+* a synthetic campaign of 1,000 poses (Chebyshev), and the MDH calibration (geometry + base,
+  36 parameters) on the fixture's poses and on 1,000 synthetic poses.
 
 Fairness: each problem is captured from the pipeline's own estimator (``RobotErrorModel.fit``
 with ``solver="lm"``; for MDH with the same identifiability reduction as ``calibrate_mdh``):
@@ -15,15 +23,18 @@ the solvers get the *same* residual closure, the same analytic Jacobian closure 
 scipy's ``jac`` evaluates it at the point asked), the same reduced parameters and the same
 start (0). Only the solvers' own arithmetic and stopping rules differ:
 
-* improved L-M: the spec's constants; stops when ``||F(x_k+1) - F(x_k)||^2 <= phi`` (1e-5 mm^2,
-  absolute) after an accepted step, or after 100 iterations. Each iteration: one F+J
-  evaluation, three more F evaluations, one Cholesky of a p x p matrix.
+* improved L-M (``pipeline.lm.improved_lm``: column-scaled, dimensionless damping; see its
+  docstring): the spec's constants; converged when ``||F(x_k+1) - F(x_k)||^2 <= phi`` after an
+  accepted step *and* a Gauss-Newton step would change F by no more (stationary); not
+  converged at 100 iterations. Each iteration: one F+J evaluation (only after an accepted
+  step), three more F evaluations, one Cholesky of a p x p matrix.
 * scipy ``trf`` (trust region reflective, ``tr_solver="exact"``: an SVD of J per iteration)
   with the pipeline's cross-check tolerances (ftol = xtol = gtol = 1e-12, at most 200
   evaluations: ``pipeline.lm.scipy_least_squares``) and with scipy's default tolerances (1e-8);
+  converged as the pipeline judges it: scipy's success and a stationary end point;
 * scipy ``lm`` (MINPACK's Levenberg-Marquardt, QR of J) with default tolerances;
-* MDH only: the pipeline's Gauss-Newton with step halving (``calibrate_mdh``), timed as the
-  whole fit minus the fit's set-up; it reuses the set-up's Jacobian at the start.
+* MDH only: the pipeline's Gauss-Newton (``calibrate_mdh``; Levenberg damping when a full step
+  fails), timed as the whole fit minus the fit's set-up; it reuses the set-up's Jacobian.
 
 Counts are measured by wrapping the closures: ``f_evals`` (residual only) and ``fj_evals``
 (residual and Jacobian together; a Jacobian costs about 1.5-3 residuals). Iterations: L-M's
@@ -33,6 +44,7 @@ for solves under 1 s. ``excess`` is (cost - lowest cost of the problem) / lowest
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -40,6 +52,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PIPELINE_SCIPY = {"method": "trf", "tr_solver": "exact", "ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12, "max_nfev": 200}
+LM_ROW = "improved L-M (paper, spec constants)"
+SCIPY_ROW = "scipy trf exact, pipeline tolerances 1e-12"
 
 
 class Problem:
@@ -68,6 +82,7 @@ class Problem:
         self.n_residuals = int(self.fun(self.x0).size)
         self.n_free = int(self.x0.size)
         self.n_params = int(model.identifiability_["n_params"])
+        self.implausible = list(model.implausible_)   # the fitted (L-M) parameters no real robot has
 
 
 class Counted:
@@ -106,17 +121,22 @@ def _improved_lm(problem):
     c = Counted(problem)
     r = improved_lm(c.fun, None, problem.x0, fun_and_jac=c.fun_and_jac, **problem.lm_options)
     return {"iterations": r.n_iter, "f_evals": c.f, "fj_evals": c.fj, "cost_mm2": r.cost,
-            "converged": bool(r.converged), "stop": "||dF||^2 <= phi" if r.converged else "max_iter"}
+            "converged": bool(r.converged), "stop": r.reason}
 
 
 def _scipy(problem, **options):
     from scipy.optimize import least_squares
 
+    from pipeline.lm import is_stationary
+
     c = Counted(problem)
     res = least_squares(c.fun, problem.x0, jac=c.jac, **options)
     its = int(res.njev) - 1 if options.get("method", "trf") == "trf" else int(res.njev)
+    stationary, gain = is_stationary(res.fun, np.asarray(res.jac, float), 1e-5)
+    # converged as the pipeline judges it (pipeline.lm.scipy_least_squares): scipy's success and stationary
     return {"iterations": its, "f_evals": c.f, "fj_evals": c.fj, "cost_mm2": float(res.cost),
-            "converged": bool(res.success), "stop": res.message}
+            "converged": bool(res.success) and stationary,
+            "stop": f"{res.message} (a Gauss-Newton step would change F by ||dF||^2 = {gain:.2g})"}
 
 
 def _gauss_newton(robot, effects, data):
@@ -134,15 +154,15 @@ def _gauss_newton(robot, effects, data):
         times.append(t)
         setups.append(fit(0)[1])
     return {"iterations": m.n_iter_, "f_evals": None, "fj_evals": None, "cost_mm2": float(m.cost_),
-            "converged": True, "stop": "step < 1e-9 or relative cost decrease <= 1e-12",
+            "converged": bool(m.converged_), "stop": m.convergence_,
             "seconds": max(min(times) - min(setups), 0.0)}
 
 
 def compare(name, problem, extra=None) -> dict:
     """Every solver on one captured problem."""
     rows = {
-        "improved L-M (paper, spec constants)": _best(lambda: _improved_lm(problem)),
-        "scipy trf exact, pipeline tolerances 1e-12": _best(lambda: _scipy(problem, **PIPELINE_SCIPY)),
+        LM_ROW: _best(lambda: _improved_lm(problem)),
+        SCIPY_ROW: _best(lambda: _scipy(problem, **PIPELINE_SCIPY)),
         "scipy trf exact, default tolerances 1e-8": _best(lambda: _scipy(problem, method="trf", tr_solver="exact")),
         "scipy lm (MINPACK), default tolerances": _best(lambda: _scipy(problem, method="lm")),
     }
@@ -156,7 +176,47 @@ def compare(name, problem, extra=None) -> dict:
     fj_t = _best(lambda: (problem.fun_and_jac(problem.x0), {})[1])["seconds"]
     return {"problem": name, "residuals": problem.n_residuals, "parameters": problem.n_params,
             "free_parameters": problem.n_free, "setup_seconds": problem.setup_seconds,
-            "seconds_per_f": f_t, "seconds_per_fj": fj_t, "lowest_cost_mm2": lowest, "solvers": rows}
+            "seconds_per_f": f_t, "seconds_per_fj": fj_t, "lowest_cost_mm2": lowest,
+            "implausible_parameters": problem.implausible, "solvers": rows}
+
+
+def real_campaigns() -> tuple[list[Path], str]:
+    """Real robot campaign folders to bench (``interim/real/<series>/`` or ``JOINTCAL_BENCH_REAL``),
+    and why there are none when there are none."""
+    env = os.environ.get("JOINTCAL_BENCH_REAL")
+    if env:
+        folders = [Path(p) for p in env.split(":") if p]
+    else:
+        folders = sorted(p.parent for p in (ROOT / "interim" / "real").glob("*/poses.csv"))
+    folders = [f for f in folders if (f / "poses.csv").exists() and (f / "robot.toml").exists()]
+    why = "" if folders else ("no real series imported: interim/real/<series>/poses.csv is made by `jointcal import` "
+                              "(mk/real.mk); set JOINTCAL_BENCH_REAL to other campaign folders")
+    return folders, why
+
+
+def table_row(entry: dict) -> dict:
+    """One line of the L-M vs scipy table from a :func:`compare` entry."""
+    lm, sp = entry["solvers"][LM_ROW], entry["solvers"][SCIPY_ROW]
+    rel = abs(lm["cost_mm2"] - sp["cost_mm2"]) / max(sp["cost_mm2"], 1e-300)
+    return {"problem": entry["problem"], "lm_cost_mm2": lm["cost_mm2"], "scipy_cost_mm2": sp["cost_mm2"],
+            "relative_difference": rel, "within_1pct": bool(rel <= 0.01),
+            "lm_iterations": lm["iterations"], "scipy_iterations": sp["iterations"],
+            "lm_seconds": lm["seconds"], "scipy_seconds": sp["seconds"],
+            "lm_converged": lm["converged"], "scipy_converged": sp["converged"],
+            "plausible": not entry["implausible_parameters"]}
+
+
+def format_table(rows: list[dict]) -> str:
+    """The table as text (one problem per line)."""
+    head = (f"{'problem':78s} {'L-M cost':>12s} {'scipy cost':>12s} {'rel diff':>9s} {'L-M it':>6s} {'scipy it':>8s} "
+            f"{'L-M s':>7s} {'scipy s':>7s}  converged (L-M, scipy), plausible")
+    lines = [head]
+    for r in rows:
+        lines.append(f"{r['problem'][:78]:78s} {r['lm_cost_mm2']:12.6g} {r['scipy_cost_mm2']:12.6g} "
+                     f"{r['relative_difference']:9.1e} {r['lm_iterations']:6d} {r['scipy_iterations']:8d} "
+                     f"{r['lm_seconds']:7.2f} {r['scipy_seconds']:7.2f}  {r['lm_converged']}, {r['scipy_converged']}, "
+                     f"{r['plausible']}")
+    return "\n".join(lines)
 
 
 def run() -> dict:
@@ -165,35 +225,65 @@ def run() -> dict:
     from pipeline.chebyshev import LM_DEFAULTS, chebyshev_estimator
     from pipeline.lm import limit_blas_threads
     from pipeline.robot_ingest import has_gratings, ingest_robot, robot_data
+    from pipeline.spec import load_spec
 
     limit_blas_threads(1)
     spec, robot = _spec_and_robot()
+    beyond = load_spec(ROOT / "specs" / "robot_beyond.toml")
     opts = {**LM_DEFAULTS, **spec.model.get("lm", {})}
     feedback, kinematic = stage_effects(spec, "feedback"), stage_effects(spec, "kinematic")
     _, frame = ingest_robot(ROOT / "raw" / "robot" / "kr210")
     sample = frame[frame["set"] == "sample"]
     fixture_cheb = robot_data(robot, sample, use_gratings=has_gratings(sample))
     fixture_mdh = robot_data(robot, sample)
+
+    def cheb(r, effects, s):
+        return chebyshev_estimator(r, effects, "lm", {**LM_DEFAULTS, **s.model.get("lm", {})})
+
+    out = []
+    # the Chebyshev stage of every spec the pipeline runs, as `jointcal robot chebyshev` solves it
+    for name, s in ((f"Chebyshev stage, robot_paper.toml, fixture ({fixture_cheb.n} sample poses)", spec),
+                    (f"Chebyshev stage, robot_beyond.toml, fixture ({fixture_cheb.n} sample poses)", beyond)):
+        out.append(compare(name, Problem(cheb(robot, stage_effects(s, "feedback"), s), fixture_cheb)))
+    folders, skipped_real = real_campaigns()
+    for folder in folders:
+        real_robot, real_frame = ingest_robot(folder)
+        real_sample = real_frame[real_frame["set"] == "sample"]
+        data = robot_data(real_robot, real_sample, use_gratings=has_gratings(real_sample))
+        name = f"Chebyshev stage, robot_paper.toml, real {real_robot.name} {folder.name} ({data.n} sample poses)"
+        try:
+            out.append(compare(name, Problem(cheb(real_robot, feedback, spec), data)))
+        except Exception as exc:  # a failing real problem is a result, not a crash of the bench
+            out.append({"problem": name, "error": f"{type(exc).__name__}: {exc}"})
     synth_cheb = synthetic_campaign(robot, feedback, 1000, seed=0, size=0.02)
     synth_mdh = synthetic_campaign(robot, kinematic, 1000, seed=1, size=0.1)
+    out.append(compare("Chebyshev order 3, synthetic 1,000 poses", Problem(chebyshev_estimator(robot, feedback, "lm", opts),
+                                                                         synth_cheb)))
 
     def mdh():
         return RobotErrorModel(robot, kinematic, solver="lm", identifiability=True, lm_options=opts)
 
-    out = []
-    for name, data in ((f"Chebyshev order 3, fixture ({fixture_cheb.n} sample poses)", fixture_cheb),
-                       ("Chebyshev order 3, synthetic 1,000 poses", synth_cheb)):
-        out.append(compare(name, Problem(chebyshev_estimator(robot, feedback, "lm", opts), data)))
     for name, data in ((f"MDH geometry + base, fixture ({fixture_mdh.n} sample poses)", fixture_mdh),
                        ("MDH geometry + base, synthetic 1,000 poses", synth_mdh)):
         gn = {"Gauss-Newton (pipeline's MDH solver)": _gauss_newton(robot, kinematic, data)}
         out.append(compare(name, Problem(mdh(), data), gn))
-    return {"what": "improved L-M (pipeline.lm.improved_lm) against scipy.optimize.least_squares on the same "
-                    "captured problems (same residual and Jacobian closures, same start, same reduction)",
-            "problems": out}
+    rows = [table_row(e) for e in out if "error" not in e]
+    result = {"what": "improved L-M (pipeline.lm.improved_lm) against scipy.optimize.least_squares on the same "
+                      "captured problems (same residual and Jacobian closures, same start, same reduction)",
+              "table": rows, "table_text": format_table(rows),
+              "all_within_1pct": all(r["within_1pct"] for r in rows),
+              "all_converged": all(r["lm_converged"] and r["scipy_converged"] for r in rows),
+              "problems": out}
+    if skipped_real:
+        result["real_skipped"] = skipped_real
+    return result
 
 
 if __name__ == "__main__":
     import json
+    import sys
 
-    print(json.dumps(run(), indent=2, default=float))
+    result = run()
+    print(json.dumps(result, indent=2, default=float))
+    print(result["table_text"] + (f"\n(real series skipped: {result['real_skipped']})" if "real_skipped" in result else ""),
+          file=sys.stderr)

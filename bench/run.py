@@ -142,6 +142,7 @@ OPTIONAL_JOBS = {
     "diagnose": "bench.diagnose_bench",    # diagnosis of a 200-pose campaign, 8 encoder runs
     "figaroh": "bench.figaroh_bench",      # FIGAROH comparison
     "fleet": "bench.fleet_bench",          # fleet of robots
+    "real": "bench.real_bench",            # real UR10: import + fit of 2,773 poses, predict on 10,000
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

@@ -435,8 +435,10 @@ def report(kind, results_dir, interim_dir, modules, out):
               help="Folder with <module>_model.json files.")
 @click.option("--robot-results", default="results/robot", show_default=True, type=click.Path(),
               help="Folder with table2.json (robot part), if the robot chain ran.")
+@click.option("--real-results", default="results/real", show_default=True, type=click.Path(),
+              help="Folder with transfer.json (real section), if the real-robot chain ran.")
 @click.option("--out", default="results/summary.json", show_default=True, type=click.Path(dir_okay=False))
-def summary(encoder_results, robot_results, out):
+def summary(encoder_results, robot_results, real_results, out):
     """Write results/summary.json (contract section 5) from the stages' results."""
     from .io import write_json
     from .summary import build_summary
@@ -452,13 +454,15 @@ def summary(encoder_results, robot_results, out):
         b = _read_json(beyond_path)
         robot["beyond_paper"] = {"spec": "specs/robot_beyond.toml", "added": "backlash of joints 4-6",
                                  "feedback": b["feedback"], "max_reduction_pct": b["max_reduction_pct"]}
-    write_json(out, build_summary(models, robot))
+    real_path = Path(real_results) / "transfer.json"
+    real = _read_json(real_path) if real_path.exists() else None
+    write_json(out, build_summary(models, robot, real))
     click.echo(f"{out}: {len(models)} module(s){' and the robot' if robot else ''}", err=True)
 
 
 def _register_optional():
     """Robot and diagnosis commands live in their own modules."""
-    for name in ("robot_cli", "diagnose_cli", "fleet_cli"):
+    for name in ("robot_cli", "diagnose_cli", "fleet_cli", "import_cli"):
         try:
             module = __import__(f"pipeline.{name}", fromlist=["register"])
         except ImportError:

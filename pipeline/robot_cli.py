@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import sys
+
 import click
 import numpy as np
 
@@ -31,9 +33,13 @@ def _read_json(path):
 
 
 def _interim(path):
-    from .io import read_parquet_input
+    """An ingested robot table, checked against its nominal kinematics (robot_ingest.check_ingested)."""
+    from .io import parquet_metadata, read_parquet_input
+    from .robot_ingest import check_ingested
 
-    return read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
+    frame = read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
+    check_ingested(frame, path, parquet_metadata(path))
+    return frame
 
 
 def outside_calibrated_range(sample, targets) -> list[dict]:
@@ -103,14 +109,20 @@ def warn_unstaged(spec) -> None:
 def ingest_robot_to(campaign, out):
     """``jointcal ingest`` for a robot campaign folder."""
     from .io import provenance, write_parquet
-    from .robot_ingest import ingest_robot
+    from .robot_frame import describe, from_matrix
+    from .robot_ingest import ingest_robot_with_frame
 
-    robot, frame = ingest_robot(campaign)
-    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
-    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files)})
+    robot, frame, info = ingest_robot_with_frame(campaign)
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
+    files = [f for f in files if f.name != "campaign.toml" or f.exists()]
+    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files), "frame": info["frame"],
+                               "tracker_to_base": info["tracker_to_base"],
+                               "nominal_fit": {"rms_mm": info["nominal_rms_mm"], "max_mm": info["nominal_max_mm"]}})
     counts = frame["set"].value_counts().to_dict()
-    click.echo(f"{out}: {len(frame)} poses of {robot.name} ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))})",
-               err=True)
+    where = (f"tracker frame -> base: {describe(*from_matrix(info['tracker_to_base']))} (fitted on the sample poses)"
+             if info["frame"] == "tracker" else "base frame")
+    click.echo(f"{out}: {len(frame)} poses of {robot.name} ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}); "
+               f"{where}; nominal kinematics leave RMS {info['nominal_rms_mm']:.2f} mm after a rigid fit", err=True)
 
 
 def validate_robot(campaign, problems):
@@ -200,9 +212,19 @@ def calibrate_cmd(interim, robot_path, spec_path, out):
     warn_unstaged(spec)
     effects = stage_effects(spec, "kinematic")
     sample = frame[frame["set"] == "sample"]
-    _, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
+    model, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
     report["provenance"] = provenance([interim, robot_path], spec_path)
     seconds = report.pop("seconds")  # wall time is not a result: same inputs, same bytes
+    report.update(converged=bool(model.converged_), convergence=model.convergence_, plausible=bool(model.plausible_),
+                  implausible=model.implausible_)
+    problems = fit_problems(report)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {interim}: MDH calibration unusable: {'; '.join(problems)}; nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
     write_json(out, report)
     click.echo(f"{out}: rank {report['rank']}/{report['n_params']}, condition {report['condition_number']:.0f}, "
                f"fixed {', '.join(report['not_identifiable']) or 'none'}; RMS {report['rms_before_mm']:.3f} -> "
@@ -221,9 +243,15 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
 
     scipy.optimize.least_squares is run beside it as a cross-check; both costs (0.5 ||F||^2, mm^2),
     iterations and times are reported. Coefficients gamma in mm, lambda in arcsec.
+
+    When either solver did not converge, their costs differ by more than 1 %, or a coefficient is
+    beyond what a real robot can have (5 deg, 100 mm), nothing is written (a previous OUT is
+    removed, so no stale model reaches map-joints) and the command exits 1 with one line saying why.
     """
-    from .chebyshev import identify
+
+    from .chebyshev import cross_check_problems, identify
     from .io import provenance, write_json
+    from .lm import lm_options_problem
     from .robot_ingest import has_gratings, robot_data
 
     _edge()
@@ -232,6 +260,14 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
     effects = stage_effects(spec, "feedback")
     if not effects:
         raise InputError(spec_path, "the spec has no chebyshev effect (add [[effect]] name = \"chebyshev\")", 1, 1)
+    lm_problem = lm_options_problem(spec.model.get("lm", {}))
+    if lm_problem:
+        from .spec import _locate
+
+        text = Path(spec.path).read_text(encoding="utf-8")
+        where = _locate(text, rf"^\s*{lm_problem[0]}\s*=")
+        raise InputError(spec_path, f"[model.lm]: {lm_problem[1]}",
+                         *(where if where[0] else _locate(text, r"^\s*\[model\.lm\]")))
     sample = frame[frame["set"] == "sample"]
     use = gratings and has_gratings(sample)
     result = identify(robot, robot_data(robot, sample, use_gratings=use), effects, spec.model.get("lm", {}))
@@ -239,6 +275,14 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
     result["provenance"] = provenance([interim, robot_path], spec_path)
     lm, sp = result["lm"], result["scipy"]
     seconds = {"lm": lm.pop("seconds"), "scipy": sp.pop("seconds")}  # wall time is not a result (same bytes)
+    problems = cross_check_problems(result)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {interim}: Chebyshev identification unusable: {'; '.join(problems)}; "
+                   f"nothing written{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
     write_json(out, result)
     click.echo(f"{out}: {result['n_params']} coefficients, rank {result['rank']}; improved L-M cost {lm['cost_mm2']:.5f} "
                f"({lm['iterations']} it, {seconds['lm']:.2f} s), scipy {sp['cost_mm2']:.5f} ({sp['iterations']} ev, "
@@ -254,11 +298,18 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
 @click.option("--strict", is_flag=True,
               help="Refuse (exit 2) when a target lies outside the joint range the sample poses covered, "
                    "instead of warning: the model would extrapolate there.")
-def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict):
+@click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="Refuse (exit 1, nothing written) when any corrected command differs from its target by more "
+                   "than this (deg). The paper's corrections are arcseconds; 0.5 deg moves a point 1 m out by "
+                   "8.7 mm, more than a robot's error left to correct: beyond it the model or the mapping "
+                   "(near a singular pose) is wrong.")
+def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_correction_deg):
     """Corrected commands of joints 1-3 for every target (Eqs. 22-24), deg.
 
     Targets outside the joint range covered by the sample poses (where the model was
-    identified) are named in a warning; with --strict they are refused.
+    identified) are named in a warning; with --strict they are refused. A correction larger
+    than --max-correction-deg is refused (exit 1, one line naming the target and the joint,
+    nothing written; a previous OUT is removed).
 
     Columns: point_id, q1..q6 (commanded, deg), q1_corrected..q3_corrected (deg), dq1..dq3 (deg,
     the Eq. 23 angle errors; corrected = commanded - dq), dx_mm, dy_mm, dz_mm (predicted error).
@@ -297,6 +348,20 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict):
     dP = model.predict_error(data)
     joints = tuple(spec.model.get("grating_joints", [1, 2, 3]))
     dth, qc = joint_mapping(robot, data.q_deg, dP, joints)
+    size = np.where(np.isfinite(dth), np.abs(dth), np.inf)
+    beyond = size > max_correction_deg
+    if beyond.any():
+    
+        k, c = np.unravel_index(int(np.argmax(size)), size.shape)
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {model_path}: target {tg['point_id'].iloc[k]} needs joint {joints[c]} corrected "
+                   f"by {dth[k, c]:.4g} deg, beyond --max-correction-deg {max_correction_deg:g} "
+                   f"({int(beyond.any(axis=1).sum())} of {len(tg)} targets beyond; the model, or the mapping near a "
+                   f"singular pose, is not plausible there); nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
     import pandas as pd
 
     table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
@@ -495,53 +560,194 @@ def report_cmd(results_dir, beyond_path, diagnosis_path, out):
     click.echo(f"{out}: written", err=True)
 
 
+@robot_group.command("real-report")
+@click.option("--results", "results_dir", default="results/real", show_default=True, type=click.Path(),
+              help="Folder with <series>_<spec>.json (fit), _self.json and _on_<other>.json (predict).")
+@click.option("--campaigns", "campaigns_dir", default="interim/real", show_default=True, type=click.Path(),
+              help="Folder with one imported campaign per series (jointcal import).")
+@click.option("--out-json", default="results/real/transfer.json", show_default=True, type=click.Path(dir_okay=False),
+              help="The report's numbers (summary.json's real section).")
+@click.option("--out", default="reports/real.pdf", show_default=True, type=click.Path(dir_okay=False))
+def real_report_cmd(results_dir, campaigns_dir, out_json, out):
+    """Write reports/real.pdf: nominal / kinematic / paper-spec errors (mm) of every real series on its
+    own held-out poses and on the other series (registered), and each held-out pose's error against
+    each joint angle (deg)."""
+    import pandas as pd
+
+    from .io import write_json
+    from .real_report import load_results, real_report
+
+    series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
+        if Path(campaigns_dir).is_dir() else []
+    if not series:
+        raise InputError(campaigns_dir, "no imported campaign (<series>/poses.csv): run `make real` or jointcal import")
+    results = load_results(results_dir, series)
+    campaigns = {s: pd.read_csv(Path(campaigns_dir) / s / "poses.csv", dtype={"point_id": str}) for s in series}
+    table = real_report(results, campaigns, out)
+    write_json(out_json, table)
+    click.echo(f"{out}: written; {out_json}: " + "; ".join(
+        f"{s}: kinematic {t['kinematic']['rms_mm']:.3f} mm own, "
+        + ", ".join(f"{k.split('_on_')[1]} {t[k]['rms_mm']:.3f}" for k in sorted(t) if k.startswith("kinematic_on_"))
+        for s, t in table.items() if "kinematic" in t), err=True)
+
+
 def robot_fit_result(campaign, spec, loaded=None) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
     (held-out error before/after in mm, the 5-fold cross-validated RMS over the sample poses
-    that ``jointcal diagnose`` ranks effects by, the fitted parameters). ``loaded``: the
-    campaign already read, ``(robot, sample, target)``.
+    that ``jointcal diagnose`` ranks effects by, and the fitted model as ``jointcal predict``
+    reads it: robot, effects, every parameter with its unit and why it was left at nominal if it
+    was, the sampled joint ranges, the tracker-to-base transform). ``loaded``: the campaign
+    already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
     """
     from .robot_diagnose import RobotAdapter, robot_data_sets
-    from .robot_evaluate import heldout_fit
+    from .robot_evaluate import fit_effects, heldout_fit
+    from .robot_predict import model_document, outside_range, sampled_range
 
+    frame_info = None
     if loaded is None:
-        robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+        robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
     else:
-        robot, sample, target = loaded
+        robot, sample, target, *rest = loaded
+        frame_info = rest[0] if rest else None
     if sample.n == 0:
-        raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on", 1, 1)
+        raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on "
+                         "(to check a fitted model on these poses, use jointcal predict)", 1, "set")
     effects = list(spec.effects)
     out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
            "spec_lines": [e.spec_lines() for e in effects]}
+    model = fit_effects(robot, effects, sample)
     if target.n:
-        out["heldout"] = heldout_fit(robot, effects, sample, target)
+        out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
+        rng = sampled_range(sample.q_deg)
+        out["heldout"]["outside_sampled_range"] = int(outside_range(target.q_deg, rng).sum())
     adapter = RobotAdapter(robot)
     out["cv_rms_mm"] = adapter.cross_validate(effects, sample).rms
     out["cv_folds"] = adapter.fold_description(sample)
+    out.update(model_document(robot, effects, model, sample.q_deg, frame_info))
+    out["not_identified"] = out["identification"]["fixed"]
+    out["converged"] = bool(getattr(model, "converged_", True))
+    out["convergence"] = getattr(model, "convergence_", "")
+    out["plausible"] = bool(getattr(model, "plausible_", True))
+    out["implausible"] = getattr(model, "implausible_", [])
     return out
+
+
+def fit_problems(result: dict) -> list[str]:
+    """Why a fit must not be used (did not converge, or parameters no real robot has); [] if fine."""
+    from .lm import describe_implausible
+
+    out = []
+    if not result.get("converged", True):
+        out.append(f"the fit did not converge ({result.get('convergence') or 'no reason given'})")
+    if not result.get("plausible", True):
+        out.append(f"parameters no real robot has: {describe_implausible(result.get('implausible', []))}")
+    return out
+
+
+def _warn_outside(sample_q, target_q, target_ids):
+    """Warn (as map-joints does) about targets outside the joint ranges of the sample poses."""
+    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
+    parts = []
+    for j in range(sample_q.shape[1]):
+        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
+        bad = beyond > 1e-9
+        if bad.any():
+            k = int(np.argmax(beyond))
+            parts.append(f"joint {j + 1}: {int(bad.sum())} target(s), up to {beyond[k]:.2f} deg beyond "
+                         f"[{lo[j]:.2f}, {hi[j]:.2f}] (worst {target_ids[k]})")
+    if parts:
+        click.echo("jointcal: warning: targets outside the joint range the sample poses covered (the model "
+                   "extrapolates there): " + "; ".join(parts), err=True)
 
 
 def fit_robot(campaign, spec, spec_path, out):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
     from .io import provenance, write_json
+    from .robot_diagnose import robot_data_sets
 
+    _edge()
     spec.require_kind("robot", campaign)
-    result = robot_fit_result(campaign, spec)
+    robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
+    if sample.n and target.n:
+        _warn_outside(sample.q_deg, target.q_deg, np.asarray(target.point_id))
+    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info))
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
+    files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]
     result["provenance"] = provenance(files, spec_path)
+    problems = fit_problems(result)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {campaign}: {'; '.join(problems)}; nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
     write_json(out, result)
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
             f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "
+    fixed = result["not_identified"]
+    weak = [n for n, why in fixed.items() if why.startswith("weakly")]
     click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "
-               f"({result['cv_folds']})", err=True)
+               f"({result['cv_folds']}); {len(fixed)} parameter(s) left at nominal"
+               + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
+               err=True)
+
+
+@click.command("predict")
+@click.option("--campaign", required=True, type=click.Path(),
+              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv).")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="Fitted robot model (jointcal fit --campaign ... --out FIT.json).")
+@click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
+@click.option("--register", is_flag=True,
+              help="Estimate the rigid tracker-to-base transform again on the campaign's sample poses first "
+                   "(the tracker was moved); every other parameter is the model's.")
+def predict_cmd(campaign, model_path, json_out, register):
+    """Predict every pose of another campaign with a fitted model and compare with its tracker points.
+
+    Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
+    none): n, rms_mm, max_mm, mean_mm, std_mm, outside_sampled_range (poses outside the joint
+    ranges the model was fitted on, where it extrapolates) and one line per point.
+    """
+    from .io import provenance, write_json
+    from .robot_diagnose import robot_data_sets
+    from .robot_predict import load_model_document, predict_campaign, same_robot_problem
+
+    _edge()
+    robot_m, effects, model, sampled, fit_frame = load_model_document(_read_json(model_path), model_path)
+    robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
+                                                        with_table=True)
+    problem = same_robot_problem(robot_m, robot)
+    if problem:
+        raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
+    meas = data.measured_mm
+    if not register and frame_info and frame_info.get("frame") == "tracker":
+        # the tracker has not moved: its points go through the fit campaign's transform
+        from .robot_frame import apply, from_matrix
+
+        raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
+        meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
+    try:
+        result = predict_campaign(model, data, table["set"].to_numpy(), meas, sampled, register)
+    except ValueError as exc:
+        raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
+    result["provenance"] = provenance([f for f in files if f.exists()] + [model_path])
+    write_json(json_out, result)
+    reg = result["registration"]
+    click.echo(f"{json_out}: {result['n']} {result['evaluated_on']} poses: RMS {result['rms_mm']:.3f} mm, max "
+               f"{result['max_mm']:.3f} mm; {result['outside_sampled_range']} outside the sampled joint ranges"
+               + (f"; re-registered on {reg['n']} sample poses ({reg['rotation_deg']:.3f} deg, "
+                  f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else ""), err=True)
 
 
 def register(cli):
     """Add the robot commands to the ``jointcal`` group."""
     cli.add_command(robot_group)
+    cli.add_command(predict_cmd)
     sim = cli.commands.get("simulate")
     if sim is not None:
         sim.add_command(simulate_robot_cmd)

@@ -29,19 +29,37 @@ def robot_data_from_campaign(folder, sets=("sample",)):
     return robot, data
 
 
-def robot_data_sets(folder, *groups):
+def robot_data_sets(folder, *groups, with_frame=False, with_table=False):
     """(robot, [RobotData of each group of sets]) from one ingest of a raw robot campaign,
-    e.g. ``robot_data_sets(folder, ("sample",), ("target",))``; see :func:`robot_data_from_campaign`."""
+    e.g. ``robot_data_sets(folder, ("sample",), ("target",))``; see :func:`robot_data_from_campaign`.
+
+    With ``with_frame`` the campaign's frame (``{"frame", "tracker_to_base"}``, the transform the
+    ingest estimated) follows; with ``with_table`` the ingested table of the first group too.
+    """
     from .robot_ingest import has_gratings, ingest_robot, robot_data
 
     robot, frame = ingest_robot(folder)
-    out = []
+    out, tables = [], []
     for sets in groups:
         part = frame[frame["set"].isin(list(sets))].reset_index(drop=True)
         data = robot_data(robot, part, use_gratings=has_gratings(part))
         data.grating_joints = (1, 2, 3) if has_gratings(part) else ()
         out.append(data)
-    return robot, out
+        tables.append(part)
+    result = [robot, out]
+    if with_frame:
+        result.append(frame_info(frame))
+    if with_table:
+        result.append(tables[0])
+    return tuple(result)
+
+
+def frame_info(frame) -> dict:
+    """``{"frame": "base" | "tracker", "tracker_to_base": 4x4 (mm)}`` of an ingested robot table."""
+    info = dict(frame.attrs.get("jointcal_frame", {})) if hasattr(frame, "attrs") else {}
+    info.setdefault("frame", "base")
+    info.setdefault("tracker_to_base", np.eye(4).tolist())
+    return info
 
 
 def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:

@@ -104,6 +104,13 @@ class RobotEffect(Effect):
         """Reported unit of each parameter and the factor internal -> reported."""
         raise NotImplementedError
 
+    def checked_values(self, robot: Robot, parameters: list[dict], q_deg) -> list[dict]:
+        """What a real robot's error budget applies to, as ``{name, value, unit}``: by default the
+        fitted parameters themselves (reported units). An effect whose parameters are not physical
+        amounts on their own (polynomial coefficients that may cancel) returns what they produce
+        over the sampled joint angles ``q_deg`` (n, 6) deg instead."""
+        return parameters
+
     def basis(self, robot: Robot, idx: ErrorModelIndex, data: RobotData) -> list[list[tuple[int, object]]]:
         """Channels of each parameter: list (one per parameter) of ``(coordinate, values)``.
 
@@ -222,6 +229,22 @@ class Chebyshev(RobotEffect):
     def units(self, robot):
         return [("mm", 1.0) if t[0] == "d" else ("arcsec", MRAD_ARCSEC)
                 for i in self.joints() for t in TWIST for j in range(self.order() + 1)]
+
+    def checked_values(self, robot, parameters, q_deg):
+        """The largest translation (mm) and rotation (arcsec) of each error transfer matrix over the
+        sampled range of its joint: the coefficients of a high order may be large and cancel."""
+        value = {p["name"]: p["value"] for p in parameters}
+        out = []
+        q = np.asarray(q_deg, float)
+        for i in self.joints():
+            grid = np.linspace(q[:, i - 1].min(), q[:, i - 1].max(), 61)
+            C = chebyshev_polys(chebyshev_variable(grid, robot.lower_deg[i - 1], robot.upper_deg[i - 1]), self.order())
+            for t in TWIST:
+                kind = "gamma" if t[0] == "d" else "lambda"
+                coef = np.array([value[f"{kind}_{j}_{t}_{i}"] for j in range(self.order() + 1)])
+                out.append({"name": f"{'delta' if t[0] == 'd' else 'epsilon'}_{t}_{i} over the sampled range",
+                            "value": float(np.max(np.abs(C @ coef))), "unit": "mm" if t[0] == "d" else "arcsec"})
+        return out
 
     def basis(self, robot, idx, data):
         out = []

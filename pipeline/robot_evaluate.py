@@ -116,7 +116,7 @@ def fit_effects(robot, effects, data):
     return RobotErrorModel(robot, effects, solver="gauss-newton").fit(data)
 
 
-def heldout_fit(robot, effects, sample, target) -> dict:
+def heldout_fit(robot, effects, sample, target, model=None) -> dict:
     """Fit the spec's model on the sample poses; its error on the held-out target poses.
 
     Parameters
@@ -133,10 +133,11 @@ def heldout_fit(robot, effects, sample, target) -> dict:
     dict: ``before`` (nominal model) and ``after`` (fitted model) error statistics of the targets
     (mm, Eq. 27), ``rms_before_mm`` / ``rms_after_mm`` (RMS of the 3-D error), ``max_reduction_pct``,
     ``rms_reduction_pct``, the fitted ``parameters`` and the fit's identifiability.
+    ``model``: the model already fitted on ``sample`` (else it is fitted here).
     """
     from .calibrate import Design
 
-    model = fit_effects(robot, effects, sample)
+    model = model if model is not None else fit_effects(robot, effects, sample)
     nominal = Design(robot, [], target).predict(np.zeros(0))
     before = target.measured_mm - nominal
     after = target.measured_mm - model.predict(target)

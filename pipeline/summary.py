@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 
-def build_summary(encoder_models: dict, robot: dict | None) -> dict:
+def build_summary(encoder_models: dict, robot: dict | None, real: dict | None = None) -> dict:
     """Assemble the summary.
 
     Parameters
@@ -25,4 +25,6 @@ def build_summary(encoder_models: dict, robot: dict | None) -> dict:
         for extra in ("beyond_paper",):
             if extra in robot:
                 out["robot"][extra] = robot[extra]
+    if real is not None:
+        out["real"] = {"ur10-ipa": real}
     return out

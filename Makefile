@@ -10,6 +10,12 @@ STAMP := $(VENV)/.installed
 export SOURCE_DATE_EPOCH := 1577836800
 export MPLBACKEND := Agg
 export OPENBLAS_NUM_THREADS := 1
+# glibc's malloc gives freed blocks over its (moving) threshold back to the system and trims its heap;
+# the robot fits free and allocate large arrays over and over, so page faults (system time) come and
+# go with what the process ran before: one robot diagnosis took 6 s with these fixed thresholds and
+# 9 to 19 s without (measured), the tests' 4 s or 13 s from one run to the next. Same results.
+export MALLOC_MMAP_THRESHOLD_ := 33554432
+export MALLOC_TRIM_THRESHOLD_ := 268435456
 
 MODULES := a b
 ENC_SPEC := specs/encoder_paper.toml
@@ -24,14 +30,21 @@ ALL_TARGETS := encoder diagnosis
 # diagnosis: campaign, spec and JSON name; mk/*.mk may append (DIAG_PAIRS += ...)
 DIAG_PAIRS := raw/encoder/a:$(ENC_SPEC):a raw/encoder/b:$(ENC_SPEC):b
 
-# every stage runs through the command layer and the writers: a change there reruns it
-COMMON := pipeline/cli.py pipeline/io.py pipeline/errors.py
+# The code a stage runs: CODE.<module>.<command> lists the pipeline/ files the command <command>
+# of pipeline/cli/<module>.py may import (mk/deps.py follows the package's import statements);
+# mk/deps.mk is rewritten whenever a module changes (or one is added or removed), before any
+# stage is considered, so editing any module a stage uses reruns that stage.
+PIPELINE_PY := $(sort $(shell find pipeline -name '*.py' -not -path '*/__pycache__/*'))
 
 .DEFAULT_GOAL := all
 .SECONDEXPANSION:
 .DELETE_ON_ERROR:
 
--include mk/*.mk
+mk/deps.mk: mk/deps.py $(PIPELINE_PY) $(sort $(dir $(PIPELINE_PY)))
+	@$(PYTHON) mk/deps.py > $@.tmp && mv $@.tmp $@
+
+-include mk/deps.mk
+-include $(filter-out mk/deps.mk,$(wildcard mk/*.mk))
 
 .PHONY: all help encoder diagnosis test bench fixtures clean distclean
 
@@ -50,28 +63,28 @@ $(JC): $(STAMP)
 # ------------------------------------------------------------------ encoder (paper 1)
 encoder: $(ENC_TABLES) $(ENC_ALIAS) reports/encoder.pdf ## joint modules a and b: tables, report
 
-interim/encoder/%.parquet: $$(wildcard raw/encoder/%/*.csv) $$(wildcard raw/encoder/%/campaign.toml) pipeline/ingest.py $(COMMON) | $(STAMP) ## validated readings with error_arcsec, theta_deg
+interim/encoder/%.parquet: $$(wildcard raw/encoder/%/*.csv) $$(wildcard raw/encoder/%/campaign.toml) $(CODE.campaign.ingest) | $(STAMP) ## validated readings with error_arcsec, theta_deg
 	$(JC) ingest --campaign raw/encoder/$* --out $@
 
-interim/encoder/%_harmonics.parquet: interim/encoder/%.parquet pipeline/harmonic.py $(COMMON) ## per-run harmonics (LSQ and FFT)
+interim/encoder/%_harmonics.parquet: interim/encoder/%.parquet $(CODE.encoder.harmonic) ## per-run harmonics (LSQ and FFT)
 	$(JC) harmonic --interim $< --out $@
 
-results/encoder/%_aliasing.csv: interim/encoder/%.parquet pipeline/aliasing.py $(COMMON) ## which orders fold into which
+results/encoder/%_aliasing.csv: interim/encoder/%.parquet $(CODE.encoder.aliasing) ## which orders fold into which
 	$(JC) aliasing --interim $< --out $@
 
-results/encoder/%_orders.json: interim/encoder/%.parquet interim/encoder/%_harmonics.parquet $(ENC_SPEC) pipeline/select.py $(COMMON) ## selected orders (paper rule and CV)
+results/encoder/%_orders.json: interim/encoder/%.parquet interim/encoder/%_harmonics.parquet $(ENC_SPEC) $(CODE.encoder.select) ## selected orders (paper rule and CV)
 	$(JC) select --interim $< --harmonics interim/encoder/$*_harmonics.parquet --spec $(ENC_SPEC) --out $@
 
-results/encoder/%_model.json: interim/encoder/%.parquet results/encoder/%_orders.json $(ENC_SPEC) pipeline/model.py pipeline/evaluate.py $(COMMON) ## model fitted on runs 1-5, evaluated on run 6
+results/encoder/%_model.json: interim/encoder/%.parquet results/encoder/%_orders.json $(ENC_SPEC) $(CODE.campaign.fit) ## model fitted on runs 1-5, evaluated on run 6
 	$(JC) fit --interim $< --spec $(ENC_SPEC) --orders results/encoder/$*_orders.json --out $@
 
-results/encoder/%_table.csv: results/encoder/%_model.json pipeline/compensate.py $(COMMON) ## compensation table every 0.1 deg
+results/encoder/%_table.csv: results/encoder/%_model.json $(CODE.encoder.compensate) ## compensation table every 0.1 deg
 	$(JC) compensate --model $< --out $@ --step 0.1
 
-reports/encoder.pdf: $(ENC_INTERIM) $(ENC_HARM) $(ENC_ORDERS) $(ENC_MODELS) $(ENC_ALIAS) pipeline/report.py $(COMMON) ## Figures 4-9 and numbers beside the paper's
+reports/encoder.pdf: $(ENC_INTERIM) $(ENC_HARM) $(ENC_ORDERS) $(ENC_MODELS) $(ENC_ALIAS) $(CODE.encoder.report) ## Figures 4-9 and numbers beside the paper's
 	$(JC) report --kind encoder --out $@
 
-results/summary.json: $(SUMMARY_DEPS) pipeline/summary.py $(COMMON) ## contract section 5
+results/summary.json: $(SUMMARY_DEPS) $(CODE.summary.summary) ## contract section 5
 	$(JC) summary --out $@
 
 # ------------------------------------------------------------------ diagnosis (beyond the papers)
@@ -81,17 +94,18 @@ DIAG_ARGS = $(foreach p,$(DIAG_PAIRS),--pair $(subst :, ,$(word 1,$(subst :, ,$(
 
 diagnosis: reports/diagnosis.pdf ## diagnose every campaign with its spec: what effect is missing
 
-reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) pipeline/diagnose.py pipeline/diagnose_encoder.py pipeline/robot_diagnose.py pipeline/diagnose_report.py $(COMMON) | $(STAMP) ## residuals, candidates, waterfall
+reports/diagnosis.pdf $(DIAG_JSON) &: $(DIAG_DEPS) $(CODE.diagnose.diagnose_all) | $(STAMP) ## residuals, candidates, waterfall
 	$(JC) diagnose-all $(DIAG_ARGS) --report reports/diagnosis.pdf
 
 # ------------------------------------------------------------------ checks and upkeep
-test: $(STAMP) ## run the test suite (pytest)
+test: $(STAMP) ## check the import contracts (lint-imports, .importlinter), then run the test suite (pytest)
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest
 
 bench: $(STAMP) ## speed, scale, FIGAROH side by side (own venv in .bench/), 1,000-module fleet: about 7 min -> results/bench.json
 	$(BIN)/python -m bench.run --out results/bench.json
 
-fixtures: $(STAMP) $(COMMON) ## regenerate the synthetic fixtures in raw/ byte for byte
+fixtures: $(STAMP) ## regenerate the synthetic fixtures in raw/ byte for byte
 	$(JC) simulate encoder --out raw/encoder --truth raw/truth/encoder
 
 clean: ## remove everything the pipeline made (interim/, results/, reports/)

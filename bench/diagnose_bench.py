@@ -27,10 +27,11 @@ CASES = ("robot_200_poses_robot_paper", "robot_200_poses_robot_geometry", "encod
 
 
 def _robot_case(name):
-    from pipeline.robot import load_robot
-    from pipeline.robot_diagnose import RobotAdapter, robot_data_from_campaign
-    from pipeline.robot_simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
-    from pipeline.spec import load_spec, parse_spec
+    from pipeline.core.spec import load_spec, parse_spec
+    from pipeline.diagnosis.robot import RobotAdapter
+    from pipeline.robot.ingest import robot_data_from_campaign
+    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
     config = dict(ROBOT_FIXTURE, seed=101, n_sample=200, n_target=0, repeat_cycles=0)
@@ -50,11 +51,11 @@ def _robot_case(name):
 
 
 def _encoder_case():
-    from pipeline.diagnose_encoder import EncoderAdapter
-    from pipeline.effects import EncoderData
-    from pipeline.ingest import derive_encoder
-    from pipeline.simulate import ENCODER_FIXTURE, simulate_encoder
-    from pipeline.spec import load_spec
+    from pipeline.core.spec import load_spec
+    from pipeline.diagnosis.encoder import EncoderAdapter
+    from pipeline.encoder.effects import EncoderData
+    from pipeline.encoder.ingest import derive_encoder
+    from pipeline.encoder.simulate import ENCODER_FIXTURE, simulate_encoder
 
     frame, _ = simulate_encoder("a", dict(ENCODER_FIXTURE["a"], seed=5), runs=8, two_way=True)
     frame["_file"], frame["_line"] = "sim.csv", 0
@@ -66,8 +67,8 @@ def _encoder_case():
 
 def case(name) -> dict:
     """One diagnosis, measured in this process (meant to be a fresh one)."""
-    from pipeline.diagnose import diagnose
-    from pipeline.lm import limit_blas_threads
+    from pipeline.diagnosis.engine import diagnose
+    from pipeline.robot.lm import limit_blas_threads
 
     limit_blas_threads(1)
     adapter, spec, data, info = _encoder_case() if name == "encoder_8_runs" else _robot_case(name)

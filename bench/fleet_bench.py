@@ -3,7 +3,7 @@ in one process and on a local Dask cluster, with the speed-up: ``run() -> dict``
 
 Each unit runs what ``make all`` runs for one module (ingest, orders by the paper's rule, fit,
 held-out run, leave-one-run-out CV, compensation table, diagnosis). The one-process run calls
-:func:`pipeline.fleet.run_units` with ``serial=True`` (no Dask); the cluster run starts a
+:func:`pipeline.fleet.engine.run_units` with ``serial=True`` (no Dask); the cluster run starts a
 LocalCluster of one single-threaded worker process per core, sends the units, gathers the
 results and closes the cluster: the wall time includes starting and stopping it. Files are not
 written in either (the client writes them the same way in both; see ``jointcal fleet``).
@@ -21,7 +21,7 @@ SEED = 99
 
 
 def _simulate(folder: Path, n: int, seed: int) -> list[str]:
-    from pipeline.simulate import simulate_fleet, write_encoder_campaign
+    from pipeline.encoder.simulate import simulate_fleet, write_encoder_campaign
 
     return [str(write_encoder_campaign(folder, name, frame)) for name, frame, _truth in simulate_fleet(n, seed)]
 
@@ -31,7 +31,7 @@ def _pool_ceiling(campaigns, spec_text, spec_path, workers) -> dict:
     import multiprocessing as mp
     from functools import partial
 
-    from pipeline.fleet import process_unit
+    from pipeline.fleet.engine import process_unit
 
     job = partial(process_unit, spec_text=spec_text, spec_path=spec_path)
     t = time.perf_counter()
@@ -48,8 +48,8 @@ def _pool_ceiling(campaigns, spec_text, spec_path, workers) -> dict:
 
 
 def run(units: int = UNITS) -> dict:
-    from pipeline.fleet import fleet_summary, fleet_table, run_units
-    from pipeline.lm import limit_blas_threads
+    from pipeline.fleet.engine import fleet_summary, fleet_table, run_units
+    from pipeline.robot.lm import limit_blas_threads
 
     limit_blas_threads(1)
     spec_path = "specs/encoder_paper.toml"

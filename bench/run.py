@@ -74,13 +74,13 @@ def synthetic_readings(n, per_run=37, seed=0):
 
 def bench_encoder_chain():
     """The whole encoder chain on the shipped fixture, in process (ingest -> ... -> table)."""
-    from pipeline.compensate import compensation_table
-    from pipeline.evaluate import fit_encoder, model_from_result
-    from pipeline.harmonic import analyse_runs
-    from pipeline.ingest import ingest_encoder
-    from pipeline.select import cv_select, paper_rule
-    from pipeline.spec import load_spec
-    from pipeline.effects import EncoderData
+    from pipeline.core.spec import load_spec
+    from pipeline.encoder.compensate import compensation_table
+    from pipeline.encoder.effects import EncoderData
+    from pipeline.encoder.evaluate import fit_encoder, model_from_result
+    from pipeline.encoder.harmonic import analyse_runs
+    from pipeline.encoder.ingest import ingest_encoder
+    from pipeline.encoder.selection import cv_select, paper_rule
 
     spec = load_spec(ROOT / "specs" / "encoder_paper.toml")
 
@@ -119,7 +119,7 @@ def bench_make_encoder():
 
 
 def bench_harmonic_scaling(sizes=(10**3, 10**4, 10**5, 10**6)):
-    from pipeline.harmonic import analyse_runs
+    from pipeline.encoder.harmonic import analyse_runs
 
     rows = []
     for n in sizes:
@@ -170,7 +170,7 @@ def main(argv=None):
     unknown = ((only or set()) | skip) - set(BUILTIN_JOBS) - set(OPTIONAL_JOBS)
     if unknown:
         parser.error(f"unknown job(s) {', '.join(sorted(unknown))}; jobs are: {names}")
-    from pipeline.lm import limit_blas_threads
+    from pipeline.robot.lm import limit_blas_threads
 
     limit_blas_threads(1)
     jobs, skipped = available_jobs()

@@ -3,9 +3,6 @@
 # through the per-unit pipeline on a local Dask cluster, then the fleet's table and report.
 FLEET_RAW := raw/fleet
 FLEET_CSV := $(wildcard $(FLEET_RAW)/*/*.csv)
-FLEET_CODE := pipeline/fleet.py pipeline/fleet_cli.py pipeline/fleet_report.py pipeline/evaluate.py pipeline/select.py \
-	pipeline/model.py pipeline/ingest.py pipeline/compensate.py pipeline/diagnose.py pipeline/diagnose_encoder.py \
-	pipeline/plotting.py
 
 ALL_TARGETS += fleet
 
@@ -15,8 +12,8 @@ fixtures: fixtures-fleet
 
 fleet: results/fleet.parquet reports/fleet.pdf ## 50 simulated modules on Dask: per-unit results, fleet table and report
 
-results/fleet.parquet reports/fleet.pdf &: $(FLEET_CSV) $(ENC_SPEC) $(FLEET_CODE) $(COMMON) | $(STAMP) ## one row per unit; reductions, out-of-family units, missing effects
+results/fleet.parquet reports/fleet.pdf &: $(FLEET_CSV) $(ENC_SPEC) $(CODE.fleet.fleet) | $(STAMP) ## one row per unit; reductions, out-of-family units, missing effects
 	$(JC) fleet --campaigns '$(FLEET_RAW)/*' --spec $(ENC_SPEC) --out-dir results/fleet --table results/fleet.parquet --report reports/fleet.pdf
 
-fixtures-fleet: $(STAMP) $(COMMON) ## regenerate the simulated fleet in raw/fleet byte for byte
+fixtures-fleet: $(STAMP) ## regenerate the simulated fleet in raw/fleet byte for byte
 	$(JC) simulate fleet --out $(FLEET_RAW) --truth raw/truth/fleet --units 50 --seed 2026

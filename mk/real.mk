@@ -9,9 +9,6 @@ REAL_SRC_B := $(REAL_RAW)/Series_B/measurements_joint_configurations.csv
 REAL_SRC_C := $(REAL_RAW)/Series_C/measurements_random_poses.csv
 REAL_SPECS := kinematic paper
 REAL_RES := results/real
-REAL_CODE := pipeline/robot_import.py pipeline/urdf.py pipeline/import_cli.py pipeline/robot_ingest.py pipeline/robot_frame.py \
-	pipeline/robot.py pipeline/robot_effects.py pipeline/calibrate.py pipeline/chebyshev.py pipeline/lm.py \
-	pipeline/robot_evaluate.py pipeline/robot_diagnose.py pipeline/robot_predict.py pipeline/robot_cli.py
 other = $(if $(filter B,$(1)),C,B)
 
 ALL_TARGETS += real
@@ -24,24 +21,24 @@ REAL_XFER := $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(REAL_RES)/$(
 
 real: reports/real.pdf $(REAL_RES)/transfer.json ## real UR10: import both series, fit, held-out and cross-series errors, report
 
-interim/real/%/poses.csv: $$(REAL_SRC_$$*) $(REAL_RAW)/map.toml $(REAL_RAW)/robot.toml $(REAL_CODE) $(COMMON) | $(STAMP) ## imported real series (robot.toml, poses.csv, tracker.csv, campaign.toml)
+interim/real/%/poses.csv: $$(REAL_SRC_$$*) $(REAL_RAW)/map.toml $(REAL_RAW)/robot.toml $(CODE.importer.import_cmd) | $(STAMP) ## imported real series (robot.toml, poses.csv, tracker.csv, campaign.toml)
 	$(JC) import --source $(REAL_SRC_$*) --map $(REAL_RAW)/map.toml --robot $(REAL_RAW)/robot.toml --out interim/real/$*
 
-$(REAL_RES)/%_kinematic.json: interim/real/%/poses.csv specs/robot_kinematic.toml $(REAL_CODE) $(COMMON) | $(STAMP) ## geometry + base + tool fitted on a series' sample poses
+$(REAL_RES)/%_kinematic.json: interim/real/%/poses.csv specs/robot_kinematic.toml $(CODE.campaign.fit) | $(STAMP) ## geometry + base + tool fitted on a series' sample poses
 	$(JC) fit --campaign interim/real/$* --spec specs/robot_kinematic.toml --out $@
 
-$(REAL_RES)/%_paper.json: interim/real/%/poses.csv $(ROBOT_SPEC) $(REAL_CODE) $(COMMON) | $(STAMP) ## the second paper's model fitted on a series' sample poses
+$(REAL_RES)/%_paper.json: interim/real/%/poses.csv $(ROBOT_SPEC) $(CODE.campaign.fit) | $(STAMP) ## the second paper's model fitted on a series' sample poses
 	$(JC) fit --campaign interim/real/$* --spec $(ROBOT_SPEC) --out $@
 
-$(REAL_RES)/%_self.json: $(REAL_RES)/%.json $(REAL_CODE) $(COMMON) | $(STAMP) ## a fit's error on each held-out pose of its own series
+$(REAL_RES)/%_self.json: $(REAL_RES)/%.json $(CODE.robot.predict_cmd) | $(STAMP) ## a fit's error on each held-out pose of its own series
 	$(JC) predict --campaign interim/real/$(firstword $(subst _, ,$*)) --model $< --json $@
 
 # <series>_<spec>_on_<other>.json: the model of one series on the other, tracker re-registered
 define REAL_TRANSFER
-$(REAL_RES)/$(1)_$(2)_on_$(3).json: $(REAL_RES)/$(1)_$(2).json interim/real/$(3)/poses.csv $(REAL_CODE) $(COMMON) | $(STAMP)
+$(REAL_RES)/$(1)_$(2)_on_$(3).json: $(REAL_RES)/$(1)_$(2).json interim/real/$(3)/poses.csv $(CODE.robot.predict_cmd) | $(STAMP)
 	$(JC) predict --campaign interim/real/$(3) --model $$< --json $$@ --register
 endef
 $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(eval $(call REAL_TRANSFER,$(s),$(m),$(call other,$(s))))))
 
-$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) pipeline/real_report.py $(REAL_CODE) $(COMMON) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series
+$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) $(CODE.robot.real_report_cmd) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series
 	$(JC) robot real-report --results $(REAL_RES) --campaigns interim/real --out-json $(REAL_RES)/transfer.json --out reports/real.pdf

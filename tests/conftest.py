@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")  # as the jointcal command does (pipeline/cli.py)
+    os.environ.setdefault(_var, "1")  # as the jointcal command does (pipeline/cli/__init__.py)
 
 import shutil
 from pathlib import Path

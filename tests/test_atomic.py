@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from conftest import ROOT
-from pipeline.io import atomic_path, write_parquet
+from pipeline.core.files import atomic_path, write_parquet
 
 
 def test_failed_write_leaves_old_file_and_no_temporary(tmp_path):

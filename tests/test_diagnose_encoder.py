@@ -4,12 +4,12 @@ must bring the held-out error to the noise floor; with nothing hidden, nothing i
 import pandas as pd
 import pytest
 
-from pipeline.diagnose import diagnose
-from pipeline.diagnose_encoder import EncoderAdapter
-from pipeline.effects import EncoderData, Harmonic
-from pipeline.ingest import derive_encoder
-from pipeline.simulate import PAPER_MODELS, clean_encoder_config, simulate_encoder
-from pipeline.spec import Spec
+from pipeline.core.spec import Spec
+from pipeline.diagnosis.encoder import EncoderAdapter
+from pipeline.diagnosis.engine import diagnose
+from pipeline.encoder.effects import EncoderData, Harmonic
+from pipeline.encoder.ingest import derive_encoder
+from pipeline.encoder.simulate import PAPER_MODELS, clean_encoder_config, simulate_encoder
 
 NOISE = 0.9
 
@@ -77,8 +77,8 @@ def test_unrevealable_effects_are_named_not_ranked():
 
 def test_paper_spec_on_the_fixture_flags_nothing():
     from conftest import ROOT
-    from pipeline.diagnose_encoder import encoder_data_from_campaign
-    from pipeline.spec import load_spec
+    from pipeline.core.spec import load_spec
+    from pipeline.diagnosis.encoder import encoder_data_from_campaign
 
     result = diagnose(EncoderAdapter(), load_spec(ROOT / "specs" / "encoder_paper.toml"),
                       encoder_data_from_campaign(ROOT / "raw" / "encoder" / "a"))

@@ -16,7 +16,7 @@ def n_pages(path):
 
 
 def expected_pages(result, adapter, data):
-    from pipeline.diagnose_report import PANELS_PER_PAGE, SUMMARY_LINES_PER_PAGE, summary_lines
+    from pipeline.diagnosis.report import PANELS_PER_PAGE, SUMMARY_LINES_PER_PAGE, summary_lines
 
     variables = adapter.signature_variables(data).values()
     panels = sum(2 if kind == "angle" else 1 for _, _, kind in variables)
@@ -27,14 +27,14 @@ def expected_pages(result, adapter, data):
 # ------------------------------------------------------------------------------ encoder
 @pytest.fixture(scope="module")
 def encoder_diagnosis():
-    from pipeline.diagnose_cli import run_diagnosis
+    from pipeline.diagnosis.campaign import run_diagnosis
 
     result, (adapter, spec, data) = run_diagnosis(ROOT / "raw" / "encoder" / "a", ROOT / "specs" / "encoder_paper.toml")
     return result, adapter, spec, data
 
 
 def test_encoder_report_pages_and_same_bytes_twice(encoder_diagnosis, tmp_path):
-    from pipeline.diagnose_report import diagnosis_report
+    from pipeline.diagnosis.report import diagnosis_report
 
     result, adapter, spec, data = encoder_diagnosis
     first, second = tmp_path / "one" / "diagnosis.pdf", tmp_path / "two" / "diagnosis.pdf"
@@ -57,8 +57,8 @@ def test_cli_writes_report(invoke, tmp_path):
 def test_hidden_direction_report(invoke, tmp_path):
     """A two-way campaign with a hidden hysteresis: the report is written and the waterfall's
     suggested bars start with the top meaningful candidate."""
-    from pipeline.diagnose_cli import run_diagnosis
-    from pipeline.diagnose_report import diagnosis_report, suggested_steps
+    from pipeline.diagnosis.campaign import run_diagnosis
+    from pipeline.diagnosis.report import diagnosis_report, suggested_steps
 
     res = invoke("simulate", "encoder", "--out", tmp_path / "sim", "--truth", tmp_path / "truth", "--module", "a",
                  "--two-way", "--hidden", "direction", "--seed", "5")
@@ -77,7 +77,7 @@ def test_hidden_direction_report(invoke, tmp_path):
 
 
 def test_spectrum_finds_the_order():
-    from pipeline.diagnose_report import residual_spectrum
+    from pipeline.diagnosis.report import residual_spectrum
 
     theta = np.tile(np.arange(0.0, 360.0, 10.0), 3)
     r = 2.0 * np.sin(np.radians(5 * theta) + 0.3) + 0.01 * np.cos(np.radians(3 * theta))
@@ -116,7 +116,7 @@ class _RobotLikeAdapter:
         return [*base_effects, cand]
 
     def cross_validate(self, effects, data):
-        from pipeline.diagnose import CVResult
+        from pipeline.core.crossval import CVResult
 
         have = {(e.name, e.joint) for e in effects}
         r = data["noise"].copy()
@@ -173,7 +173,7 @@ def robot_like():
 
 
 def test_vector_residual_report(robot_like, tmp_path):
-    from pipeline.diagnose_report import diagnosis_report
+    from pipeline.diagnosis.report import diagnosis_report
 
     result, adapter, spec, data = robot_like
     first, second = tmp_path / "a.pdf", tmp_path / "b.pdf"

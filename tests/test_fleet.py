@@ -100,7 +100,7 @@ def test_out_of_family_units_are_the_damaged_ones(fleet):
 
 
 def test_most_frequent_missing_effect_is_the_batch_defect(fleet):
-    from pipeline.fleet import effect_counts
+    from pipeline.fleet.engine import effect_counts
 
     t = fleet["table"]
     role = t["unit"].map({u: v["role"] for u, v in fleet["truth"].items()})
@@ -154,7 +154,7 @@ def test_a_pattern_without_campaigns_is_one_line(tmp_path):
 
 
 def test_out_of_family_rule_on_a_known_table():
-    from pipeline.fleet import flag_out_of_family
+    from pipeline.fleet.engine import flag_out_of_family
 
     rng = np.random.default_rng(0)
     r = np.exp(rng.normal(np.log(5.0), 0.1, 40))

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.aliasing import OrderTooHighError, alias_table, check_orders, fold
-from pipeline.harmonic import amplitude_phase, fft_coefficients, lsq_coefficients
+from pipeline.encoder.aliasing import OrderTooHighError, alias_table, check_orders, fold
+from pipeline.encoder.harmonic import amplitude_phase, fft_coefficients, lsq_coefficients
 
 
 def signal(theta_deg, terms, c0=0.0):

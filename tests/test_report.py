@@ -11,7 +11,7 @@ from test_encoder_cli import run_chain
 
 @pytest.fixture(scope="module")
 def report_inputs(tmp_path_factory):
-    from pipeline.io import read_parquet
+    from pipeline.core.files import read_parquet
 
     invoke = cli_invoker()
     inputs = {}
@@ -24,7 +24,7 @@ def report_inputs(tmp_path_factory):
 
 
 def test_report_pages_and_same_bytes_twice(report_inputs, tmp_path):
-    from pipeline.report import encoder_report
+    from pipeline.encoder.report import encoder_report
 
     first, second = tmp_path / "one" / "encoder.pdf", tmp_path / "two" / "encoder.pdf"
     encoder_report(report_inputs, first)
@@ -38,7 +38,7 @@ def test_report_pages_and_same_bytes_twice(report_inputs, tmp_path):
 
 def test_report_single_module_without_paper_numbers(report_inputs, tmp_path):
     """A module the paper does not have (any name) still gets a complete report."""
-    from pipeline.report import encoder_report
+    from pipeline.encoder.report import encoder_report
 
     out = tmp_path / "c.pdf"
     encoder_report({"c": report_inputs["a"]}, out)

@@ -12,8 +12,8 @@ import pytest
 from click.testing import CliRunner
 
 from conftest import ROOT
-from pipeline import robot_frame as rf
-from pipeline.errors import InputError
+from pipeline.core.errors import InputError
+from pipeline.robot import frame as rf
 
 KR210 = ROOT / "raw" / "robot" / "kr210"
 
@@ -137,7 +137,7 @@ def test_rigid_fit_never_returns_a_reflection_and_refuses_degenerate_input():
 
 # ------------------------------------------------------------------------ frame = tracker
 def test_tracker_frame_ingests_to_the_same_base_frame_points(tmp_path):
-    from pipeline.robot_ingest import ingest_robot, ingest_robot_with_frame
+    from pipeline.robot.ingest import ingest_robot, ingest_robot_with_frame
 
     a = _copy(tmp_path, "a")
     _frame_toml(a)
@@ -167,7 +167,7 @@ def test_tracker_frame_ingests_to_the_same_base_frame_points(tmp_path):
 
 
 def test_ingest_writes_the_transform_and_states_it(tmp_path):
-    from pipeline.io import parquet_metadata, read_parquet
+    from pipeline.core.files import parquet_metadata, read_parquet
 
     b = _copy(tmp_path, "b")
     _move_tracker(b)
@@ -185,7 +185,7 @@ def test_ingest_writes_the_transform_and_states_it(tmp_path):
     raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy()
     assert np.abs(rf.apply(T[:3, :3], T[:3, 3], raw) - table[["x_mm", "y_mm", "z_mm"]].to_numpy()).max() < 1e-6
     # a robot command reading the table gets the frame back
-    from pipeline.robot_cli import _interim
+    from pipeline.cli.robot import _interim
 
     assert _interim(out).attrs["jointcal_frame"]["frame"] == "tracker"
 
@@ -303,7 +303,7 @@ HYPOTHESIS = {"radians": "radians", "metres": "metres", "sign_q1": "sign1", "sig
 
 
 def _hypothesis_of(folder):
-    from pipeline.robot_ingest import load_robot_campaign
+    from pipeline.robot.ingest import load_robot_campaign
 
     with pytest.raises(InputError) as exc:
         load_robot_campaign(folder)
@@ -360,7 +360,7 @@ def test_real_robot_errors_pass_and_corruption_fails_in_library():
     """The thresholds: a realistic robot error (a 16 mm tool error, 0.05 deg joint offsets) passes."""
     from dataclasses import replace
 
-    from pipeline.robot import build_model, load_robot, positions
+    from pipeline.robot.kinematics import build_model, load_robot, positions
 
     robot = load_robot(KR210 / "robot.toml")
     q = _q(KR210)[[f"q{j}" for j in range(1, 7)]].astype(float).to_numpy()
@@ -374,7 +374,7 @@ def test_real_robot_errors_pass_and_corruption_fails_in_library():
 
 
 def test_check_is_fast():
-    from pipeline.robot import build_model, load_robot
+    from pipeline.robot.kinematics import build_model, load_robot
 
     robot = load_robot(KR210 / "robot.toml")
     poses = _q(KR210)
@@ -398,8 +398,8 @@ def test_interim_table_is_checked_too(tmp_path):
     """A table that no longer fits its nominal kinematics is refused by the commands that read it."""
     import pyarrow.parquet as pq
 
-    from pipeline.io import parquet_metadata, write_parquet
-    from pipeline.robot_cli import _interim
+    from pipeline.cli.robot import _interim
+    from pipeline.core.files import parquet_metadata, write_parquet
 
     c = _copy(tmp_path)
     out = tmp_path / "poses.parquet"

@@ -142,7 +142,7 @@ def test_interim_tables_record_their_provenance(tmp_path):
     import sys
 
     from conftest import ROOT
-    from pipeline.io import parquet_metadata
+    from pipeline.core.files import parquet_metadata
 
     jc = [sys.executable, "-c", "from pipeline.cli import main; main()"]
     out = tmp_path / "a.parquet"

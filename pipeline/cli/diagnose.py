@@ -1,0 +1,69 @@
+"""``jointcal diagnose`` and ``diagnose-all``: thin commands around :mod:`pipeline.diagnosis`.
+
+Library imports are inside the commands: see :mod:`pipeline.cli.common` (start-up time).
+"""
+
+from __future__ import annotations
+
+import click
+
+
+
+@click.command()
+@click.option("--campaign", required=True, type=click.Path(), help="Raw campaign folder (encoder or robot).")
+@click.option("--spec", "spec_path", required=True, type=click.Path(), help="Model spec (specs/*.toml).")
+@click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False),
+              help="Where to write the diagnosis (contract section 4).")
+@click.option("--report", "report_out", default=None, type=click.Path(dir_okay=False),
+              help="Also write a PDF: residuals against every signature, the candidates' gains.")
+@click.option("--quiet", is_flag=True, help="Do not print the table.")
+def diagnose(campaign, spec_path, json_out, report_out, quiet):
+    """Find where the spec's model fails and which physical effect is missing.
+
+    Fits the spec's model with cross-validation (folds by run for an encoder, by pose
+    for a robot), then fits it once more with each effect the spec lacks, and ranks them
+    by the cross-validated gain. Prints the evidence in the residuals, the physical
+    explanation and the [[effect]] lines to paste into the spec. Effects these data
+    cannot reveal are named with the reason, not ranked.
+    """
+    from ..core.files import write_json
+    from ..diagnosis.campaign import run_diagnosis
+    from ..diagnosis.engine import format_table
+
+    def progress(msg):
+        if not quiet:
+            click.echo(f"  {msg}", err=True)
+
+    result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress)
+    write_json(json_out, result)
+    if report_out:
+        from ..diagnosis.report import diagnosis_report  # matplotlib (0.4 s): only with --report
+
+        diagnosis_report(result, adapter, spec, data, report_out)
+    if not quiet:
+        click.echo(format_table(result))
+
+@click.command("diagnose-all")
+@click.option("--pair", "pairs", multiple=True, required=True, nargs=3,
+              type=(click.Path(), click.Path(), click.Path(dir_okay=False)),
+              metavar="CAMPAIGN SPEC JSON", help="A campaign, the spec to diagnose it with, and where to write its JSON.")
+@click.option("--report", "report_out", required=True, type=click.Path(dir_okay=False),
+              help="One PDF with every campaign's diagnosis.")
+def diagnose_all(pairs, report_out):
+    """Diagnose several campaigns, each with its spec: a JSON each and one PDF (make all uses this)."""
+    from ..core.files import write_json
+    from ..diagnosis.campaign import run_diagnosis
+    from ..diagnosis.report import diagnosis_report_many
+
+    items = []
+    for campaign, spec_path, json_out in pairs:
+        click.echo(f"diagnosing {campaign} with {spec_path}", err=True)
+        result, (adapter, spec, data) = run_diagnosis(campaign, spec_path)
+        write_json(json_out, result)
+        best = [c for c in result["candidates"] if c["meaningful"]]
+        click.echo(f"  {json_out}: baseline CV RMS {result['baseline']['cv_rms']:.4g} {result['baseline']['unit']}; "
+                   + (f"missing: {', '.join(c['effect'] + ('' if c['target'] is None else ' ' + str(c['target'])) for c in best)}"
+                      if best else "nothing meaningful missing"), err=True)
+        items.append((result, adapter, spec, data))
+    diagnosis_report_many(items, report_out)
+    click.echo(f"{report_out}: written", err=True)

@@ -1,0 +1,44 @@
+"""``jointcal import``: a measurement export -> a robot campaign folder (contract section 6).
+
+Thin wrapper: the work is in :mod:`pipeline.robot.importer` (map, source, tables, split,
+atomic install) and :mod:`pipeline.robot.urdf` (a URDF's arm as the contract's robot).
+Library imports are inside the command: see :mod:`pipeline.cli.common` (start-up time).
+"""
+
+from __future__ import annotations
+
+import click
+
+
+@click.command("import")
+@click.option("--source", "source_path", required=True, type=click.Path(dir_okay=False),
+              help="The measurement export: one row per pose, in the order the robot visited them.")
+@click.option("--map", "map_path", required=True, type=click.Path(dir_okay=False),
+              help="map.toml: which source columns are the joints, the positions (and their units, frame), "
+                   "the optional columns and the sample/target split.")
+@click.option("--robot", "robot_path", required=True, type=click.Path(dir_okay=False),
+              help="Nominal kinematics: a robot.toml (copied), or a URDF (then --tip).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Campaign folder to write (robot.toml, poses.csv, tracker.csv, campaign.toml); replaced as a whole.")
+@click.option("--tip", default=None, metavar="LINK", help="URDF only: the link whose origin is the SMR (or the flange).")
+@click.option("--base", default=None, metavar="LINK",
+              help="URDF only: the fixed link whose frame is the robot's base (z along joint 1; default the root).")
+@click.option("--tool-mm", "tool_mm", nargs=3, type=float, default=None, metavar="X Y Z",
+              help="SMR position (mm) in the --tip link's frame (URDF) or the flange frame (robot.toml).")
+def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
+    """Turn a measurement export into a robot campaign folder (contract sections 2 and 6).
+
+    Joint angles are written in degrees, positions in mm, in the source's row order; poses are
+    split into sample and target by the map's [split]. The result is validated as `jointcal
+    ingest` would (nominal consistency included) before it replaces --out; on any problem
+    nothing is written and one line names the file, line and column.
+    """
+    from ..robot.importer import import_campaign
+    from ..robot.lm import limit_blas_threads
+
+    limit_blas_threads(1)
+    s = import_campaign(source_path, map_path, robot_path, out_dir, tip, base, tool_mm)
+    how = "after a rigid fit of the tracker frame" if s["frame"] == "tracker" else "in the base frame"
+    click.echo(f"{out_dir}: {s['n']} poses ({s['sample']} sample, {s['target']} target) from {source_path}; "
+               f"nominal kinematics miss them by {s['nominal_rms_mm']:.3f} mm RMS {how}", err=True)
+

@@ -1,0 +1,77 @@
+"""The ``jointcal`` group: every command, added here explicitly from its module.
+
+The command modules define their commands and import nothing of this one; this module
+imports them and adds their commands to the group (and to ``jointcal simulate``).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from ..core.errors import InputError
+from . import campaign, diagnose, encoder, fleet, importer, robot, summary
+
+
+class BadInput(click.ClickException):
+    """Bad input as click sees it: exit status 2, one line, no traceback."""
+
+    exit_code = 2
+
+    def show(self, file=None):
+        click.echo(f"jointcal: error: {self.message}", err=True)
+
+
+class JointcalGroup(click.Group):
+    """Turns :class:`InputError` raised anywhere in a command into exit 2 with one line."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            raise BadInput(exc.one_line()) from None
+
+
+@click.group(cls=JointcalGroup, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="jointcal")
+def cli():
+    """jointcal: calibrate robot joints and robots.
+
+    \b
+    Encoder chain (one joint module, polygon + autocollimator):
+      ingest -> harmonic -> aliasing -> select -> fit -> compensate -> report
+    Robot chain (laser tracker): see `jointcal robot --help`.
+    Diagnosis: `jointcal diagnose` ranks the physical effects a model lacks.
+
+    Units: angles in degrees, angle errors in arcseconds, lengths in millimetres.
+    `make all` runs every stage on the shipped fixtures; `make help` lists the targets.
+    """
+
+
+@cli.group()
+def simulate():
+    """Write synthetic campaigns (seeded, deterministic) with documented physics."""
+
+
+for _command in (
+    campaign.ingest, campaign.validate, campaign.fit,                                       # either kind
+    encoder.harmonic, encoder.aliasing, encoder.select, encoder.compensate, encoder.correct, encoder.report,
+    summary.summary,
+    robot.robot_group, robot.predict_cmd,
+    diagnose.diagnose, diagnose.diagnose_all,
+    fleet.fleet,
+    importer.import_cmd,
+):
+    cli.add_command(_command)
+for _command in (encoder.simulate_encoder_cmd, robot.simulate_robot_cmd, fleet.simulate_fleet_cmd):
+    simulate.add_command(_command)
+
+
+def main(argv=None):
+    """Entry point. Bad input -> one line on stderr and exit status 2 (see :class:`BadInput`)."""
+    try:
+        cli.main(args=argv, prog_name="jointcal")
+    except InputError as exc:  # raised outside a subcommand (e.g. while parsing options)
+        click.echo(f"jointcal: error: {exc.one_line()}", err=True)
+        sys.exit(2)

@@ -1,0 +1,685 @@
+"""Robot commands: ``jointcal simulate robot`` and the ``jointcal robot`` group (thin wrappers).
+
+Chain (the second paper): ingest -> calibrate (MDH, Eqs. 3-6) -> chebyshev (Eqs. 7-21)
+-> map-joints (Eqs. 22-24) -> closed-loop (Eq. 26) -> evaluate (Table 2, Figs. 6-11) -> report.
+Also ``jointcal predict`` and the robot side of ``ingest``, ``validate`` and ``fit`` (the helpers
+:func:`ingest_robot_to`, :func:`validate_robot`, :func:`fit_robot`).
+
+Library imports are inside the commands: see :mod:`pipeline.cli.common` (start-up time).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import click
+
+from ..core.errors import InputError
+from .common import load_spec
+
+DEFAULT_SPEC = "specs/robot_paper.toml"
+DEFAULT_ROBOT = "raw/robot/kr210/robot.toml"
+DEFAULT_INTERIM = "interim/robot/poses.parquet"
+
+
+def _edge():
+    from ..robot.lm import limit_blas_threads
+
+    limit_blas_threads(1)
+
+
+def _read_json(path):
+    from ..core.files import read_json_input
+
+    return read_json_input(path, "run the stage that makes it first, or `make robot`")
+
+
+def _interim(path):
+    """An ingested robot table, checked against its nominal kinematics (:func:`pipeline.robot.ingest.check_ingested`)."""
+    from ..core.files import parquet_metadata, read_parquet_input
+    from ..robot.ingest import check_ingested
+
+    frame = read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
+    check_ingested(frame, path, parquet_metadata(path))
+    return frame
+
+
+def outside_calibrated_range(sample, targets) -> list[dict]:
+    """Per joint, the targets whose angle lies outside the range the sample poses covered.
+
+    Returns a list of ``{joint, count, beyond_deg, low_deg, high_deg, point_id, line}`` (the
+    worst target of each joint; ``line`` is its line in poses.csv when known).
+    """
+    import numpy as np
+
+    out = []
+    for j in range(1, 7):
+        lo, hi = sample[f"q{j}"].min(), sample[f"q{j}"].max()
+        q = targets[f"q{j}"].to_numpy(float)
+        beyond = np.maximum(lo - q, q - hi)
+        bad = beyond > 1e-9
+        if bad.any():
+            k = int(np.argmax(beyond))
+            row = targets.iloc[k]
+            line = int(row["visit"]) + 2 if "visit" in targets and np.isfinite(row["visit"]) else None
+            out.append({"joint": j, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo),
+                        "high_deg": float(hi), "point_id": str(row["point_id"]), "line": line})
+    return out
+
+
+def _robot(path):
+    from ..robot.kinematics import load_robot
+
+    return load_robot(path)
+
+
+def _spec(path):
+    spec = load_spec(path)
+    if spec.kind != "robot":
+        raise InputError(path, f"a robot stage needs a spec with kind = \"robot\", found {spec.kind!r}", 1, 1)
+    return spec
+
+
+def warn_unstaged(spec) -> None:
+    """Warn about effects that neither stage of the paper's chain takes (``fit`` and ``diagnose`` do)."""
+    from ..robot.fit import stage_effects
+
+    staged = {id(e) for stage in ("kinematic", "feedback") for e in stage_effects(spec, stage)}
+    left = list(dict.fromkeys(e.name for e in spec.effects if id(e) not in staged))
+    if left:
+        click.echo(f"jointcal: warning: {spec.path}: {', '.join(left)} in no stage of [model] kinematic_effects / "
+                   "feedback_effects: this chain leaves them out (jointcal fit and diagnose use every effect)", err=True)
+
+
+# ---------------------------------------------------------------------- ingest / validate
+def ingest_robot_to(campaign, out):
+    """``jointcal ingest`` for a robot campaign folder."""
+    from ..core.files import provenance, write_parquet
+    from ..robot.frame import describe, from_matrix
+    from ..robot.ingest import ingest_robot_with_frame
+
+    robot, frame, info = ingest_robot_with_frame(campaign)
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
+    files = [f for f in files if f.name != "campaign.toml" or f.exists()]
+    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files), "frame": info["frame"],
+                               "tracker_to_base": info["tracker_to_base"],
+                               "nominal_fit": {"rms_mm": info["nominal_rms_mm"], "max_mm": info["nominal_max_mm"]}})
+    counts = frame["set"].value_counts().to_dict()
+    where = (f"tracker frame -> base: {describe(*from_matrix(info['tracker_to_base']))} (fitted on the sample poses)"
+             if info["frame"] == "tracker" else "base frame")
+    click.echo(f"{out}: {len(frame)} poses of {robot.name} ({', '.join(f'{v} {k}' for k, v in sorted(counts.items()))}); "
+               f"{where}; nominal kinematics leave RMS {info['nominal_rms_mm']:.2f} mm after a rigid fit", err=True)
+
+
+def validate_robot(campaign, problems):
+    """``jointcal validate`` for a robot campaign folder: collect every problem."""
+    from ..robot.ingest import load_robot_campaign
+
+    try:
+        load_robot_campaign(campaign, problems)
+    except InputError as exc:  # pragma: no cover - collected mode does not raise
+        problems.append(exc)
+
+
+# ------------------------------------------------------------------------------ simulate
+@click.command("robot")
+@click.option("--campaign", default="raw/robot/kr210", show_default=True, type=click.Path(file_okay=False),
+              help="Campaign folder holding robot.toml; receives poses.csv and tracker.csv.")
+@click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
+              type=click.Path(dir_okay=False), help="Where the generator's truth goes (never read by the pipeline).")
+@click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
+@click.option("--hidden", default=None, metavar="EFFECT[:JOINT]",
+              help="Add one effect the paper's spec lacks, at a random realistic size: thermal, tool, base, "
+                   "joint_harmonic:J, backlash:J or compliance:J.")
+def simulate_robot_cmd(campaign, truth_path, seed, hidden):
+    """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
+
+    100 sample + 104 target poses in the paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm
+    box with the end orientation within +-10 deg, visited in random order, and ISO 9283 repeat rows
+    (P1-P3, 30 cycles, three 100 mm approaches). Physics: raw/README.md.
+    """
+    from ..core.files import write_json, write_text
+    from ..robot.simulate import (ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, hidden_robot_effect,
+                                 simulate_robot)
+
+    _edge()
+    robot = _robot(Path(campaign) / "robot.toml")
+    config = dict(ROBOT_FIXTURE)
+    if seed is not None:
+        config["seed"] = seed
+    try:
+        hid = hidden_robot_effect(hidden, config["seed"]) if hidden else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--hidden") from None
+    poses, tracker, truth = simulate_robot(robot, config, hid)
+    write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
+    write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
+    write_json(truth_path, truth)
+    click.echo(f"wrote {campaign}/poses.csv and tracker.csv ({len(poses)} poses){' with hidden ' + hidden if hidden else ''}",
+               err=True)
+
+
+# --------------------------------------------------------------------------- robot group
+@click.group("robot")
+def robot_group():
+    """Robot chain (second paper): calibrate -> chebyshev -> map-joints -> closed-loop -> evaluate -> report.
+
+    \b
+    Start with `jointcal ingest --campaign raw/robot/kr210 --out interim/robot/poses.parquet`.
+    Units: lengths and position errors mm, joint angles deg, angle errors arcsec.
+    """
+
+
+def _common(f):
+    f = click.option("--interim", default=DEFAULT_INTERIM, show_default=True, type=click.Path(),
+                     help="Ingested campaign (jointcal ingest).")(f)
+    f = click.option("--robot", "robot_path", default=DEFAULT_ROBOT, show_default=True, type=click.Path(),
+                     help="Nominal robot.toml of the campaign.")(f)
+    return f
+
+
+@robot_group.command("calibrate")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path(),
+              help="Robot spec; [model] kinematic_effects names the effects of this stage.")
+@click.option("--out", default="results/robot/mdh.json", show_default=True, type=click.Path(dir_okay=False))
+def calibrate_cmd(interim, robot_path, spec_path, out):
+    """MDH kinematic calibration on the sample poses (Eqs. 3-6, least squares iterated).
+
+    Reports rank and condition number of the scaled Jacobian and the parameters that the poses
+    cannot identify (fixed at 0). Parameters in mm and arcsec.
+    """
+    from ..core.files import provenance, write_json
+    from ..robot.calibrate import calibrate_mdh
+    from ..robot.fit import fit_problems, stage_effects
+    from ..robot.ingest import robot_data
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    warn_unstaged(spec)
+    effects = stage_effects(spec, "kinematic")
+    sample = frame[frame["set"] == "sample"]
+    model, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
+    report["provenance"] = provenance([interim, robot_path], spec_path)
+    seconds = report.pop("seconds")  # wall time is not a result: same inputs, same bytes
+    report.update(converged=bool(model.converged_), convergence=model.convergence_, plausible=bool(model.plausible_),
+                  implausible=model.implausible_)
+    problems = fit_problems(report)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {interim}: MDH calibration unusable: {'; '.join(problems)}; nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
+    write_json(out, report)
+    click.echo(f"{out}: rank {report['rank']}/{report['n_params']}, condition {report['condition_number']:.0f}, "
+               f"fixed {', '.join(report['not_identifiable']) or 'none'}; RMS {report['rms_before_mm']:.3f} -> "
+               f"{report['rms_after_mm']:.3f} mm ({seconds:.2f} s)", err=True)
+
+
+@robot_group.command("chebyshev")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path(),
+              help="Robot spec with a chebyshev effect (order, joints).")
+@click.option("--gratings/--no-gratings", default=True, show_default=True,
+              help="Use the grating readings of joints 1-3 (grating1_deg..) as their angles when present.")
+@click.option("--out", default="results/robot/chebyshev.json", show_default=True, type=click.Path(dir_okay=False))
+def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
+    """Identify the Chebyshev error transfer matrices (Eqs. 7-13) with the improved L-M (Eqs. 14-21).
+
+    scipy.optimize.least_squares is run beside it as a cross-check; both costs (0.5 ||F||^2, mm^2),
+    iterations and times are reported. Coefficients gamma in mm, lambda in arcsec.
+
+    When either solver did not converge, their costs differ by more than 1 %, or a coefficient is
+    beyond what a real robot can have (5 deg, 100 mm), nothing is written (a previous OUT is
+    removed, so no stale model reaches map-joints) and the command exits 1 with one line saying why.
+    """
+    from ..core.files import provenance, write_json
+    from ..core.spec import _locate
+    from ..robot.chebyshev import cross_check_problems, identify
+    from ..robot.fit import stage_effects
+    from ..robot.ingest import has_gratings, robot_data
+    from ..robot.lm import lm_options_problem
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    warn_unstaged(spec)
+    effects = stage_effects(spec, "feedback")
+    if not effects:
+        raise InputError(spec_path, "the spec has no chebyshev effect (add [[effect]] name = \"chebyshev\")", 1, 1)
+    lm_problem = lm_options_problem(spec.model.get("lm", {}))
+    if lm_problem:
+        text = Path(spec.path).read_text(encoding="utf-8")
+        where = _locate(text, rf"^\s*{lm_problem[0]}\s*=")
+        raise InputError(spec_path, f"[model.lm]: {lm_problem[1]}",
+                         *(where if where[0] else _locate(text, r"^\s*\[model\.lm\]")))
+    sample = frame[frame["set"] == "sample"]
+    use = gratings and has_gratings(sample)
+    result = identify(robot, robot_data(robot, sample, use_gratings=use), effects, spec.model.get("lm", {}))
+    result["uses_gratings"] = bool(use)
+    result["provenance"] = provenance([interim, robot_path], spec_path)
+    lm, sp = result["lm"], result["scipy"]
+    seconds = {"lm": lm.pop("seconds"), "scipy": sp.pop("seconds")}  # wall time is not a result (same bytes)
+    problems = cross_check_problems(result)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {interim}: Chebyshev identification unusable: {'; '.join(problems)}; "
+                   f"nothing written{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
+    write_json(out, result)
+    click.echo(f"{out}: {result['n_params']} coefficients, rank {result['rank']}; improved L-M cost {lm['cost_mm2']:.5f} "
+               f"({lm['iterations']} it, {seconds['lm']:.2f} s), scipy {sp['cost_mm2']:.5f} ({sp['iterations']} ev, "
+               f"{seconds['scipy']:.2f} s)", err=True)
+
+
+@robot_group.command("map-joints")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path())
+@click.option("--model", "model_path", default="results/robot/chebyshev.json", show_default=True, type=click.Path(),
+              help="Chebyshev model (jointcal robot chebyshev).")
+@click.option("--out", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path(dir_okay=False))
+@click.option("--strict", is_flag=True,
+              help="Refuse (exit 2) when a target lies outside the joint range the sample poses covered, "
+                   "instead of warning: the model would extrapolate there.")
+@click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="Refuse (exit 1, nothing written) when any corrected command differs from its target by more "
+                   "than this (deg). The paper's corrections are arcseconds; 0.5 deg moves a point 1 m out by "
+                   "8.7 mm, more than a robot's error left to correct: beyond it the model or the mapping "
+                   "(near a singular pose) is wrong.")
+def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_correction_deg):
+    """Corrected commands of joints 1-3 for every target (Eqs. 22-24), deg.
+
+    Targets outside the joint range covered by the sample poses (where the model was
+    identified) are named in a warning; with --strict they are refused. A correction larger
+    than --max-correction-deg is refused (exit 1, one line naming the target and the joint,
+    nothing written; a previous OUT is removed).
+
+    Columns: point_id, q1..q6 (commanded, deg), q1_corrected..q3_corrected (deg), dq1..dq3 (deg,
+    the Eq. 23 angle errors; corrected = commanded - dq), dx_mm, dy_mm, dz_mm (predicted error).
+    """
+    import numpy as np
+    import pandas as pd
+
+    from ..core.files import parquet_metadata, write_csv
+    from ..robot.chebyshev import model_from_json
+    from ..robot.fit import stage_effects
+    from ..robot.ingest import robot_data
+    from ..robot.mapping import joint_mapping
+    from ..robot.simulate import directions_from_sequence
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
+
+    tg = frame[frame["set"] == "target"]
+    outside = outside_calibrated_range(frame[frame["set"] == "sample"], tg)
+    if outside:
+        first = outside[0]
+        message = ("targets outside the joint range the sample poses covered (the model extrapolates there): "
+                   + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
+                               f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" for o in outside))
+        if strict:
+            source = parquet_metadata(interim).get("campaign")
+            where = (Path(source) / "poses.csv", first.get("line")) if source else (interim, None)
+            raise InputError(where[0], f"{message} (first: {first['point_id']}); refused by --strict",
+                             where[1], f"q{first['joint']}")
+        click.echo(f"jointcal: warning: {message}", err=True)
+    data = robot_data(robot, tg)
+    # the table is executed in its own order, from mid-range: a direction-aware effect
+    # (backlash) must be predicted with the directions of that run, not of the survey
+    data = replace(data, dir=directions_from_sequence(data.q_deg, start_deg=(robot.lower_deg + robot.upper_deg) / 2))
+    dP = model.predict_error(data)
+    joints = tuple(spec.model.get("grating_joints", [1, 2, 3]))
+    dth, qc = joint_mapping(robot, data.q_deg, dP, joints)
+    size = np.where(np.isfinite(dth), np.abs(dth), np.inf)
+    beyond = size > max_correction_deg
+    if beyond.any():
+    
+        k, c = np.unravel_index(int(np.argmax(size)), size.shape)
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {model_path}: target {tg['point_id'].iloc[k]} needs joint {joints[c]} corrected "
+                   f"by {dth[k, c]:.4g} deg, beyond --max-correction-deg {max_correction_deg:g} "
+                   f"({int(beyond.any(axis=1).sum())} of {len(tg)} targets beyond; the model, or the mapping near a "
+                   f"singular pose, is not plausible there); nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
+    table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
+    for j in range(6):
+        table[f"q{j + 1}"] = data.q_deg[:, j]
+    for k, j in enumerate(joints):
+        table[f"q{j}_corrected"] = qc[:, j - 1]
+    for k, j in enumerate(joints):
+        table[f"dq{j}"] = dth[:, k]
+    for k, c in enumerate("xyz"):
+        table[f"d{c}_mm"] = dP[:, k]
+    write_csv(out, table, float_format="%.7f")
+    click.echo(f"{out}: {len(table)} targets, |dq| up to {np.abs(dth).max() * 3600:.1f} arcsec", err=True)
+
+
+def _corrected(path, robot):
+    from ..core.tables import FLOAT, STR, read_table
+
+    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in range(1, 7)}},
+                   {f"q{j}_corrected": FLOAT for j in range(1, 7)})
+    q = t[[f"q{j}" for j in range(1, 7)]].to_numpy(float).copy()
+    for j in range(1, 7):
+        c = f"q{j}_corrected"
+        if c in t:
+            q[:, j - 1] = t[c].to_numpy(float)
+    return t["point_id"].to_numpy(object), q
+
+
+@robot_group.command("closed-loop")
+@_common
+@click.option("--corrected", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path(),
+              help="Corrected commands (jointcal robot map-joints).")
+@click.option("--seed", type=int, default=None, help="Seed of the virtual cell (default: the fixture's).")
+@click.option("--out", default="results/robot/closed_loop.json", show_default=True, type=click.Path(dir_okay=False))
+def closed_loop_cmd(interim, robot_path, corrected, seed, out):
+    """Grating closed loop of joints 1-3 on the virtual cell (Eq. 26): 12 ms cycle, rough
+    +-0.002 deg/cycle until |e| < 0.007 deg, then PD with kP = 0.05, kD = 0.65.
+
+    Writes the loop's poles, cycles to converge per target and joint, and an error trace
+    (deg per 12 ms cycle) for the convergence figure.
+    """
+    import numpy as np
+
+    from ..core.files import write_json
+    from ..robot.closedloop import CYCLE_S, KD, KP, pd_poles
+    from ..robot.simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
+
+    _edge()
+    robot, frame = _robot(robot_path), _interim(interim)
+    ids, q = _corrected(corrected, robot)
+    config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
+    cell = make_cell(robot, config)
+    tg = frame.set_index("point_id").loc[ids]
+    mid = (robot.lower_deg + robot.upper_deg) / 2
+    dirs = directions_from_sequence(q, start_deg=mid)
+    _, res = cell.closed_loop(q, dirs, q[:, :3], tg["payload_kg"].to_numpy(float), rng_for(config["seed"], EXECUTE, 2),
+                              trace=True)
+    cycles = res["cycles"].reshape(-1, 3)
+    k = int(np.argsort(cycles[:, 1])[len(cycles) // 2])       # a typical target (median cycles of joint 2)
+    stop = int(cycles[k].max()) + 25
+    poles = pd_poles()
+    out_json = {"cycle_s": CYCLE_S, "kP": KP, "kD": KD, "rough_step_deg": 0.002, "rough_limit_deg": 0.007,
+                "poles": [float(p) for p in poles], "stable": bool(np.all(np.abs(poles) < 1)),
+                "cycles_median": float(np.median(cycles)), "cycles_max": int(cycles.max()),
+                "seconds_max": float(cycles.max() * CYCLE_S),
+                "final_error_arcsec_max": float(np.abs(res["final_error_deg"]).max() * 3600),
+                "converged": bool(np.all(cycles < 6000)),
+                "trace_point": str(ids[k]),
+                "trace_error_deg": {f"joint{j + 1}": res["error_deg"][:stop, 3 * k + j].tolist() for j in range(3)},
+                "trace_fine": {f"joint{j + 1}": res["fine"][:stop, 3 * k + j].astype(int).tolist() for j in range(3)}}
+    write_json(out, out_json)
+    click.echo(f"{out}: poles {', '.join(f'{p:.3f}' for p in poles)}; median {out_json['cycles_median']:.0f} cycles, "
+               f"max {out_json['cycles_max']} ({out_json['seconds_max']:.1f} s); final |e| <= "
+               f"{out_json['final_error_arcsec_max']:.3f} arcsec", err=True)
+
+
+@robot_group.command("evaluate")
+@_common
+@click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path())
+@click.option("--mdh", "mdh_path", default="results/robot/mdh.json", show_default=True, type=click.Path())
+@click.option("--corrected", default="results/robot/corrected_targets.csv", show_default=True, type=click.Path())
+@click.option("--tracker", "tracker_path", default=None, type=click.Path(),
+              help="Re-measured tracker.csv of a real robot (point_ids <id>@kinematic, <id>@feedback); "
+                   "default: the virtual cell executes the commands.")
+@click.option("--seed", type=int, default=None, help="Seed of the virtual cell (default: the fixture's).")
+@click.option("--out", default="results/robot/table2.json", show_default=True, type=click.Path(dir_okay=False))
+def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_path, seed, out):
+    """Table 2 (before / kinematic / feedback: range, mean, std of the absolute error, mm), the
+    per-target errors (Figs. 7-11) and ISO 9283 vAP at P1-P3 with and without the loop (Fig. 6).
+
+    Also writes <out dir>/target_errors.csv, iso9283.json and kinematic_commands.csv.
+    """
+    import numpy as np
+    import pandas as pd
+
+    from ..core.files import provenance, write_csv, write_json
+    from ..core.tables import FLOAT, STR, read_table
+    from ..robot.calibrate import RobotErrorModel
+    from ..robot.evaluate import execute_virtual, table2, vap
+    from ..robot.fit import stage_effects
+    from ..robot.ingest import robot_data
+    from ..robot.mapping import inverse_commands
+    from ..robot.simulate import ROBOT_FIXTURE, make_cell
+
+    _edge()
+    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    mdh_json = _read_json(mdh_path)
+    mdh = RobotErrorModel.from_parameters(robot, stage_effects(spec, "kinematic"), mdh_json["parameters"])
+    tg = frame[frame["set"] == "target"].reset_index(drop=True)
+    data = robot_data(robot, tg)
+    qk = inverse_commands(mdh, robot, data)
+    ids, qf = _corrected(corrected, robot)
+    if list(ids) != list(tg["point_id"]):
+        raise InputError(corrected, "point_ids differ from the campaign's targets (run map-joints again)", 2, "point_id")
+    nominal = tg[["xn_mm", "yn_mm", "zn_mm"]].to_numpy(float)
+    before = tg[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - nominal
+    rep = frame[frame["set"] == "repeat"].reset_index(drop=True)
+    if tracker_path:
+        t = read_table(tracker_path, {"point_id": STR, "x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT}).set_index("point_id")
+
+        def get(keys):
+            missing = [k for k in keys if k not in t.index]
+            if missing:
+                raise InputError(tracker_path, f"no measurement of '{missing[0]}'", None, "point_id")
+            return t.loc[keys, ["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+
+        Pk = get([f"{i}@kinematic" for i in tg["point_id"]])
+        Pf = get([f"{i}@feedback" for i in tg["point_id"]])
+        Pr = get([f"{i}@feedback" for i in rep["point_id"]]) if len(rep) else None
+        source = str(tracker_path)
+    else:
+        config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
+        cell = make_cell(robot, config)
+        run = execute_virtual(cell, robot, frame, qk, qf, config["seed"])
+        Pk, Pf, Pr = run["kinematic"], run["feedback"], run.get("repeat_loop")
+        source = f"virtual cell, seed {config['seed']}"
+    result = table2(before, Pk - nominal, Pf - nominal)
+    result["source"] = source
+    iso = {}
+    if len(rep):
+        rep_meas = rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+        iso["open_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), rep_meas)
+        if Pr is not None:
+            iso["closed_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), Pr)
+        result["vAP_mm"] = {k: {p: v["vAP_mm"] for p, v in d.items()} for k, d in iso.items()}
+    result["provenance"] = provenance([interim, robot_path, mdh_path, corrected] + ([tracker_path] if tracker_path else []),
+                                      spec_path)
+    outdir = Path(out).parent
+    errs = pd.DataFrame({"point_id": tg["point_id"]})
+    for name, e in (("before", before), ("kinematic", Pk - nominal), ("feedback", Pf - nominal)):
+        for k, c in enumerate("xyz"):
+            errs[f"{name}_d{c}_mm"] = e[:, k]
+        errs[f"{name}_abs_mm"] = np.linalg.norm(e, axis=1)
+    write_csv(outdir / "target_errors.csv", errs, float_format="%.5f")
+    kc = pd.DataFrame({"point_id": tg["point_id"]})
+    for j in range(6):
+        kc[f"q{j + 1}"] = qk[:, j]
+    write_csv(outdir / "kinematic_commands.csv", kc, float_format="%.7f")
+    if len(rep):
+        rows = {"open_loop": rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)}
+        if Pr is not None:
+            rows["closed_loop"] = Pr
+        rr = pd.DataFrame({"point_id": rep["point_id"], "pose": rep["pose"], "approach": rep["approach"],
+                           "cycle": rep["cycle"]})
+        for k, v in rows.items():
+            for i, c in enumerate("xyz"):
+                rr[f"{k}_{c}_mm"] = v[:, i]
+        write_csv(outdir / "repeat_positions.csv", rr, float_format="%.5f")
+        write_json(outdir / "iso9283.json", iso)
+    write_json(out, result)
+    b, k, f = result["before"], result["kinematic"], result["feedback"]
+    click.echo(f"{out}: max {b['max_mm']:.3f} -> kinematic {k['max_mm']:.3f} -> feedback {f['max_mm']:.3f} mm "
+               f"(mean {b['mean_mm']:.3f} / {k['mean_mm']:.3f} / {f['mean_mm']:.3f}); max reduced by "
+               f"{result['max_reduction_pct']:.1f} %", err=True)
+
+
+@robot_group.command("report")
+@click.option("--results", "results_dir", default="results/robot", show_default=True, type=click.Path())
+@click.option("--beyond", "beyond_path", default=None, type=click.Path(),
+              help="Table 2 JSON of a spec beyond the paper's (e.g. results/robot/beyond/table2.json).")
+@click.option("--diagnosis", "diagnosis_path", default=None, type=click.Path(),
+              help="Diagnosis JSON of the paper's spec on this campaign (what was found missing).")
+@click.option("--out", default="reports/robot.pdf", show_default=True, type=click.Path(dir_okay=False))
+def report_cmd(results_dir, beyond_path, diagnosis_path, out):
+    """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec);
+    with --beyond, a page with what adding the effects diagnosis found does to Table 2."""
+    from ..robot.report import robot_report
+
+    _edge()
+    r = Path(results_dir)
+    beyond = None
+    if beyond_path:
+        beyond = {"table2": _read_json(beyond_path),
+                  "diagnosis": _read_json(diagnosis_path) if diagnosis_path else None}
+    robot_report({"beyond": beyond, "table2": _read_json(r / "table2.json"), "mdh": _read_json(r / "mdh.json"),
+                  "chebyshev": _read_json(r / "chebyshev.json"), "closed_loop": _read_json(r / "closed_loop.json"),
+                  "iso": _read_json(r / "iso9283.json") if (r / "iso9283.json").exists() else {},
+                  "errors": r / "target_errors.csv", "repeat": r / "repeat_positions.csv"}, out)
+    click.echo(f"{out}: written", err=True)
+
+
+@robot_group.command("real-report")
+@click.option("--results", "results_dir", default="results/real", show_default=True, type=click.Path(),
+              help="Folder with <series>_<spec>.json (fit), _self.json and _on_<other>.json (predict).")
+@click.option("--campaigns", "campaigns_dir", default="interim/real", show_default=True, type=click.Path(),
+              help="Folder with one imported campaign per series (jointcal import).")
+@click.option("--out-json", default="results/real/transfer.json", show_default=True, type=click.Path(dir_okay=False),
+              help="The report's numbers (summary.json's real section).")
+@click.option("--out", default="reports/real.pdf", show_default=True, type=click.Path(dir_okay=False))
+def real_report_cmd(results_dir, campaigns_dir, out_json, out):
+    """Write reports/real.pdf: nominal / kinematic / paper-spec errors (mm) of every real series on its
+    own held-out poses and on the other series (registered), and each held-out pose's error against
+    each joint angle (deg)."""
+    import pandas as pd
+
+    from ..core.files import write_json
+    from ..robot.real_report import load_results, real_report
+
+    series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
+        if Path(campaigns_dir).is_dir() else []
+    if not series:
+        raise InputError(campaigns_dir, "no imported campaign (<series>/poses.csv): run `make real` or jointcal import")
+    results = load_results(results_dir, series)
+    campaigns = {s: pd.read_csv(Path(campaigns_dir) / s / "poses.csv", dtype={"point_id": str}) for s in series}
+    table = real_report(results, campaigns, out)
+    write_json(out_json, table)
+    click.echo(f"{out}: written; {out_json}: " + "; ".join(
+        f"{s}: kinematic {t['kinematic']['rms_mm']:.3f} mm own, "
+        + ", ".join(f"{k.split('_on_')[1]} {t[k]['rms_mm']:.3f}" for k in sorted(t) if k.startswith("kinematic_on_"))
+        for s, t in table.items() if "kinematic" in t), err=True)
+
+
+def _warn_outside(sample_q, target_q, target_ids):
+    """Warn (as map-joints does) about targets outside the joint ranges of the sample poses."""
+    import numpy as np
+
+    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
+    parts = []
+    for j in range(sample_q.shape[1]):
+        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
+        bad = beyond > 1e-9
+        if bad.any():
+            k = int(np.argmax(beyond))
+            parts.append(f"joint {j + 1}: {int(bad.sum())} target(s), up to {beyond[k]:.2f} deg beyond "
+                         f"[{lo[j]:.2f}, {hi[j]:.2f}] (worst {target_ids[k]})")
+    if parts:
+        click.echo("jointcal: warning: targets outside the joint range the sample poses covered (the model "
+                   "extrapolates there): " + "; ".join(parts), err=True)
+
+
+def fit_robot(campaign, spec, spec_path, out):
+    """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
+    import numpy as np
+
+    from ..core.files import provenance, write_json
+    from ..robot.fit import fit_problems, robot_fit_result
+    from ..robot.ingest import robot_data_sets
+
+    _edge()
+    spec.require_kind("robot", campaign)
+    robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
+    if sample.n and target.n:
+        _warn_outside(sample.q_deg, target.q_deg, np.asarray(target.point_id))
+    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info))
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
+    files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]
+    result["provenance"] = provenance(files, spec_path)
+    problems = fit_problems(result)
+    if problems:
+        stale = Path(out).exists()
+        if stale:
+            Path(out).unlink()
+        click.echo(f"jointcal: error: {campaign}: {'; '.join(problems)}; nothing written"
+                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
+        sys.exit(1)
+    write_json(out, result)
+    h = result.get("heldout")
+    held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
+            f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "
+    fixed = result["not_identified"]
+    weak = [n for n, why in fixed.items() if why.startswith("weakly")]
+    click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "
+               f"({result['cv_folds']}); {len(fixed)} parameter(s) left at nominal"
+               + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
+               err=True)
+
+
+@click.command("predict")
+@click.option("--campaign", required=True, type=click.Path(),
+              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv).")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="Fitted robot model (jointcal fit --campaign ... --out FIT.json).")
+@click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
+@click.option("--register", is_flag=True,
+              help="Estimate the rigid tracker-to-base transform again on the campaign's sample poses first "
+                   "(the tracker was moved); every other parameter is the model's.")
+def predict_cmd(campaign, model_path, json_out, register):
+    """Predict every pose of another campaign with a fitted model and compare with its tracker points.
+
+    Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
+    none): n, rms_mm, max_mm, mean_mm, std_mm, outside_sampled_range (poses outside the joint
+    ranges the model was fitted on, where it extrapolates) and one line per point.
+    """
+    import numpy as np
+
+    from ..core.files import provenance, write_json
+    from ..robot.frame import apply, from_matrix
+    from ..robot.ingest import robot_data_sets
+    from ..robot.predict import load_model_document, predict_campaign, same_robot_problem
+
+    _edge()
+    robot_m, effects, model, sampled, fit_frame = load_model_document(_read_json(model_path), model_path)
+    robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
+                                                        with_table=True)
+    problem = same_robot_problem(robot_m, robot)
+    if problem:
+        raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
+    meas = data.measured_mm
+    if not register and frame_info and frame_info.get("frame") == "tracker":
+        # the tracker has not moved: its points go through the fit campaign's transform
+        raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
+        meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
+    try:
+        result = predict_campaign(model, data, table["set"].to_numpy(), meas, sampled, register)
+    except ValueError as exc:
+        raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
+    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
+    result["provenance"] = provenance([f for f in files if f.exists()] + [model_path])
+    write_json(json_out, result)
+    reg = result["registration"]
+    click.echo(f"{json_out}: {result['n']} {result['evaluated_on']} poses: RMS {result['rms_mm']:.3f} mm, max "
+               f"{result['max_mm']:.3f} mm; {result['outside_sampled_range']} outside the sampled joint ranges"
+               + (f"; re-registered on {reg['n']} sample poses ({reg['rotation_deg']:.3f} deg, "
+                  f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else ""), err=True)
+

@@ -1,0 +1,114 @@
+"""A model is a list of physical effects: the :class:`Effect` base class and the registry.
+
+Each :class:`Effect` knows
+
+* its **parameters** (what the spec may set, with defaults the data can resolve),
+* its **signature**: what it does to the residuals of a model that lacks it, i.e. the
+  regressor it adds to the model (``columns`` for the linear encoder model, joint-angle
+  offsets / link twists for the robot model),
+* its **explanation**: the physical effect in plain words, for reports and diagnosis,
+* whether a campaign **can reveal** it at all (one direction only, no timestamps, ...).
+
+The effects of a domain live in its package (:mod:`pipeline.encoder.effects`,
+:mod:`pipeline.robot.effects`). Each domain registers its own in one place, its package's
+``__init__`` (``REGISTRY.register(*EFFECTS)``), so the spec loader, the models and the
+diagnosis see one vocabulary (contract section 3). Nothing here imports a domain.
+
+Effects are constructed from spec parameters only; no work happens in constructors.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+
+class Effect:
+    """Base class of every physical effect.
+
+    Parameters
+    ----------
+    **params
+        The effect's parameters as written in the spec's ``[[effect]]`` table
+        (without ``name``). Stored as given; validated by :meth:`check`.
+    """
+
+    name: ClassVar[str] = ""
+    domain: ClassVar[str] = ""
+    explanation: ClassVar[str] = ""
+    signature: ClassVar[str] = ""
+    allowed_params: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, **params):
+        self.params = dict(params)
+
+    def __repr__(self):
+        inner = ", ".join(f"{k}={v!r}" for k, v in sorted(self.params.items()))
+        return f"{type(self).__name__}({inner})"
+
+    def check(self) -> list[str]:
+        """Problems with the parameters, as messages (empty when fine)."""
+        return [f"effect '{self.name}' has no parameter '{k}' (allowed: {', '.join(self.allowed_params) or 'none'})"
+                for k in self.params if k not in self.allowed_params]
+
+    def spec_lines(self) -> str:
+        """The ``[[effect]]`` table that adds this effect to a spec."""
+        lines = ["[[effect]]", f'name = "{self.name}"']
+        for key in sorted(self.params):
+            lines.append(f"{key} = {toml_value(self.params[key])}")
+        return "\n".join(lines)
+
+    def can_reveal(self, data) -> tuple[bool, str]:
+        """Whether ``data`` can show this effect at all, and why not."""
+        return True, ""
+
+    def target(self):
+        """Contract ``target`` of this effect in a diagnosis (order, joint or None)."""
+        return None
+
+
+def toml_value(value) -> str:
+    """A parameter value as TOML (for ``[[effect]]`` lines and specs written back)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+class Registry:
+    """The effects a spec may name, by ``(domain, name)``; filled by each domain's ``register`` call."""
+
+    def __init__(self):
+        self._classes: dict[tuple[str, str], type[Effect]] = {}
+
+    def register(self, *classes: type[Effect]) -> None:
+        """Make effect classes available to specs under ``(cls.domain, cls.name)``."""
+        for cls in classes:
+            key = (cls.domain, cls.name)
+            if key in self._classes and self._classes[key] is not cls:
+                raise ValueError(f"two {cls.domain} effects are named {cls.name!r}")
+            self._classes[key] = cls
+
+    def names(self, domain: str) -> list[str]:
+        """The registered effect names of a domain, sorted."""
+        self._require(domain)
+        return sorted(name for dom, name in self._classes if dom == domain)
+
+    def make(self, domain: str, name: str, **params) -> Effect:
+        """An effect of ``domain`` by name; KeyError when the domain has none of that name."""
+        self._require(domain)
+        cls = self._classes.get((domain, name))
+        if cls is None:
+            raise KeyError(name)
+        return cls(**params)
+
+    def _require(self, domain: str) -> None:
+        # a programming error, not bad input: the caller never loaded the domain's package
+        if not any(dom == domain for dom, _ in self._classes):
+            raise LookupError(f"no {domain} effects are registered: import pipeline.{domain} (its __init__ registers them)")
+
+
+#: the one registry of the package (pipeline.encoder and pipeline.robot register into it)
+REGISTRY = Registry()

@@ -1,0 +1,137 @@
+"""Reading contract CSV tables with located errors.
+
+Every problem is an :class:`~pipeline.core.errors.InputError` naming file, line and column.
+Readers collect *all* problems (``jointcal validate`` lists them); stages raise the first.
+"""
+
+from __future__ import annotations
+
+import difflib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+
+# column kinds
+STR, INT, FLOAT, SIGN, TIME = "str", "int", "float", "sign", "time"
+
+
+class Problems(list):
+    """A list of InputError; ``raise_first`` raises the earliest by file order."""
+
+    def add(self, path, message, line=None, column=None):
+        self.append(InputError(path, message, line, column))
+
+    def raise_first(self):
+        if self:
+            raise self[0]
+
+
+def read_table(path, required: dict, optional: dict | None = None, problems: Problems | None = None):
+    """Read a CSV whose columns have declared kinds.
+
+    Parameters
+    ----------
+    path : path-like
+    required : dict column -> kind
+    optional : dict column -> kind
+    problems : Problems, optional
+        Collector; when None the first problem is raised.
+
+    Returns
+    -------
+    pandas.DataFrame or None
+        Typed columns plus ``_line`` (1-based line of the row in the file, header = 1);
+        None when the file could not be read at all.
+    """
+    own = problems is None
+    problems = Problems() if own else problems
+    optional = optional or {}
+    path = Path(path)
+    start = len(problems)
+    try:
+        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except pd.errors.EmptyDataError:
+        problems.add(path, "file is empty; expected a header line with columns " + ", ".join(required), 1, None)
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        problems.add(path, f"not a readable CSV file ({' '.join(str(exc).split())})", None, None)
+    else:
+        raw.columns = [c.strip() for c in raw.columns]
+        frame = _check_columns(path, raw, required, optional, problems)
+        if frame is not None and len(problems) == start:
+            if own:
+                problems.raise_first()
+            return frame
+    if own:
+        problems.raise_first()
+    return None
+
+
+def _check_columns(path, raw, required, optional, problems):
+    known = {**required, **optional}
+    for col in required:
+        if col not in raw.columns:
+            close = difflib.get_close_matches(col, [c for c in raw.columns if c not in known], n=1)
+            hint = f" (found '{close[0]}': misspelled?)" if close else ""
+            problems.add(path, f"missing required column '{col}'{hint}", 1, col)
+    dup = raw.columns[raw.columns.duplicated()]
+    for col in dup:
+        problems.add(path, f"column '{col}' appears twice in the header", 1, col)
+    if problems and any(p.path == str(path) and p.line == 1 for p in problems):
+        return None
+    if len(raw) == 0:
+        problems.add(path, "header only, no data rows", 1, None)
+        return None
+    out = pd.DataFrame({"_line": np.arange(2, len(raw) + 2)})
+    for col, kind in known.items():
+        if col not in raw.columns:
+            continue
+        out[col] = _convert(path, raw[col], col, kind, problems, optional=col in optional)
+    return out
+
+
+def _convert(path, series, col, kind, problems, optional):
+    text = series.str.strip()
+    blank = text == ""
+    if kind == STR:
+        if not optional and blank.any():
+            i = int(np.argmax(blank.to_numpy()))
+            problems.add(path, f"empty value; '{col}' is required", i + 2, col)
+        return text
+    if kind == TIME:
+        values = pd.to_datetime(text.where(~blank), errors="coerce", utc=True, format="ISO8601")
+        bad = values.isna() & ~blank
+        if bad.any():
+            i = int(np.argmax(bad.to_numpy()))
+            problems.add(path, f"'{series.iloc[i]}' is not an ISO-8601 time", i + 2, col)
+        return values
+    values = pd.to_numeric(text.where(~blank), errors="coerce")
+    bad_text = values.isna() & ~blank
+    if bad_text.any():
+        i = int(np.argmax(bad_text.to_numpy()))
+        low = series.iloc[i].strip().lower()
+        what = "NaN" if low in ("nan", "-nan", "+nan") else f"'{series.iloc[i]}' is not a number"
+        problems.add(path, f"{what}; expected a finite {'integer' if kind in (INT, SIGN) else 'number'}", i + 2, col)
+    arr = values.to_numpy(dtype=float)
+    nonfinite = ~np.isfinite(arr) & ~values.isna().to_numpy()
+    if nonfinite.any():
+        i = int(np.argmax(nonfinite))
+        problems.add(path, f"'{series.iloc[i]}' is not finite; expected a finite number", i + 2, col)
+    if blank.any() and not optional:
+        i = int(np.argmax(blank.to_numpy()))
+        problems.add(path, f"empty value; '{col}' is required", i + 2, col)
+    if kind in (INT, SIGN):
+        ok = np.isfinite(arr)
+        finite = np.where(ok, arr, 0.0)  # inf - round(inf) would warn on stderr beside the one error line
+        frac = ok & (np.abs(finite - np.round(finite)) > 1e-9)
+        if frac.any():
+            i = int(np.argmax(frac))
+            problems.add(path, f"'{series.iloc[i]}' is not an integer", i + 2, col)
+        if kind == SIGN:
+            badsign = ok & ~np.isin(arr, (-1.0, 1.0))
+            if badsign.any():
+                i = int(np.argmax(badsign))
+                problems.add(path, f"'{series.iloc[i]}' must be +1 or -1", i + 2, col)
+    return arr

@@ -1,0 +1,32 @@
+"""Diagnosis of a raw campaign folder with a spec: the adapter of its kind, its data, the result."""
+
+from __future__ import annotations
+
+from ..core.campaign import campaign_kind
+from ..core.spec import load_spec
+from ..robot.ingest import robot_data_from_campaign
+from .encoder import EncoderAdapter, encoder_data_from_campaign
+from .engine import diagnose
+from .robot import RobotAdapter
+
+
+def adapter_and_data(campaign, kind):
+    """The adapter of a ``kind`` campaign and its data (robot: the sample poses)."""
+    if kind == "encoder":
+        return EncoderAdapter(), encoder_data_from_campaign(campaign)
+    robot, data = robot_data_from_campaign(campaign)
+    return RobotAdapter(robot), data
+
+
+def run_diagnosis(campaign, spec_path, progress=None):
+    """Load a raw campaign and a spec, check they match, and diagnose.
+
+    Returns the result dict (contract section 4) and ``(adapter, spec, data)`` for the report.
+    """
+    spec = load_spec(spec_path)
+    kind = campaign_kind(campaign)
+    spec.require_kind(kind, campaign)
+    adapter, data = adapter_and_data(campaign, kind)
+    result = diagnose(adapter, spec, data, progress=progress)
+    result = {"kind": result.pop("kind"), "campaign": str(campaign), "spec": str(spec_path), **result}
+    return result, (adapter, spec, data)

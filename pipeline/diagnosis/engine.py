@@ -1,0 +1,243 @@
+"""Stage ``diagnose``: where does the model fail, and which physical effect is missing?
+
+The engine is the same for an encoder and a robot; a domain *adapter* says how to fit a
+list of effects and predict held-out points:
+
+1. Fit the spec's model with cross-validation (folds by run for an encoder, by pose for a
+   robot) and keep every held-out residual: the baseline CV RMS.
+2. For every effect the spec lacks (and every target of it: an order, a joint), fit the
+   model once more with that effect added, again cross-validated: ``cv_rms_with`` and
+   ``gain = 1 - cv_rms_with / baseline``.
+3. Decide whether the gain is meaningful: the adapter tests whether the candidate's
+   signature is really in the held-out residuals (encoder: is its coefficient consistent
+   from run to run, a fixed- or random-effects test across runs; robot: a paired test of
+   the held-out squared residuals over independent poses). The p-value must be at most
+   ``alpha / number of candidates`` (Bonferroni; alpha = 1 %: on clean simulated encoder
+   campaigns with nothing missing, 2.5 % of campaigns raised an alarm, measured over 80) and the gain at least ``min_gain``. Otherwise
+   the candidate is listed after the meaningful ones, marked ``"meaningful": false``.
+4. Evidence: regress the baseline's residuals on the candidate's own signature (its
+   regressors) and report what is found there in the effect's units (e.g. "forward -
+   backward = 4.1 arcsec, t = 9"), so the user sees *why* in the data.
+
+Effects a campaign cannot reveal (one direction only, no timestamps, one payload ...) are
+not ranked; they are listed under ``not_revealable`` with the reason.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+
+import numpy as np
+from scipy import stats
+
+from ..core.crossval import CVResult
+
+ALPHA = 0.01
+MIN_GAIN = 0.01
+
+
+def paired_test(base: CVResult, other: CVResult) -> dict:
+    """One-sided paired test of the drop in squared held-out residual, summed per block.
+
+    Returns ``{"stat": t, "p": p, "method": ...}`` (Student t with blocks - 1 dof).
+    """
+    rb = np.sum(np.asarray(base.residuals).reshape(len(base.blocks), -1) ** 2, axis=1)
+    ro = np.sum(np.asarray(other.residuals).reshape(len(other.blocks), -1) ** 2, axis=1)
+    d = rb - ro
+    blocks = base.blocks
+    uniq, inv = np.unique(blocks, return_inverse=True)
+    D = np.bincount(inv, weights=d, minlength=uniq.size)
+    method = f"paired t over {uniq.size} blocks"
+    if uniq.size < 2:
+        return {"stat": 0.0, "p": 1.0, "method": method}
+    sd = D.std(ddof=1)
+    if sd == 0:
+        return {"stat": np.inf if D.mean() > 0 else 0.0, "p": 0.0 if D.mean() > 0 else 1.0, "method": method}
+    t = float(D.mean() / (sd / np.sqrt(uniq.size)))
+    return {"stat": t, "p": float(stats.t.sf(t, uniq.size - 1)), "method": method}
+
+
+def _cv_one(job):
+    adapter, data, base_effects, cand = job
+    try:
+        return adapter.cross_validate(adapter.add(base_effects, cand), data)
+    except np.linalg.LinAlgError:
+        return None
+
+
+_SHARED = None
+
+
+def _cv_shared(k):
+    adapter, data, base_effects, cands = _SHARED
+    return _cv_one((adapter, data, base_effects, cands[k]))
+
+
+def _cross_validate_all(adapter, data, base_effects, cands, jobs):
+    """Cross-validate the model with each candidate added; in ``jobs`` forked processes."""
+    global _SHARED
+    if jobs <= 1 or len(cands) < 2:
+        return [_cv_one((adapter, data, base_effects, c)) for c in cands]
+    _SHARED = (adapter, data, base_effects, cands)
+    try:
+        with mp.get_context("fork").Pool(jobs) as pool:
+            return pool.map(_cv_shared, range(len(cands)), chunksize=1)
+    finally:
+        _SHARED = None
+
+
+def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GAIN, progress=None,
+             workers: int | None = None) -> dict:
+    """Rank the effects the spec lacks by cross-validated gain.
+
+    Parameters
+    ----------
+    adapter : EncoderAdapter or RobotAdapter
+    spec : Spec
+    data : the adapter's data object
+    alpha : float
+        Family-wise false-alarm rate: a candidate is meaningful when its test's p-value is
+        at most alpha / (number of candidates tried) and its gain at least ``min_gain``.
+    min_gain : float
+    progress : callable(str), optional
+    workers : int, optional
+        Processes for the candidates' fits (default: 2 for adapters marked ``parallel``).
+
+    Returns
+    -------
+    dict in the contract's ``diagnose`` format, plus ``not_revealable``, ``residual_signatures``
+    and, per candidate, ``meaningful`` and ``t``.
+    """
+    say = progress or (lambda s: None)
+    base_effects = adapter.baseline_effects(spec, data)
+    say(f"baseline: {', '.join(e.name for e in base_effects)}")
+    base = adapter.cross_validate(base_effects, data)
+    residual_view = adapter.residual_view(base, data)
+    candidates, unrevealable, cand_objects = [], [], {}
+    revealable = []
+    for cand in adapter.candidates(spec, data, base_effects):
+        ok, why = cand.can_reveal(data)
+        extra = adapter.reveal_problem(cand, data, base_effects) if (ok and hasattr(adapter, "reveal_problem")) else ""
+        if extra:
+            ok, why = False, extra
+        if ok:
+            revealable.append(cand)
+        else:
+            unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
+                                 "explanation": cand.explanation})
+    jobs = workers if workers is not None else (min(2, os.cpu_count() or 1) if getattr(adapter, "parallel", False) else 1)
+    say(f"{len(revealable)} candidates, {jobs} process(es)")
+    fits = _cross_validate_all(adapter, data, base_effects, revealable, jobs)
+    for cand, with_cv in zip(revealable, fits):
+        if with_cv is None:
+            unrevealable.append({"effect": cand.name, "target": cand.target(),
+                                 "reason": "the fit with this effect is singular on these data", "explanation": cand.explanation})
+            continue
+        gain = 1.0 - with_cv.rms / base.rms if base.rms > 0 else 0.0
+        test = adapter.significance(cand, base, with_cv, data)
+        candidates.append({
+            "effect": cand.name, "target": cand.target(), "cv_rms_with": with_cv.rms, "gain": gain,
+            "meaningful": False, "p": test["p"], "t": min(float(test["stat"]), 1e9), "test": test["method"],
+            "evidence": adapter.evidence(cand, base, data),
+            "explanation": cand.explanation, "spec_line": cand.spec_lines(),
+        })
+        cand_objects[id(candidates[-1])] = cand
+    # Bonferroni over the candidates tried: the chance that any candidate of a model that
+    # lacks nothing is marked meaningful stays below alpha.
+    p_max = alpha / max(1, len(candidates))
+    for c in candidates:
+        c["meaningful"] = bool(c["gain"] >= min_gain and c["p"] <= p_max)
+    candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
+    _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say)
+    candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
+    if not any(c["meaningful"] for c in candidates):
+        say("no candidate is meaningful: the model explains the data down to their noise")
+    return {
+        "kind": spec.kind,
+        "baseline": {"effects": [e.name for e in base_effects], "cv_rms": base.rms, "unit": adapter.unit,
+                     "folds": adapter.fold_description(data)},
+        "candidates": candidates,
+        "not_revealable": unrevealable,
+        "thresholds": {"alpha": alpha, "p_max": p_max, "min_gain": min_gain},
+        "residual_signatures": residual_view,
+    }
+
+
+def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max, min_gain, say):
+    """Re-test each further meaningful candidate given the ones already accepted.
+
+    Candidates are tested one at a time against the baseline; two can both look meaningful
+    when one only mimics the other (in a two-way run, time within the run follows the
+    direction of approach, so drift mimics hysteresis). Going down the meaningful ones by
+    gain, each is refitted on top of those accepted so far; if what it adds there is within
+    noise it is marked not meaningful, with ``explained_by`` naming what explains it.
+    """
+    accepted = []
+    current_effects, current = list(base_effects), base
+    for c in [c for c in candidates if c["meaningful"]]:
+        if not accepted:
+            accepted.append(c)
+            current_effects = adapter.add(current_effects, objects[id(c)])
+            current = adapter.cross_validate(current_effects, data)
+            continue
+        cand = objects[id(c)]
+        say(f"re-testing {c['effect']} {c['target'] if c['target'] is not None else ''} given "
+            f"{', '.join(a['effect'] for a in accepted)}")
+        trial_effects = adapter.add(current_effects, cand)
+        trial = adapter.cross_validate(trial_effects, data)
+        extra_gain = 1.0 - trial.rms / current.rms if current.rms > 0 else 0.0
+        test = adapter.significance(cand, current, trial, data)
+        c["given_accepted"] = {"effects": [a["effect"] for a in accepted], "extra_gain": extra_gain, "p": test["p"]}
+        if extra_gain >= min_gain and test["p"] <= p_max:
+            accepted.append(c)
+            current_effects, current = trial_effects, trial
+        else:
+            c["meaningful"] = False
+            c["explained_by"] = accepted[-1]["effect"] if len(accepted) == 1 else [a["effect"] for a in accepted]
+            c["evidence"] += (f"; but with {' + '.join(a['effect'] for a in accepted)} in the model it adds only "
+                              f"{100 * extra_gain:.1f} % (p = {test['p']:.2g}): it was mimicking that effect")
+
+
+def format_table(result: dict, width: int = 110) -> str:
+    """The diagnosis as a plain-text table for the terminal."""
+    unit = result["baseline"]["unit"]
+    lines = [f"baseline ({' + '.join(result['baseline']['effects']) or 'nothing'}): cross-validated RMS "
+             f"{result['baseline']['cv_rms']:.4g} {unit}  [{result['baseline'].get('folds', '')}]", ""]
+    head = f"{'#':>2}  {'effect':<15}{'target':>6}  {'cv_rms_with':>11}  {'gain':>7}  {'p':>8}  meaningful"
+    lines += [head, "-" * len(head)]
+    for k, c in enumerate(result["candidates"], 1):
+        tgt = "-" if c["target"] is None else str(c["target"])
+        lines.append(f"{k:>2}  {c['effect']:<15}{tgt:>6}  {c['cv_rms_with']:>11.4g}  {100 * c['gain']:>6.1f}%  "
+                     f"{c['p']:>8.1e}  {'yes' if c['meaningful'] else ('no (explained by ' + str(c['explained_by']) + ')' if c.get('explained_by') else 'no (within noise)')}")
+    best = [c for c in result["candidates"] if c["meaningful"]]
+    lines.append("")
+    if best:
+        for c in best[:3]:
+            tgt = "" if c["target"] is None else f" (target {c['target']})"
+            lines += [f"* {c['effect']}{tgt}: held-out RMS {result['baseline']['cv_rms']:.4g} -> {c['cv_rms_with']:.4g} {unit}",
+                      f"  evidence:    {c['evidence']}", f"  explanation: {c['explanation']}", "  add to the spec:"]
+            lines += ["    " + ln for ln in c["spec_line"].splitlines()]
+            lines.append("")
+    else:
+        lines.append("No candidate lowers the held-out error beyond noise: nothing to add.")
+    for u in result.get("not_revealable", []):
+        tgt = "" if u["target"] is None else f" {u['target']}"
+        lines.append(f"not revealable by these data: {u['effect']}{tgt}: {u['reason']}")
+    return "\n".join(lines)
+
+
+def waterfall(adapter, spec, data, progress=None) -> list[dict]:
+    """Held-out error as each effect of the spec is added in turn (in the spec's order).
+
+    Returns a list of ``{"effects": [...], "added": name, "cv_rms": value}``, starting from
+    the empty model (nothing but the per-run / per-campaign constants the adapter always fits).
+    """
+    effects = adapter.baseline_effects(spec, data)
+    steps = [{"effects": [], "added": "(nothing)", "cv_rms": adapter.cross_validate([], data).rms}]
+    for k in range(1, len(effects) + 1):
+        if progress:
+            progress(f"waterfall: + {effects[k - 1].name}")
+        steps.append({"effects": [e.name for e in effects[:k]], "added": effects[k - 1].name,
+                      "cv_rms": adapter.cross_validate(effects[:k], data).rms})
+    return steps

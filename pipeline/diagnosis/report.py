@@ -1,0 +1,505 @@
+"""Diagnosis report (``jointcal diagnose --report PDF``): where the model fails, and why.
+
+Generic over the domain adapter (encoder: d = 1 residual in arcsec; robot: d = 3 residual
+x, y, z in mm). Deterministic bytes (see :mod:`pipeline.core.plotting`).
+
+Pages
+-----
+1. Summary (text; continued on more pages when long): baseline effects and cross-validated
+   RMS with unit and folds, the candidate table, for every meaningful candidate the
+   evidence, explanation and the ``[[effect]]`` lines to paste into the spec, and the
+   effects these data cannot reveal with the reason.
+2. Held-out residuals of the baseline against every signature variable the adapter names,
+   one small panel each, with a binned mean (continuous) or per-category means with
+   standard-error bars (categorical); every "angle" variable also gets a residual spectrum
+   (amplitude of orders 1..17 from one least-squares fit against the angle). For d = 3
+   the norm |r| is drawn as points and the signed x, y, z components as binned means.
+   Nine panels a page; more pages when the adapter names more variables.
+3. Candidates: gain (%) of each candidate, meaningful ones highlighted, with the
+   thresholds (min gain, Bonferroni p).
+4. Waterfall: held-out RMS as each effect of the spec is added in turn, and the top
+   meaningful candidate as one more, suggested bar.
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+
+from ..core.plotting import pdf_pages, plt, save, text_page
+from .engine import waterfall
+
+A4 = (8.27, 11.69)
+MAX_ORDER = 17
+PANELS_PER_PAGE = 9          # 3 x 3 grid on an A4 page
+SUMMARY_LINES_PER_PAGE = 88
+SUMMARY_WIDTH = 100
+COMPONENT_COLORS = ("tab:red", "tab:green", "tab:purple")
+MEAN_COLOR = "black"
+HIGHLIGHT = "tab:blue"
+GREY = "0.75"
+MODEL_COLOR = "tab:orange"
+
+
+# ------------------------------------------------------------------------------ helpers
+def _fmt_target(target) -> str:
+    return "-" if target is None else str(target)
+
+
+def _label(c) -> str:
+    """``direction``, ``harmonic order 13``, ``backlash joint 2`` (contract: target is the
+    order of a harmonic, else the 1-based joint)."""
+    if c["target"] is None:
+        return c["effect"]
+    what = "order" if "harmonic" in c["effect"] and c["effect"] != "joint_harmonic" else "joint"
+    return f"{c['effect']} {what} {c['target']}"
+
+
+def _effect_label(e) -> str:
+    """An effect with its parameters, e.g. ``harmonic orders=[1, 4, 8]``."""
+    params = getattr(e, "params", {}) or {}
+    extra = " ".join(f"{k}={v}" for k, v in sorted(params.items()))
+    return f"{e.name} {extra}".rstrip()
+
+
+def _residual_parts(residuals):
+    """(magnitude, components): magnitude is r itself for d = 1 and |r| for d > 1."""
+    r = np.asarray(residuals, float)
+    r = r.reshape(r.shape[0], -1)
+    if r.shape[1] == 1:
+        return r[:, 0], None
+    return np.sqrt(np.sum(r ** 2, axis=1)), r
+
+
+def _component_names(d):
+    return ("x", "y", "z") if d == 3 else tuple(f"r{k + 1}" for k in range(d))
+
+
+def _bins(x, max_unique=60, n_bins=12):
+    """Group indices for a binned mean: one group per distinct value when there are few,
+    else quantile bins. Returns (centres, list of index arrays)."""
+    ok = np.isfinite(x)
+    xv = x[ok]
+    idx_all = np.flatnonzero(ok)
+    if xv.size == 0:
+        return np.array([]), []
+    uniq = np.unique(np.round(xv, 6))
+    if uniq.size <= max_unique:
+        groups = [idx_all[np.round(xv, 6) == u] for u in uniq]
+        return uniq, groups
+    edges = np.unique(np.quantile(xv, np.linspace(0, 1, n_bins + 1)))
+    which = np.clip(np.searchsorted(edges, xv, side="right") - 1, 0, edges.size - 2)
+    centres, groups = [], []
+    for b in range(edges.size - 1):
+        g = idx_all[which == b]
+        if g.size:
+            centres.append(float(np.mean(x[g])))
+            groups.append(g)
+    return np.array(centres), groups
+
+
+def _mean_se(y, groups):
+    m = np.array([np.mean(y[g]) for g in groups])
+    se = np.array([np.std(y[g], ddof=1) / np.sqrt(g.size) if g.size > 1 else 0.0 for g in groups])
+    return m, se
+
+
+def residual_spectrum(angle_deg, residuals, max_order=MAX_ORDER, noise=False):
+    """Amplitude of orders 1..max_order in the residual against an angle (one LSQ fit).
+
+    For d > 1 the amplitudes of the components are combined as a root sum of squares.
+    Orders the distinct angles cannot resolve are left out. Returns (orders, amplitude),
+    and with ``noise=True`` also the RMS amplitude white noise of the fit's residual scatter
+    would show at each order (a guide: peaks well above it are signal).
+    """
+    th = np.radians(np.asarray(angle_deg, float))
+    r = np.asarray(residuals, float).reshape(th.size, -1)
+    ok = np.isfinite(th) & np.all(np.isfinite(r), axis=1)
+    th, r = th[ok], r[ok]
+    n_distinct = np.unique(np.round(np.degrees(th) % 360.0, 2)).size
+    top = int(min(max_order, (n_distinct - 1) // 2))
+    if top < 1:
+        return (np.arange(0), np.zeros(0)) + ((np.zeros(0),) if noise else ())
+    orders = np.arange(1, top + 1)
+    X = np.column_stack([np.ones_like(th)] + [f(i * th) for i in orders for f in (np.cos, np.sin)])
+    coef, *_ = np.linalg.lstsq(X, r, rcond=None)
+    A, B = coef[1::2], coef[2::2]
+    amp = np.sqrt(np.sum(A ** 2 + B ** 2, axis=1))
+    if not noise:
+        return orders, amp
+    dof = max(1, th.size - X.shape[1])
+    s2 = np.sum((r - X @ coef) ** 2, axis=0) / dof                      # per component
+    cov = np.linalg.pinv(X.T @ X)
+    var_ab = np.diag(cov)[1::2] + np.diag(cov)[2::2]
+    return orders, amp, np.sqrt(var_ab * np.sum(s2))
+
+
+# ------------------------------------------------------------------------------ page 1
+def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
+    """The summary page's lines (plain text, wrapped to ``width``)."""
+    b = result["baseline"]
+    unit = b["unit"]
+    th = result.get("thresholds", {})
+    wrap = lambda s, ind="   ": textwrap.wrap(str(s), width, initial_indent=ind, subsequent_indent=ind + "  ") or [ind]
+    lines = ["Baseline model (the spec's effects):"]
+    if base_effects:
+        for e in base_effects:
+            lines += wrap(_effect_label(e))
+    else:
+        lines += wrap(" + ".join(b["effects"]) or "nothing")
+    lines += [f"Cross-validated RMS: {b['cv_rms']:.4g} {unit}   ({b.get('folds', 'held-out folds')})", ""]
+    if th:
+        lines += wrap(f"A candidate is meaningful when its gain >= {100 * th['min_gain']:.3g} % and "
+                      f"p <= alpha / N = {th['alpha']:g} / {len(result['candidates'])} = {th['p_max']:.2g} "
+                      "(Bonferroni: with nothing missing, any false alarm has chance < alpha).", "")
+        lines.append("")
+    head = f"{'#':>3}  {'effect':<16}{'target':>7}  {'cv_rms_with':>12}  {'gain':>7}  {'p':>8}  meaningful"
+    lines += [head, "-" * len(head)]
+    for k, c in enumerate(result["candidates"], 1):
+        lines.append(f"{k:>3}  {c['effect']:<16}{_fmt_target(c['target']):>7}  {c['cv_rms_with']:>8.4g} {unit:<3}  "
+                     f"{100 * c['gain']:>6.1f}%  {c['p']:>8.1e}  {'YES' if c['meaningful'] else 'no'}")
+    if not result["candidates"]:
+        lines.append("   (no candidate could be tried)")
+    lines.append("")
+    best = [c for c in result["candidates"] if c["meaningful"]]
+    if best:
+        lines.append("Meaningful candidates (add to the spec):")
+        if len(best) > 1:
+            lines += wrap("Each candidate is tested alone against the baseline: candidates whose signatures are "
+                          "correlated in this campaign can all look meaningful. Add the first, run diagnose "
+                          "again; the waterfall page shows the next ones added after it.", "   ")
+        for c in best:
+            lines.append("")
+            lines.append(f"* {_label(c)}: held-out RMS {b['cv_rms']:.4g} -> {c['cv_rms_with']:.4g} {unit} "
+                         f"(gain {100 * c['gain']:.1f} %, p = {c['p']:.1e})")
+            lines += wrap("evidence:    " + c["evidence"], "   ")
+            lines += wrap("explanation: " + c["explanation"], "   ")
+            if c.get("test"):
+                lines += wrap("test:        " + c["test"], "   ")
+            lines.append("   add to the spec:")
+            lines += ["      " + ln for ln in c["spec_line"].splitlines()]
+    else:
+        lines += wrap("No candidate lowers the held-out error beyond noise: the model explains these "
+                      "data down to their noise; nothing to add.", "")
+    nr = result.get("not_revealable", [])
+    if nr:
+        lines += ["", "Not revealable by these data (not ranked):"]
+        for u in nr:
+            tgt = "" if u["target"] is None else f" {u['target']}"
+            lines += wrap(f"- {u['effect']}{tgt}: {u['reason']}", "   ")
+    return lines
+
+
+def _summary_pages(pdf, result, base_effects):
+    lines = summary_lines(result, base_effects)
+    title = f"Diagnosis ({result['kind']}): where the model fails"
+    n = SUMMARY_LINES_PER_PAGE
+    chunks = [lines[i:i + n] for i in range(0, len(lines), n)] or [[]]
+    for k, chunk in enumerate(chunks):
+        t = title if len(chunks) == 1 else f"{title} ({k + 1}/{len(chunks)})"
+        text_page(pdf, t, chunk, fontsize=8)
+
+
+# ------------------------------------------------------------------------------ page 2
+def _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit):
+    x = np.asarray(values, float)
+    d_is_vec = comps is not None
+    ylab = f"|residual| ({res_unit})" if d_is_vec else f"residual ({res_unit})"
+    if kind == "categorical":
+        cats = np.unique(x[np.isfinite(x)])
+        pos = np.arange(cats.size)
+        groups = [np.flatnonzero(x == c) for c in cats]
+        jitter = np.random.default_rng(0).uniform(-0.18, 0.18, x.size)
+        where = np.full(x.size, np.nan)
+        for p, g in zip(pos, groups):
+            where[g] = p
+        ax.scatter(where + jitter, mag, s=3, color=GREY, lw=0, zorder=1)
+        m, se = _mean_se(mag, groups)
+        ax.errorbar(pos, m, yerr=se, fmt="o", color=MEAN_COLOR, ms=4, capsize=3, zorder=3,
+                    label="mean |r| +- SE" if d_is_vec else "mean +- SE")
+        if 1 < cats.size <= 4 and not d_is_vec:
+            for p_, m_ in zip(pos, m):
+                ax.annotate(f"{m_ + 0.0:+.2f}", (p_, m_), xytext=(-5, 0), textcoords="offset points",
+                            ha="right", va="center", fontsize=6.5, zorder=4,
+                            bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+        if d_is_vec:
+            names = _component_names(comps.shape[1])
+            cm, cse = [], []
+            for j, col in enumerate(COMPONENT_COLORS[:comps.shape[1]]):
+                mj, sej = _mean_se(comps[:, j], groups)
+                cm.append(mj)
+                cse.append(sej)
+                ax.errorbar(pos + 0.12 * (j + 1), mj, yerr=sej, fmt="s", color=col, ms=3, capsize=2, zorder=3,
+                            label=f"mean {names[j]}")
+            cm, cse = np.array(cm), np.array(cse)
+            j = int(np.argmax(np.ptp(cm, axis=1)))
+            # name the component that moves most between categories, if beyond 3 standard errors
+            if 1 < cats.size <= 4 and np.ptp(cm[j]) > 3 * np.sqrt(np.sum(cse[j] ** 2)):
+                for p_ in pos:
+                    ax.annotate(f"{names[j]} {cm[j, p_] + 0.0:+.2g}", (p_ + 0.12 * (j + 1), cm[j, p_]), xytext=(4, 0),
+                                textcoords="offset points", ha="left", va="center", fontsize=6, zorder=4,
+                                color=COMPONENT_COLORS[j],
+                                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.8))
+        ax.set_xticks(pos)
+        ax.set_xticklabels([f"{c:g}" for c in cats])
+        ax.set_xlim(-0.6, cats.size - 0.4 + (0.7 if d_is_vec else 0))
+    else:
+        ax.scatter(x, mag, s=3, color=GREY, lw=0, zorder=1)
+        centres, groups = _bins(x)
+        if len(groups):
+            m, se = _mean_se(mag, groups)
+            ax.plot(centres, m, "-", color=MEAN_COLOR, lw=1.3, zorder=3,
+                    label="binned mean |r|" if d_is_vec else "binned mean")
+            ax.fill_between(centres, m - se, m + se, color=MEAN_COLOR, alpha=0.15, lw=0, zorder=2)
+            if d_is_vec:
+                for j, col in enumerate(COMPONENT_COLORS[:comps.shape[1]]):
+                    mj, _ = _mean_se(comps[:, j], groups)
+                    ax.plot(centres, mj, "-", color=col, lw=1.0, zorder=3,
+                            label=f"mean {_component_names(comps.shape[1])[j]}")
+        if kind == "angle" and np.nanmax(x) - np.nanmin(x) > 180:
+            ax.set_xticks(np.arange(np.ceil(np.nanmin(x) / 90 - 0.15) * 90, np.nanmax(x) + 0.15 * 90, 90))
+    ax.axhline(0.0, color="0.4", lw=0.6, zorder=0)
+    ax.set_xlabel(f"{name} ({unit})" if unit else name)
+    ax.set_ylabel(ylab)
+    ax.set_title(name, fontsize=9)
+    ax.legend(loc="upper right", fontsize=5.5 if d_is_vec else 6, framealpha=0.7)
+
+
+def _panel_spectrum(ax, name, values, residuals, res_unit, highlight=(), in_model=()):
+    orders, amp, floor = residual_spectrum(values, residuals, noise=True)
+    d = np.asarray(residuals).reshape(len(values), -1).shape[1]
+    if orders.size == 0:
+        ax.text(0.5, 0.5, "too few distinct angles\nfor a spectrum", ha="center", va="center", transform=ax.transAxes)
+    else:
+        colors = [HIGHLIGHT if o in highlight else "0.45" for o in orders]
+        ax.bar(orders, amp, color=colors, width=0.7)
+        ax.step(np.r_[orders - 0.5, orders[-1] + 0.5], np.r_[floor, floor[-1]], where="post",
+                color="tab:red", ls="--", lw=0.8, zorder=3)
+        handles = [Line2D([], [], color="tab:red", ls="--", lw=0.8, label="noise level")]
+        fitted = [o for o in orders if o in in_model]
+        if fitted:
+            # fitted orders leave ~nothing in the residual: mark them at the foot of the axis
+            ax.plot(fitted, np.zeros(len(fitted)), "^", color=MODEL_COLOR, ms=4, clip_on=False, zorder=4)
+            handles.append(Line2D([], [], ls="", marker="^", color=MODEL_COLOR, ms=4, label="order in the model"))
+        if any(o in highlight for o in orders):
+            handles.append(Patch(color=HIGHLIGHT, label="meaningful candidate"))
+        if handles:
+            ax.legend(handles=handles, loc="upper left", fontsize=6, framealpha=0.7)
+        ax.set_xticks(orders)
+        ax.set_xticklabels([str(o) if o % 2 else "" for o in orders])
+        ax.tick_params(axis="x", labelsize=7)
+        ax.set_xlim(0.3, orders[-1] + 0.7)
+        k = int(np.argmax(amp))
+        ax.annotate(f"{amp[k]:.2g} {res_unit}", (orders[k], amp[k]), ha="center", va="bottom", fontsize=6)
+        ymax = max(amp.max(), floor.max())
+        ax.set_ylim(0, ymax * 1.3 if ymax > 0 else 1)
+    ax.set_xlabel(f"harmonic order in {name} (cycles / rev)")
+    ax.set_ylabel(f"amplitude ({res_unit})" if d == 1 else f"amplitude, RSS of x,y,z ({res_unit})")
+    ax.set_title(f"residual spectrum vs {name}", fontsize=9)
+
+
+def _model_orders(base_effects):
+    """Harmonic orders the baseline already fits (effects on every angle, no joints given)."""
+    out = set()
+    for e in base_effects:
+        params = getattr(e, "params", {}) or {}
+        if "harmonic" in e.name and "joints" not in params and isinstance(params.get("orders"), (list, tuple)):
+            out |= {int(o) for o in params["orders"]}
+    return out
+
+
+def _residual_pages(pdf, result, adapter, base, data, base_effects=()):
+    res_unit = getattr(adapter, "unit", result["baseline"]["unit"])
+    mag, comps = _residual_parts(base.residuals)
+    # harmonic orders a meaningful candidate names: highlight them in the spectrum
+    marked = {c["target"] for c in result["candidates"] if c["meaningful"] and c["effect"] == "harmonic"}
+    panels = []
+    for name, (values, unit, kind) in adapter.signature_variables(data).items():
+        panels.append(("res", name, values, unit, kind))
+        if kind == "angle":
+            panels.append(("spec", name, values, unit, kind))
+    in_model = _model_orders(base_effects)
+    pages = [panels[i:i + PANELS_PER_PAGE] for i in range(0, len(panels), PANELS_PER_PAGE)]
+    what = ("|held-out residual| (points) and mean x, y, z components (lines)" if comps is not None
+            else "held-out residual")
+    for p, page in enumerate(pages):
+        rows = -(-len(page) // 3)
+        fig, axes = plt.subplots(rows, 3, figsize=(A4[0], 1.0 + 3.4 * rows), squeeze=False)
+        axes = axes.ravel()
+        for ax, (typ, name, values, unit, kind) in zip(axes, page):
+            if typ == "res":
+                _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit)
+            else:
+                _panel_spectrum(ax, name, values, base.residuals, res_unit, marked, in_model)
+        for ax in axes[len(page):]:
+            ax.set_visible(False)
+        suffix = "" if len(pages) == 1 else f" ({p + 1}/{len(pages)})"
+        fig.suptitle(f"Baseline {what} against every signature{suffix}\n"
+                     f"baseline: {' + '.join(result['baseline']['effects']) or 'nothing'}, "
+                     f"CV RMS {base.rms:.4g} {res_unit} ({result['baseline'].get('folds', '')}); "
+                     "a trend or a spectral peak is what the model misses", fontsize=9)
+        fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / (1.0 + 3.4 * rows)), h_pad=1.6)
+        save(pdf, fig)
+
+
+# ------------------------------------------------------------------------------ page 3
+def _candidates_page(pdf, result):
+    cands = result["candidates"]
+    th = result.get("thresholds", {})
+    unit = result["baseline"]["unit"]
+    height = min(A4[1], max(4.0, 1.6 + 0.24 * len(cands)))
+    fig, ax = plt.subplots(figsize=(A4[0], height))
+    if not cands:
+        ax.text(0.5, 0.5, "no candidate could be tried on these data", ha="center", va="center", transform=ax.transAxes)
+        ax.set_axis_off()
+    else:
+        y = np.arange(len(cands))[::-1]
+        gains = np.array([100 * c["gain"] for c in cands])
+        colors = [HIGHLIGHT if c["meaningful"] else GREY for c in cands]
+        ax.barh(y, gains, color=colors, height=0.7)
+        ax.set_yticks(y)
+        ax.set_yticklabels([_label(c) for c in cands], fontsize=8)
+        for c, yy in zip(cands, y):
+            g = 100 * c["gain"]
+            why = ""
+            if th and not c["meaningful"]:
+                why = "; p too large" if c["p"] > th["p_max"] else ("; gain too small" if c["gain"] < th["min_gain"] else "")
+                why = "" if c["gain"] <= 0 else why
+            ax.annotate(f" {g:+.1f} %  (p = {c['p']:.1e}, {c['cv_rms_with']:.4g} {unit}{why})",
+                        (max(g, 0.0), yy), va="center", ha="left", fontsize=6.5,
+                        color="black" if c["meaningful"] else "0.35")
+        lo, hi = min(0.0, gains.min()), max(0.0, gains.max())
+        span = max(hi - lo, 1.0)
+        ax.set_xlim(lo - 0.05 * span, hi + 0.75 * span)
+        ax.set_ylim(-0.7, len(cands) - 0.3)
+        ax.axvline(0.0, color="0.3", lw=0.8)
+        if th:
+            ax.axvline(100 * th["min_gain"], color="tab:orange", ls="--", lw=1,
+                       label=f"min gain {100 * th['min_gain']:.3g} %")
+        handles = [Patch(color=HIGHLIGHT, label="meaningful"), Patch(color=GREY, label="within noise")]
+        h2, _ = ax.get_legend_handles_labels()
+        ax.legend(handles=handles + h2, loc="lower right", fontsize=7)
+        ax.set_xlabel(f"gain = 1 - cv_rms_with / baseline ({result['baseline']['cv_rms']:.4g} {unit})  (%)")
+        ax.grid(axis="y", visible=False)
+    sub = ""
+    if th:
+        sub = (f"\nmeaningful: gain >= {100 * th['min_gain']:.3g} % and p <= alpha/N = {th['alpha']:g}/{len(cands)}"
+               f" = {th['p_max']:.2g} (Bonferroni)")
+    ax.set_title(f"Candidates: cross-validated gain of adding each missing effect{sub}", fontsize=9)
+    fig.tight_layout()
+    save(pdf, fig)
+
+
+# ------------------------------------------------------------------------------ page 4
+MAX_SUGGESTED = 3
+
+
+def suggested_steps(result, adapter, spec, data, base_effects, max_n=MAX_SUGGESTED):
+    """The meaningful candidates added one after the other (best first), cross-validated.
+
+    The diagnosis tests every candidate alone against the baseline; two candidates whose
+    signatures are correlated in this campaign (time within a run and direction of
+    approach, when every run sweeps forwards then backwards) can both look meaningful.
+    Adding them in turn shows whether the second still lowers the held-out error.
+    Returns a list of ``{"label", "cv_rms"}``; the first uses the diagnosis' own number.
+    """
+    best = [c for c in result["candidates"] if c["meaningful"]][:max_n]
+    if not best:
+        return []
+    steps = [{"label": _label(best[0]), "cv_rms": best[0]["cv_rms_with"]}]
+    if len(best) == 1:
+        return steps
+    objs = {(o.name, o.target()): o for o in adapter.candidates(spec, data, base_effects)}
+    effects = list(base_effects)
+    for k, c in enumerate(best):
+        obj = objs.get((c["effect"], c["target"]))
+        if obj is None:
+            break
+        effects = adapter.add(effects, obj)
+        if k == 0:
+            continue
+        try:
+            rms = adapter.cross_validate(effects, data).rms
+        except np.linalg.LinAlgError:
+            break
+        steps.append({"label": _label(c), "cv_rms": rms})
+    return steps
+
+
+def _waterfall_page(pdf, result, steps, base_effects, suggested=()):
+    unit = result["baseline"]["unit"]
+    min_gain = result.get("thresholds", {}).get("min_gain", 0.0)
+    labels = ["nothing\n(constants only)"]
+    for s, e in zip(steps[1:], base_effects):
+        labels.append("+ " + "\n".join(textwrap.wrap(_effect_label(e), 22)))
+    values = [s["cv_rms"] for s in steps]
+    colors = ["0.45"] * len(values)
+    hatches = [None] * len(values)
+    for k, s in enumerate(suggested):
+        labels.append("+ " + "\n".join(textwrap.wrap(s["label"], 22)) + ("\n(suggested)" if k == 0 else "\n(then)"))
+        values.append(s["cv_rms"])
+        colors.append(HIGHLIGHT if k == 0 else "lightsteelblue")
+        hatches.append("//")
+    fig, ax = plt.subplots(figsize=(A4[0], A4[1] / 2))
+    x = np.arange(len(values))
+    bars = ax.bar(x, values, color=colors, width=0.6, edgecolor="white")
+    for bar, h in zip(bars, hatches):
+        if h:
+            bar.set_hatch(h)
+    top = max(values) if values else 1.0
+    for k, v in enumerate(values):
+        txt = f"{v:.4g} {unit}"
+        if k and values[k - 1] > 0:
+            change = v / values[k - 1] - 1.0
+            txt += f"\n({100 * change:+.1f} %)"
+            if k >= len(steps) + 1 and -change < min_gain:
+                txt += "\nno further gain"
+        ax.annotate(txt, (k, v), ha="center", va="bottom", fontsize=7, xytext=(0, 2), textcoords="offset points")
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, fontsize=7)
+    ax.set_ylim(0, top * 1.2)
+    ax.set_ylabel(f"cross-validated RMS ({unit})")
+    ax.grid(axis="x", visible=False)
+    if suggested:
+        note = ("blue: the top meaningful candidate added to the spec's model"
+                + ("; light blue: the next meaningful ones added after it, in turn" if len(suggested) > 1 else ""))
+    else:
+        note = "no meaningful candidate: nothing to add"
+    ax.set_title("Waterfall: held-out error as each effect of the spec is added in turn\n"
+                 f"({result['baseline'].get('folds', '')}; change vs the bar before in brackets)\n{note}", fontsize=9)
+    fig.tight_layout()
+    save(pdf, fig)
+
+
+# ------------------------------------------------------------------------------ entry
+def diagnosis_pages(pdf, result, adapter, spec, data, progress=None):
+    """Add one campaign's diagnosis pages to an open PDF."""
+    base_effects = adapter.baseline_effects(spec, data)
+    base = adapter.cross_validate(base_effects, data)
+    steps = waterfall(adapter, spec, data, progress)
+    suggested = suggested_steps(result, adapter, spec, data, base_effects)
+    _summary_pages(pdf, result, base_effects)
+    _residual_pages(pdf, result, adapter, base, data, base_effects)
+    _candidates_page(pdf, result)
+    _waterfall_page(pdf, result, steps, base_effects, suggested)
+
+
+def diagnosis_report(result, adapter, spec, data, out, progress=None):
+    """Write the diagnosis PDF to ``out`` (see the module docstring for the pages)."""
+    with pdf_pages(out, f"jointcal diagnosis ({result['kind']})") as pdf:
+        diagnosis_pages(pdf, result, adapter, spec, data, progress)
+    return out
+
+
+def diagnosis_report_many(items, out, progress=None):
+    """One PDF for several campaigns: ``items`` is a list of (result, adapter, spec, data)."""
+    with pdf_pages(out, "jointcal diagnosis") as pdf:
+        for result, adapter, spec, data in items:
+            diagnosis_pages(pdf, result, adapter, spec, data, progress)
+    return out
+
+
+__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "residual_spectrum", "suggested_steps", "summary_lines"]

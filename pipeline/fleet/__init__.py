@@ -1,0 +1,1 @@
+"""The fleet: the per-unit pipeline over many campaigns on Dask (``engine``) and its report."""

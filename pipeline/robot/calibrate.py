@@ -1,0 +1,445 @@
+"""Robot error models: one generic nonlinear least-squares fit over a sum of effects.
+
+:class:`RobotErrorModel` is the estimator. Given effects (``pipeline.robot.effects``) it
+predicts the SMR position as the forward kinematics of the error model (``pipeline.robot``)
+at ``Q0 + sum_p x_p basis_p`` and fits ``x`` to tracker positions by
+
+* ``solver="gauss-newton"``: iterated least squares, Eq. 6 of the paper
+  ``Delta X = (J^T J)^-1 J^T Delta P`` repeated at the updated parameters (MDH stage),
+* ``solver="lm"``: the paper's improved Levenberg-Marquardt (:mod:`pipeline.robot.lm`),
+* ``solver="scipy"``: ``scipy.optimize.least_squares`` (cross-check).
+
+Identifiability: the Jacobian at the start is scaled to unit columns and decomposed
+(SVD: rank, condition number; QR with column pivoting: which parameters to keep). With
+``identifiability=True`` the parameters beyond the numerical rank are fixed at 0 and
+reported by name; otherwise they stay free and the solver's damping (L-M) or minimum-norm
+steps (Gauss-Newton via ``lstsq``) keep them at the smallest-norm solution.
+
+The MDH calibration stage (:func:`calibrate_mdh`) is this estimator with the ``geometry``
+effect on the ``sample`` poses.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+
+import numpy as np
+import scipy.linalg
+
+from . import lm  # the solvers as lm.improved_lm: looked up at call time (tests wrap them)
+from .effects import Base, Geometry, RobotData, RobotEffect
+from .kinematics import Robot, build_error_model, positions_and_jacobians, positions
+from .lm import GAIN_REL_CONVERGED, implausible_parameters
+
+RANK_TOL = 1e-7   # singular value / largest singular value of the column-scaled Jacobian (numerical rank)
+#: A parameter is identified only when the poses determine it well enough for the model to hold on
+#: poses the fit did not see. Its determination is the distance of its (unit) Jacobian column from
+#: the span of the other identified parameters' columns, relative to the largest singular value: the
+#: inverse of its standard error in these units, i.e. how well it is told apart from all the others
+#: together. Parameters below WEAK_TOL are left at nominal one at a time, the least determined first,
+#: until every one left is above (condition number of the identified set ~1 / WEAK_TOL or better).
+#: Measured: on both real UR10 series the parameters fall into two groups, 3e-5..1.6e-4 (the rotation
+#: of joint 6 and the wrist-5 twist/length, with an SMR 0.4 mm off joint 6's axis) and 5e-3 and above;
+#: on a series in a small part of the workspace (ISO 9283 cubes) the tool length and the base sit at
+#: 2.7e-4 of each other and, fitted, the tool took 8 mm and the model was 3x worse on another series;
+#: the simulated KR210 campaign (100 poses, orientation within +-10 deg) has its least determined
+#: parameter at 1.0e-3 and needs it. Condition numbers up to ~2,000 are kept.
+WEAK_TOL = 5e-4
+#: Relative singular value below which a fixed parameter is called redundant (an exact combination
+#: of the kept ones) rather than weakly determined.
+EXACT_TOL = 1e-9
+#: A rotation parameter whose Jacobian column is shorter than this times the median rotation's (it
+#: moves the measured point a hundred times less than a typical rotation: an axis the SMR sits on or
+#: near, like the UR10's probe 0.4 mm off joint 6's axis) is not identified. Measured:
+#: at 1e-3 the rotations about joint 6's axis still came out at 1e5 arcsec on the real series.
+SHORT_LEVER = 1e-2
+
+
+class Design:
+    """The effects' channels on one data set (pure, built once per data set).
+
+    Attributes
+    ----------
+    Q0 : ndarray, shape (n, nq)
+        Error-model configuration with all parameters at 0 (joint angles in rad).
+    names, units : parameter names and (unit, factor internal -> reported)
+    """
+
+    def __init__(self, robot: Robot, effects: list[RobotEffect], data: RobotData, model_and_index=None):
+        self.robot = robot
+        self.model, self.idx = model_and_index or build_error_model(robot)
+        self.data = data
+        n = data.n
+        self.Q0 = np.zeros((n, self.idx.nq))
+        self.Q0[:, self.idx.joints] = np.deg2rad(data.q_deg)
+        names, units, p_idx, c_idx, vals = [], [], [], [], []
+        for e in effects:
+            offset = len(names)
+            names += e.parameter_names(robot)
+            units += e.units(robot)
+            for k, chans in enumerate(e.basis(robot, self.idx, data)):
+                for c, v in chans:
+                    p_idx.append(offset + k)
+                    c_idx.append(int(c))
+                    vals.append(np.broadcast_to(np.asarray(v, float), (n,)))
+        self.names = names
+        self.units = units
+        self.p = len(names)
+        self.p_idx = np.asarray(p_idx, int)
+        self.c_idx = np.asarray(c_idx, int)
+        self.V = np.stack(vals, axis=1) if vals else np.zeros((n, 0))   # (n, E)
+        self.S = np.zeros((len(p_idx), self.p))
+        self.S[np.arange(len(p_idx)), self.p_idx] = 1.0
+
+    def configurations(self, x) -> np.ndarray:
+        dQ = np.zeros_like(self.Q0)
+        contrib = self.V * np.asarray(x, float)[self.p_idx]
+        np.add.at(dQ.T, self.c_idx, contrib.T)
+        return self.Q0 + dQ
+
+    def predict(self, x) -> np.ndarray:
+        """SMR positions (n, 3) mm."""
+        return positions(self.model, self.configurations(x))
+
+    def predict_and_jacobian(self, x):
+        """Positions (n, 3) mm and Jacobian (n, 3, p) mm per internal unit."""
+        P, Jext = positions_and_jacobians(self.model, self.configurations(x))
+        J = np.einsum("nke,ep->nkp", Jext[:, :, self.c_idx] * self.V[:, None, :], self.S, optimize=True)
+        return P, J
+
+
+def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, priority=None,
+                    weak_tol: float | None = None, units=None) -> dict:
+    """Rank, condition number and identifiable parameters of a Jacobian.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, p)
+        Jacobian of the residuals (mm per internal unit).
+    names : list of str, length p
+    priority : sequence of int, optional
+        Order in which parameters are preferred when some must be fixed (greedy: a
+        parameter is kept when it raises the rank of those kept before it). Default:
+        QR with column pivoting.
+
+    Returns
+    -------
+    dict with ``rank``, ``n_params``, ``condition_number`` (of the scaled Jacobian restricted
+    to the identifiable parameters), ``condition_number_all``, ``singular_values`` (scaled),
+    ``keep`` (bool mask) and ``not_identifiable`` (names fixed at 0).
+    """
+    norms = np.linalg.norm(J, axis=0)
+    zero = norms <= 1e-12 * max(norms.max(initial=0.0), 1e-300)
+    # a parameter that moves the measured point a hundred times less than a typical one (a rotation
+    # about an axis the SMR sits on, 0.4 mm off it) is not identified: scaled to unit norm, its column
+    # would turn rounding and noise into coefficients of 1e6 arcsec (SHORT_LEVER)
+    angle = np.array([u[0] == "arcsec" for u in units], bool) if units is not None else np.zeros(len(names), bool)
+    short = np.zeros_like(zero)
+    if (angle & ~zero).any():   # rotations: compared with the other rotations (mm of motion per mrad)
+        short = angle & ~zero & (norms < SHORT_LEVER * np.median(norms[angle & ~zero]))
+    zero = zero | short
+    Js = J / np.where(zero, 1.0, norms)
+    Js[:, zero] = 0.0
+    if Js.shape[0] > Js.shape[1]:
+        # J = Q R with orthonormal Q: every column subset of R has the singular values of the
+        # same subset of J, so the rank tests below cost O(p^3) whatever the number of poses
+        Js = np.linalg.qr(Js, mode="r")
+    s = np.linalg.svd(Js, compute_uv=False)
+    rank = int(np.sum(s > tol * s[0])) if s.size else 0
+    keep = np.zeros(J.shape[1], bool)
+    if priority is None:
+        _, _, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
+        keep[piv[:rank]] = True
+    else:
+        kept = []
+        for c in priority:
+            if zero[c]:
+                continue
+            trial = Js[:, kept + [c]]
+            sv = np.linalg.svd(trial, compute_uv=False)
+            if sv[-1] > tol * s[0]:
+                kept.append(c)
+            if len(kept) == rank:
+                break
+        keep[kept] = True
+    keep &= ~zero
+    reasons = {}
+    for c in np.flatnonzero(~keep):
+        reasons[names[c]] = {"relative_determination": 0.0,
+                             "reason": ("moves the measured point less than 1/100 as much as a typical parameter "
+                                        "(an axis the SMR sits on or near): not identifiable" if short[c] else
+                                        "does not move the measured point at these poses" if zero[c] else
+                                        "redundant: a combination of the identified parameters (numerical rank)")}
+    s0 = float(s[0]) if s.size else 0.0
+    if weak_tol is not None and s0 > 0:
+        rank_of = {c: k for k, c in enumerate(priority)} if priority is not None else {}
+        while keep.sum() > 1:
+            idx = np.flatnonzero(keep)
+            A = Js[:, idx]
+            try:
+                det = 1.0 / np.sqrt(np.diag(np.linalg.inv(A.T @ A))) / s0   # distance from the others' span
+            except np.linalg.LinAlgError:
+                break
+            low = np.flatnonzero(det < weak_tol)
+            if not low.size:
+                break
+            # the least determined first; among (nearly) equal ones, the one of lowest priority
+            k = max(low, key=lambda m: (-round(float(np.log10(max(det[m], 1e-300))), 1), rank_of.get(idx[m], idx[m])))
+            c = int(idx[k])
+            keep[c] = False
+            reasons[names[c]] = {"relative_determination": float(det[k]),
+                                 "reason": (f"weakly determined: {det[k]:.1e} of the best-determined direction (limit "
+                                            f"{weak_tol:g}); fitted, it would trade with the identified parameters and "
+                                            "not hold on poses away from these")}
+    sk = np.linalg.svd(Js[:, keep], compute_uv=False) if keep.any() else np.array([1.0])
+    return {"rank": rank, "n_params": int(J.shape[1]),
+            "condition_number": float(sk[0] / sk[-1]),
+            "condition_number_all": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+            "singular_values": s.tolist(), "keep": keep, "rank_tol": tol, "weak_tol": weak_tol,
+            "not_identifiable": [n for n, k in zip(names, keep) if not k],
+            "fixed_reasons": reasons, "zero": zero}
+
+
+class RobotErrorModel:
+    """Estimator of a robot error model made of effects (scikit-learn style).
+
+    Parameters
+    ----------
+    robot : Robot
+    effects : list of RobotEffect
+    solver : {"gauss-newton", "lm", "scipy"}
+    identifiability : bool
+        Fix parameters beyond the numerical rank at 0 (and report them).
+    lm_options : dict, optional
+        Constants of the improved L-M (see :func:`pipeline.robot.lm.improved_lm`).
+    max_iter : int
+        Gauss-Newton iterations at most.
+    weak_tol : float or None
+        Parameters whose determination (distance of their scaled Jacobian column from the span
+        of the other kept ones, relative to the largest singular value) is below it stay at
+        nominal, the least determined first (see :data:`WEAK_TOL`); None keeps every parameter
+        of the numerical rank. Only with ``reduction="fix"``.
+    rank_tol : float
+        Relative singular value (column-scaled Jacobian) below which a direction counts as
+        not identifiable.
+    reduction : {"fix", "svd"}
+        What to do with the directions that are not identifiable: ``"fix"`` fixes the
+        parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
+        solves in the span of the leading right singular vectors of the column-scaled
+        Jacobian (truncated SVD: the minimum-norm solution; no parameter is singled out).
+
+    Attributes (after fit)
+    ----------------------
+    coef_ : ndarray, shape (p,), internal units (mm, mrad, ...)
+    names_, units_ : parameter names, (unit, factor internal -> reported)
+    identifiability_ : dict (see :func:`identifiability`)
+    cost_ : float, 0.5 ||F||^2 at the solution, mm^2
+    rms_mm_ : float, RMS of the 3-D position residual norms of the fitted poses
+    n_iter_, seconds_ : iterations and wall time of the solver
+    solver_result_ : LMResult or None
+    """
+
+    def __init__(self, robot: Robot, effects, solver: str = "gauss-newton", identifiability: bool = True,
+                 lm_options: dict | None = None, max_iter: int = 100, rank_tol: float = RANK_TOL,
+                 reduction: str = "fix", weak_tol: float | None = WEAK_TOL):
+        self.robot = robot
+        self.effects = effects
+        self.solver = solver
+        self.identifiability = identifiability
+        self.lm_options = lm_options
+        self.max_iter = max_iter
+        self.rank_tol = rank_tol
+        self.reduction = reduction
+        self.weak_tol = weak_tol
+
+    @staticmethod
+    def _priority(names):
+        """Which parameters to keep first when some are redundant: joint offsets, then link
+        lengths and twists, then d and beta (MDH practice); other effects in their order."""
+        order = {"dtheta": 0, "da": 1, "dalpha": 2, "dd": 3, "dbeta": 4}
+
+        def key(k):
+            m = re.match(r"^(dtheta|dd|da|dalpha|dbeta)(\d)$", names[k])
+            return (order[m.group(1)], int(m.group(2))) if m else (5, k)
+        return sorted(range(len(names)), key=key)
+
+    def design(self, data: RobotData) -> Design:
+        return Design(self.robot, list(self.effects), data, getattr(self, "_model_and_index", None))
+
+    def fit(self, data: RobotData) -> "RobotErrorModel":
+        t0 = time.perf_counter()
+        d = self.design(data)
+        self._model_and_index = (d.model, d.idx)
+        meas = np.asarray(data.measured_mm, float)
+        x = np.zeros(d.p)
+        P, J = d.predict_and_jacobian(x)
+        J2 = J.reshape(-1, d.p)
+        ident = identifiability(J2, d.names, tol=self.rank_tol, priority=self._priority(d.names), units=d.units,
+                                weak_tol=self.weak_tol if self.identifiability and self.reduction == "fix" else None)
+        ident["rank_exact"] = int(np.sum(np.asarray(ident["singular_values"]) > 1e-10 * ident["singular_values"][0]))
+        norms = np.linalg.norm(J2, axis=0)
+        norms = np.where(norms > 0, norms, 1.0)
+        if self.identifiability and self.reduction == "svd":
+            Js2 = J2 / norms
+            Js2[:, ident["zero"]] = 0.0          # parameters that barely move the point stay at 0
+            _, sv2, Vt = np.linalg.svd(Js2, full_matrices=False)
+            r = min(ident["rank"], int(np.sum(sv2 > self.rank_tol * sv2[0])) if sv2.size else 0)
+            B = Vt[:r].T / norms[:, None]          # (p, r): x = B z
+            ident["not_identifiable"] = [n for n, z in zip(d.names, ident["zero"]) if z]
+            # no other parameter is singled out: weak directions are left out
+            ident["fixed_reasons"] = {n: v for n, v in ident["fixed_reasons"].items() if n in ident["not_identifiable"]}
+            ident["directions_left_out"] = int(d.p - ident["rank"])
+        else:
+            keep = ident["keep"] if self.identifiability else np.ones(d.p, bool)
+            B = np.eye(d.p)[:, keep]
+
+        def full(z):
+            return B @ z
+
+        def fun(z):
+            return (d.predict(full(z)) - meas).ravel()
+
+        def fun_and_jac(z):
+            P_, J_ = d.predict_and_jacobian(full(z))
+            return (P_ - meas).ravel(), J_.reshape(-1, d.p) @ B
+
+        free = np.arange(B.shape[1])
+        result = None
+        if self.solver == "gauss-newton":
+            # Gauss-Newton (Eq. 6 iterated) on the column-scaled Jacobian (minimum-norm steps from
+            # its SVD), with Levenberg damping only when a full step does not lower the cost: the
+            # damping grows tenfold until a step does (from 1e-3 of the largest curvature) and falls
+            # tenfold after each success, to 0 (a plain Gauss-Newton step again). Converged when a
+            # full Gauss-Newton step would change the residuals by ||dF||^2 <= GN_PHI (or a
+            # GAIN_REL_CONVERGED fraction of ||F||^2): the improved L-M's test (pipeline.robot.lm).
+            # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
+            GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
+            xf = np.zeros(free.size)
+            F, Jf = (P - meas).ravel(), J2 @ B
+            cost = 0.5 * float(F @ F)
+            scale = np.zeros(free.size)
+            lam, moved, converged, it = 0.0, False, False, 0
+            reason = f"iteration limit ({self.max_iter}) reached"
+            for it in range(1, self.max_iter + 1):
+                if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Jf))):
+                    reason = "non-finite residual or Jacobian"
+                    break
+                scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
+                sc = np.where(scale > 0, scale, 1.0)
+                U, sv, Vt = np.linalg.svd(Jf / sc, full_matrices=False)
+                r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
+                U, sv, Vt = U[:, :r], sv[:r], Vt[:r]
+                c = U.T @ F
+                gain = float(c @ c)
+                stationary = gain <= max(GN_PHI, GAIN_REL_CONVERGED * 2.0 * cost)
+                if gain <= 1e-12 * 2.0 * cost:  # the linear model predicts no decrease beyond rounding
+                    converged = moved or cost == 0.0
+                    reason = (f"a Gauss-Newton step would change F by ||dF||^2 = {gain:.2g} mm^2 (rounding)"
+                              if converged else "the start is already stationary (never left it)")
+                    break
+                for _ in range(16):
+                    step = -(Vt.T @ (sv / (sv**2 + lam) * c)) / sc
+                    F_try = fun(xf + step)
+                    cost_try = 0.5 * float(F_try @ F_try)
+                    if np.isfinite(cost_try) and cost_try < cost:
+                        break
+                    lam = max(10.0 * lam, 1e-3 * float(sv[0] ** 2))
+                else:
+                    converged = moved and stationary
+                    reason = (f"no damped step lowers the cost; a Gauss-Newton step would change F by ||dF||^2 = "
+                              f"{gain:.2g} mm^2" + (f" <= {GN_PHI:g}" if stationary else " (not stationary)"))
+                    break
+                lam = lam / 10.0 if lam > 1e-9 * float(sv[0] ** 2) else 0.0
+                xf = xf + step
+                moved = True
+                F, Jf = fun_and_jac(xf)
+                cost = 0.5 * float(F @ F)
+            self.n_iter_ = it
+            self.converged_, self.convergence_ = bool(converged), reason
+        elif self.solver == "lm":
+            result = lm.improved_lm(fun, None, np.zeros(free.size), fun_and_jac=fun_and_jac, **(self.lm_options or {}))
+            xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter
+            self.converged_, self.convergence_ = bool(result.converged), result.reason
+        elif self.solver == "scipy":
+            result = lm.scipy_least_squares(fun, lambda xf: fun_and_jac(xf)[1], np.zeros(free.size))
+            xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter
+            self.converged_, self.convergence_ = bool(result.converged), result.reason
+        else:
+            raise ValueError(f"unknown solver {self.solver!r}")
+        self.coef_ = full(xf)
+        self.names_ = d.names
+        self.units_ = d.units
+        self.identifiability_ = ident
+        self.fixed_ = ident["not_identifiable"] if self.identifiability else []
+        self.cost_ = cost
+        resid = (d.predict(self.coef_) - meas)
+        self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
+        self.solver_result_ = result
+        # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
+        # whether a real robot can have the fitted parameters (pipeline.robot.lm.PLAUSIBLE_BOUNDS)
+        params, checked, k = self.parameters(), [], 0
+        for e in self.effects:
+            n = len(e.parameter_names(self.robot))
+            checked += e.checked_values(self.robot, params[k:k + n], data.q_deg)
+            k += n
+        self.implausible_ = implausible_parameters(checked)
+        self.plausible_ = not self.implausible_
+        self.seconds_ = time.perf_counter() - t0
+        return self
+
+    def predict(self, data: RobotData) -> np.ndarray:
+        """Model SMR positions, shape (n, 3), mm."""
+        return self.design(data).predict(self.coef_)
+
+    def predict_error(self, data: RobotData) -> np.ndarray:
+        """Predicted position error (model - nominal), shape (n, 3), mm (the paper's Delta P_e)."""
+        d = self.design(data)
+        return d.predict(self.coef_) - d.predict(np.zeros(d.p))
+
+    def parameters(self) -> list[dict]:
+        """Fitted parameters in reported units."""
+        fixed = set(self.fixed_)
+        return [{"name": n, "value": float(v * f), "unit": u, "fixed": n in fixed}
+                for n, v, (u, f) in zip(self.names_, self.coef_, self.units_)]
+
+    @classmethod
+    def from_parameters(cls, robot, effects, parameters: list[dict]) -> "RobotErrorModel":
+        """Rebuild a fitted model from :meth:`parameters` (e.g. read from JSON)."""
+        m = cls(robot, effects)
+        d = m.design(_empty_data(robot))
+        by = {p["name"]: p for p in parameters}
+        m.names_, m.units_ = d.names, d.units
+        m.coef_ = np.array([by[n]["value"] / f for n, (u, f) in zip(d.names, d.units)])
+        m.fixed_ = [p["name"] for p in parameters if p.get("fixed")]
+        return m
+
+
+def _empty_data(robot):
+    z = np.zeros((1, 6))
+    return RobotData(z + (robot.lower_deg + robot.upper_deg) / 2, np.ones((1, 6), int), np.zeros(1), np.full(1, 20.0),
+                     z, robot.lower_deg, robot.upper_deg)
+
+
+def calibrate_mdh(robot: Robot, data: RobotData, effects=None) -> tuple[RobotErrorModel, dict]:
+    """MDH kinematic calibration (Eqs. 3-6) with identifiability analysis.
+
+    Returns the fitted model and a JSON-ready report: parameters (arcsec, mm), rank,
+    condition number, parameters not identifiable (fixed at 0), residual RMS before/after.
+    """
+    effects = effects or [Geometry(), Base()]
+    model = RobotErrorModel(robot, effects, solver="gauss-newton", identifiability=True).fit(data)
+    nominal = model.design(data).predict(np.zeros(len(model.coef_)))
+    before = np.linalg.norm(data.measured_mm - nominal, axis=1)
+    after = np.linalg.norm(data.measured_mm - model.predict(data), axis=1)
+    ident = model.identifiability_
+    report = {"effects": [e.name for e in effects], "n_poses": int(data.n), "solver": "gauss-newton (Eq. 6 iterated)",
+              "iterations": model.n_iter_, "seconds": model.seconds_,
+              "rank": ident["rank"], "n_params": ident["n_params"],
+              "condition_number": ident["condition_number"],
+              "condition_number_all": ident["condition_number_all"],
+              "not_identifiable": ident["not_identifiable"],
+              "rms_before_mm": float(np.sqrt(np.mean(before**2))), "rms_after_mm": float(np.sqrt(np.mean(after**2))),
+              "max_before_mm": float(before.max()), "max_after_mm": float(after.max()),
+              "parameters": model.parameters()}
+    return model, report

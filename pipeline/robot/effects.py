@@ -1,0 +1,364 @@
+"""Robot effects (contract section 3, domain ``robot``).
+
+Every robot effect is linear in its parameters through *channels*: coordinates of the
+error model of :func:`pipeline.robot.kinematics.build_error_model` -
+
+* ``joints``: joint-angle offsets Delta q (rad), one per joint and pose,
+* ``links``: per-link small displacement twist (dx, dy, dz m; ex, ey, ez rad) applied in
+  the MDH link frame {i} - the error transfer matrix E_i of the paper's Eq. 8,
+* ``base``: 6-dof base frame error, ``tool``: 3-dof SMR offset error.
+
+An effect's :meth:`RobotEffect.basis` returns, for every parameter, the channels it moves
+and by how much per unit of the parameter at each pose: a list of ``(coordinate index,
+values)`` with values of shape (n,) or a scalar. The predicted SMR position is the forward
+kinematics of the error model at ``Q0 + sum_p x_p basis_p`` and its derivative with respect
+to ``x_p`` is the frame Jacobian chained with ``basis_p`` - analytic, from pinocchio.
+Parameters are carried in *internal units* (mm for lengths, mrad for angles, so that
+Jacobian columns are of order 1 mm per unit) and reported in the contract's units
+(mm, arcsec).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.effect import Effect
+from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
+
+MRAD_ARCSEC = 206.264806  # arcsec per mrad
+
+
+@dataclass
+class RobotData:
+    """Poses of a robot campaign, as arrays with ``n`` rows.
+
+    Attributes
+    ----------
+    q_deg : ndarray, shape (n, 6), deg
+        Joint angles the model uses (commanded, or the grating readings of joints 1-3).
+    dir : ndarray, shape (n, 6), int
+        Sign of the last motion of each joint before the pose (+1/-1).
+    payload_kg : ndarray, shape (n,), kg
+    temperature_c : ndarray, shape (n,), degC
+    torque_nm : ndarray, shape (n, 6), N m
+        Gravity torque of each joint (arm + payload), from pinocchio.
+    measured_mm : ndarray, shape (n, 3), mm, or None
+        Tracker positions in the robot base frame.
+    lower_deg, upper_deg : ndarray, shape (6,), deg
+        Joint range of the campaign (robot.toml), used by the Chebyshev variable (Eq. 10).
+    point_id : ndarray of str, shape (n,)
+    """
+
+    q_deg: np.ndarray
+    dir: np.ndarray
+    payload_kg: np.ndarray
+    temperature_c: np.ndarray
+    torque_nm: np.ndarray
+    lower_deg: np.ndarray
+    upper_deg: np.ndarray
+    measured_mm: np.ndarray | None = None
+    point_id: np.ndarray = field(default_factory=lambda: np.array([], dtype=object))
+
+    @property
+    def n(self) -> int:
+        return len(self.q_deg)
+
+    def subset(self, mask) -> "RobotData":
+        cut = lambda a: None if a is None else a[mask]  # noqa: E731
+        return RobotData(self.q_deg[mask], self.dir[mask], self.payload_kg[mask], self.temperature_c[mask],
+                         self.torque_nm[mask], self.lower_deg, self.upper_deg, cut(self.measured_mm),
+                         self.point_id[mask] if len(self.point_id) == self.n else self.point_id)
+
+
+def _joints(params, default=(1, 2, 3, 4, 5, 6)):
+    j = params.get("joints")
+    return list(default) if j is None else sorted(int(x) for x in j)
+
+
+class RobotEffect(Effect):
+    domain = "robot"
+    allowed_params = ("joints",)
+
+    def joints(self):
+        return _joints(self.params)
+
+    def check(self):
+        problems = super().check()
+        j = self.params.get("joints")
+        if j is not None and (not isinstance(j, list) or not all(isinstance(x, int) and 1 <= x <= 6 for x in j)):
+            problems.append(f"effect '{self.name}': joints must be a list of joint numbers 1..6")
+        return problems
+
+    def target(self):
+        j = self.params.get("joints")
+        return int(j[0]) if isinstance(j, list) and len(j) == 1 else None
+
+    # --- the model's interface
+    def parameter_names(self, robot: Robot) -> list[str]:
+        """Names of the parameters, in the order of :meth:`basis`."""
+        raise NotImplementedError
+
+    def units(self, robot: Robot) -> list[tuple[str, float]]:
+        """Reported unit of each parameter and the factor internal -> reported."""
+        raise NotImplementedError
+
+    def checked_values(self, robot: Robot, parameters: list[dict], q_deg) -> list[dict]:
+        """What a real robot's error budget applies to, as ``{name, value, unit}``: by default the
+        fitted parameters themselves (reported units). An effect whose parameters are not physical
+        amounts on their own (polynomial coefficients that may cancel) returns what they produce
+        over the sampled joint angles ``q_deg`` (n, 6) deg instead."""
+        return parameters
+
+    def basis(self, robot: Robot, idx: ErrorModelIndex, data: RobotData) -> list[list[tuple[int, object]]]:
+        """Channels of each parameter: list (one per parameter) of ``(coordinate, values)``.
+
+        ``values`` (scalar or shape (n,)) is the channel's change per internal unit of the
+        parameter, in SI (rad, m) per (mrad or mm).
+        """
+        raise NotImplementedError
+
+
+# ------------------------------------------------------------------------------- effects
+class Geometry(RobotEffect):
+    name = "geometry"
+    explanation = ("Kinematic (MDH) parameter errors: the real link lengths, offsets and axis directions differ "
+                   "from the nominal ones by manufacturing and assembly tolerances (the paper's Eqs. 3-6).")
+    signature = ("a smooth position error that follows the arm's geometry: constant joint offsets and link "
+                 "length errors; in residuals, a pattern fully explained by the MDH Jacobian")
+    PARAMS = ("dtheta", "dd", "da", "dalpha", "dbeta")
+
+    def parameter_names(self, robot):
+        return [f"{p}{i}" for i in self.joints() for p in self.PARAMS]
+
+    def units(self, robot):
+        u = {"dtheta": ("arcsec", MRAD_ARCSEC), "dd": ("mm", 1.0), "da": ("mm", 1.0),
+             "dalpha": ("arcsec", MRAD_ARCSEC), "dbeta": ("arcsec", MRAD_ARCSEC)}
+        return [u[p] for i in self.joints() for p in self.PARAMS]
+
+    def basis(self, robot, idx, data):
+        out = []
+        for i in self.joints():
+            j = robot.joints[i - 1]
+            RL = link_placement(j).rotation          # Rx(alpha) Ry(beta)
+            Ry = link_placement(type(j)(**{**j.__dict__, "alpha_deg": 0.0})).rotation
+            lt, lr = idx.links[i - 1, :3], idx.links[i - 1, 3:]
+            out.append([(idx.joints[i - 1], 1e-3)])                                   # dtheta: joint offset
+            out.append([(c, 1e-3 * v) for c, v in zip(lt, RL.T @ [0, 0, 1.0])])      # dd along z_{i-1}
+            out.append([(c, 1e-3 * v) for c, v in zip(lt, RL.T @ [1.0, 0, 0])])      # da along x
+            out.append([(c, 1e-3 * v) for c, v in zip(lr, Ry.T @ [1.0, 0, 0])])      # dalpha about x
+            out.append([(lr[1], 1e-3)])                                               # dbeta about y_i
+        return out
+
+
+class Base(RobotEffect):
+    name = "base"
+    allowed_params = ()
+    explanation = "The robot base frame measured by the tracker is offset and rotated from where it was set up."
+    signature = "a constant offset plus a rotation of all positions about the base origin"
+
+    def parameter_names(self, robot):
+        return [f"base_{t}" for t in TWIST]
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * 3
+
+    def basis(self, robot, idx, data):
+        return [[(c, 1e-3)] for c in idx.base]
+
+
+class Tool(RobotEffect):
+    name = "tool"
+    allowed_params = ()
+    explanation = "The SMR sits elsewhere on the end effector than robot.toml says (tool offset error)."
+    signature = "an error that rotates with the flange: depends on the wrist orientation, not on position"
+
+    def parameter_names(self, robot):
+        return [f"tool_{t}" for t in TWIST[:3]]
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3
+
+    def basis(self, robot, idx, data):
+        return [[(c, 1e-3)] for c in idx.tool]
+
+
+def chebyshev_variable(q_deg, lower_deg, upper_deg):
+    """Eq. 10: joint angle mapped to [-1, 1] over the joint range."""
+    return 2.0 * (np.asarray(q_deg, float) - lower_deg) / (upper_deg - lower_deg) - 1.0
+
+
+def chebyshev_polys(x, order):
+    """c_0..c_m of Eq. 9 at x; shape (..., m + 1)."""
+    x = np.asarray(x, float)
+    c = [np.ones_like(x), x]
+    for _ in range(2, order + 1):
+        c.append(2 * x * c[-1] - c[-2])
+    return np.stack(c[: order + 1], axis=-1)
+
+
+class Chebyshev(RobotEffect):
+    name = "chebyshev"
+    allowed_params = ("order", "joints")
+    explanation = ("Error transfer matrices (the second paper's Eqs. 7-13): every link frame carries a small "
+                   "translation and rotation that varies smoothly with its joint angle, written as Chebyshev "
+                   "polynomials; order 0 is geometry, higher orders are friction, transmission error and "
+                   "flexibility.")
+    signature = "smooth position error that varies with single joint angles, beyond the MDH geometry"
+
+    def order(self):
+        return int(self.params.get("order", 3))
+
+    def check(self):
+        problems = super().check()
+        o = self.params.get("order", 3)
+        if not isinstance(o, int) or isinstance(o, bool) or not 0 <= o <= 8:
+            problems.append("effect 'chebyshev': order must be an integer 0..8")
+        return problems
+
+    def parameter_names(self, robot):
+        # lambda for rotations (e*), gamma for translations (d*), Eq. 10
+        return [f"{'gamma' if t[0] == 'd' else 'lambda'}_{j}_{t}_{i}"
+                for i in self.joints() for t in TWIST for j in range(self.order() + 1)]
+
+    def units(self, robot):
+        return [("mm", 1.0) if t[0] == "d" else ("arcsec", MRAD_ARCSEC)
+                for i in self.joints() for t in TWIST for j in range(self.order() + 1)]
+
+    def checked_values(self, robot, parameters, q_deg):
+        """The largest translation (mm) and rotation (arcsec) of each error transfer matrix over the
+        sampled range of its joint: the coefficients of a high order may be large and cancel."""
+        value = {p["name"]: p["value"] for p in parameters}
+        out = []
+        q = np.asarray(q_deg, float)
+        for i in self.joints():
+            grid = np.linspace(q[:, i - 1].min(), q[:, i - 1].max(), 61)
+            C = chebyshev_polys(chebyshev_variable(grid, robot.lower_deg[i - 1], robot.upper_deg[i - 1]), self.order())
+            for t in TWIST:
+                kind = "gamma" if t[0] == "d" else "lambda"
+                coef = np.array([value[f"{kind}_{j}_{t}_{i}"] for j in range(self.order() + 1)])
+                out.append({"name": f"{'delta' if t[0] == 'd' else 'epsilon'}_{t}_{i} over the sampled range",
+                            "value": float(np.max(np.abs(C @ coef))), "unit": "mm" if t[0] == "d" else "arcsec"})
+        return out
+
+    def basis(self, robot, idx, data):
+        out = []
+        for i in self.joints():
+            x = chebyshev_variable(data.q_deg[:, i - 1], data.lower_deg[i - 1], data.upper_deg[i - 1])
+            C = chebyshev_polys(x, self.order())
+            for k in range(6):
+                for j in range(self.order() + 1):
+                    out.append([(idx.links[i - 1, k], 1e-3 * C[:, j])])
+        return out
+
+
+class Compliance(RobotEffect):
+    name = "compliance"
+    explanation = ("The joints give way under load: each joint deflects by its compliance times the gravity "
+                   "torque it carries (arm weight and payload), so the arm sags more when stretched out or loaded.")
+    signature = "error that grows with the gravity torque of a joint (pose- and payload-dependent droop)"
+
+    def parameter_names(self, robot):
+        return [f"compliance{i}" for i in self.joints()]
+
+    def units(self, robot):
+        # internal: mrad per kN m; reported arcsec per kN m
+        return [("arcsec/kNm", MRAD_ARCSEC)] * len(self.joints())
+
+    def basis(self, robot, idx, data):
+        return [[(idx.joints[i - 1], 1e-3 * data.torque_nm[:, i - 1] / 1000.0)] for i in self.joints()]
+
+    def can_reveal(self, data):
+        spread = np.ptp(data.torque_nm[:, [i - 1 for i in self.joints()]], axis=0)
+        if np.all(spread < 50.0):
+            return False, "the gravity torques hardly change between poses (same posture and payload)"
+        return True, ""
+
+
+class Backlash(RobotEffect):
+    name = "backlash"
+    explanation = ("Play in the gears: a joint stops short by half its backlash on one side or the other, "
+                   "depending on the direction it last moved.")
+    signature = "residuals of poses reached with a joint turning forwards and backwards differ by a constant"
+
+    def parameter_names(self, robot):
+        return [f"half_backlash{i}" for i in self.joints()]
+
+    def units(self, robot):
+        return [("arcsec", MRAD_ARCSEC)] * len(self.joints())
+
+    def basis(self, robot, idx, data):
+        return [[(idx.joints[i - 1], 1e-3 * data.dir[:, i - 1].astype(float))] for i in self.joints()]
+
+    def can_reveal(self, data):
+        both = [np.unique(data.dir[:, i - 1]).size > 1 for i in self.joints()]
+        if not any(both):
+            return False, "every joint reached its poses turning one way only; both directions are needed"
+        return True, ""
+
+
+class Thermal(RobotEffect):
+    name = "thermal"
+    allowed_params = ()
+    explanation = "The links grow with temperature (steel/aluminium expansion): all lengths scale by alpha * (T - 20 degC)."
+    signature = "error proportional to the distance from the base, growing with temperature"
+
+    def parameter_names(self, robot):
+        return ["expansion_ppm_per_K"]
+
+    def units(self, robot):
+        return [("ppm/K", 1.0)]
+
+    def basis(self, robot, idx, data):
+        dT = data.temperature_c - 20.0
+        ch = []
+        for i, j in enumerate(robot.joints):
+            RL = link_placement(j).rotation
+            v = RL.T @ np.array([j.a_mm, 0.0, j.d_mm]) * 1e-3  # m
+            for k in range(3):
+                if v[k] != 0.0:
+                    ch.append((idx.links[i, k], 1e-6 * v[k] * dT))
+        for k in range(3):
+            if robot.tool_xyz_mm[k] != 0.0:
+                ch.append((idx.tool[k], 1e-9 * robot.tool_xyz_mm[k] * dT))
+        return [ch]
+
+    def can_reveal(self, data):
+        if np.ptp(data.temperature_c) < 1.0:
+            return False, "the temperature hardly changes between poses (less than 1 K)"
+        return True, ""
+
+
+class JointHarmonic(RobotEffect):
+    name = "joint_harmonic"
+    allowed_params = ("joints", "orders")
+    explanation = ("Periodic joint angle error of encoder and reducer (the first paper): each joint's angle is "
+                   "off by a sum of sinusoids in the joint angle.")
+    signature = "residual that oscillates with one joint's angle"
+
+    def orders(self):
+        return sorted(int(o) for o in self.params.get("orders", [1, 2]))
+
+    def parameter_names(self, robot):
+        return [f"{ab}{k}_joint{i}" for i in self.joints() for k in self.orders() for ab in "AB"]
+
+    def units(self, robot):
+        return [("arcsec", MRAD_ARCSEC)] * (2 * len(self.joints()) * len(self.orders()))
+
+    def basis(self, robot, idx, data):
+        out = []
+        for i in self.joints():
+            th = np.deg2rad(data.q_deg[:, i - 1])
+            for k in self.orders():
+                out.append([(idx.joints[i - 1], 1e-3 * np.cos(k * th))])
+                out.append([(idx.joints[i - 1], 1e-3 * np.sin(k * th))])
+        return out
+
+    def target(self):
+        j = self.params.get("joints")
+        return int(j[0]) if isinstance(j, list) and len(j) == 1 else None
+
+
+#: the robot vocabulary, registered by pipeline.robot
+EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic)

@@ -1,0 +1,79 @@
+"""A spec's robot model on a campaign: the effects of each stage of the paper's chain, and the
+whole model fitted on the sample poses and judged on the held-out targets (``jointcal fit
+--campaign``, the fleet's robot units).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..core.errors import InputError
+from ..core.spec import _locate
+from .evaluate import cross_validate, fit_effects, fold_description, heldout_fit
+from .ingest import robot_data_sets
+from .lm import describe_implausible
+from .predict import model_document, outside_range, sampled_range
+
+
+def stage_effects(spec, stage: str):
+    """Effects of a stage: ``[model] kinematic_effects`` / ``feedback_effects`` name them;
+    by default the kinematic stage takes every effect except ``chebyshev`` and the feedback
+    stage the ``chebyshev`` effect."""
+    key = f"{stage}_effects"
+    names = spec.model.get(key)
+    if names is None:
+        return [e for e in spec.effects if (e.name == "chebyshev") == (stage == "feedback")]
+    missing = [n for n in names if spec.effect(n) is None]
+    if missing:
+        text = Path(spec.path).read_text(encoding="utf-8")
+        raise InputError(spec.path, f"{key} names {missing[0]!r}, which has no [[effect]] table",
+                         *_locate(text, rf"^\s*{key}\s*="))
+    return [e for e in spec.effects if e.name in names]
+
+
+def robot_fit_result(campaign, spec, loaded=None) -> dict:
+    """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
+
+    Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
+    (held-out error before/after in mm, the 5-fold cross-validated RMS over the sample poses
+    that ``jointcal diagnose`` ranks effects by, and the fitted model as ``jointcal predict``
+    reads it: robot, effects, every parameter with its unit and why it was left at nominal if it
+    was, the sampled joint ranges, the tracker-to-base transform). ``loaded``: the campaign
+    already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
+    """
+    frame_info = None
+    if loaded is None:
+        robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
+    else:
+        robot, sample, target, *rest = loaded
+        frame_info = rest[0] if rest else None
+    if sample.n == 0:
+        raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on "
+                         "(to check a fitted model on these poses, use jointcal predict)", 1, "set")
+    effects = list(spec.effects)
+    out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
+           "spec_lines": [e.spec_lines() for e in effects]}
+    model = fit_effects(robot, effects, sample)
+    if target.n:
+        out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
+        rng = sampled_range(sample.q_deg)
+        out["heldout"]["outside_sampled_range"] = int(outside_range(target.q_deg, rng).sum())
+    out["cv_rms_mm"] = cross_validate(robot, effects, sample).rms
+    out["cv_folds"] = fold_description(sample)
+    out.update(model_document(robot, effects, model, sample.q_deg, frame_info))
+    out["not_identified"] = out["identification"]["fixed"]
+    out["converged"] = bool(getattr(model, "converged_", True))
+    out["convergence"] = getattr(model, "convergence_", "")
+    out["plausible"] = bool(getattr(model, "plausible_", True))
+    out["implausible"] = getattr(model, "implausible_", [])
+    return out
+
+
+def fit_problems(result: dict) -> list[str]:
+    """Why a fit must not be used (did not converge, or parameters no real robot has); [] if fine."""
+    out = []
+    if not result.get("converged", True):
+        out.append(f"the fit did not converge ({result.get('convergence') or 'no reason given'})")
+    if not result.get("plausible", True):
+        out.append(f"parameters no real robot has: {describe_implausible(result.get('implausible', []))}")
+    return out

@@ -1,0 +1,448 @@
+"""Rigid frames of a robot campaign: the tracker-to-base transform and the nominal-consistency check.
+
+Pure functions (no files, no printing). Lengths in mm, angles in deg unless a name says
+otherwise. A rigid transform is a pair ``(R, t)``, rotation matrix ``R`` (3, 3) and
+translation ``t`` (3,) mm, acting on row vectors as ``p' = p @ R.T + t`` (:func:`apply`);
+:func:`to_matrix` gives the 4x4 homogeneous matrix of the same transform.
+
+Two uses:
+
+* ``frame = "tracker"`` (contract section 2): the tracker's points are moved into the robot
+  base frame by the best rigid fit of the measured points onto the nominal SMR positions
+  (:func:`rigid_fit` ``(measured, nominal)``), estimated over the sample poses.
+* the nominal-consistency check (:func:`consistency`): after the best rigid fit of the nominal
+  positions onto the measured ones, the residual of a real robot is a few mm (its kinematic
+  errors, a tool a few cm off); a residual far beyond :data:`MAX_RMS_MM` is bad input, and
+  :func:`diagnose` finds the likely cause by refitting under each hypothesis (joint angles in
+  radians, positions in metres, a joint's sign flipped, two joints swapped, a wrong tool).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from itertools import combinations
+
+import numpy as np
+
+from .kinematics import build_model, placements
+
+# --------------------------------------------------------------------------- thresholds
+#: Largest RMS (mm) of the residual, over all poses, after the best rigid fit of the nominal SMR
+#: positions onto the measured ones, that a real robot's errors produce. Measured (fit on the
+#: sample poses): a real UR10 (IPA data set, whole workspace, UR's nominal DH and a probe 16 mm
+#: off its nominal tool) leaves 2.9 mm (series B, 1,495 poses) and 5.7 mm (series C, 2,773
+#: poses; with the tool free both leave about 1.0 mm, the probe at 92.9 mm instead of 109 mm);
+#: the simulated KR210 cell 0.34 mm. The corruptions the contract names leave, on the
+#: KR210 campaign, 18 mm (a tool 200 mm off: its orientations span only +-10 deg, so most of the
+#: offset is a translation the fit absorbs) to 380 mm, 23 mm for joint 6's sign (a 72 mm
+#: lever) and 43 mm for joint 4's; on the UR10, 22 mm (tool 200 mm off) to 1,000 mm. 10 mm is
+#: about twice the worst real robot and about half the mildest corruption.
+MAX_RMS_MM = 10.0
+#: Largest error (mm) of one pose after that fit: the real UR10 reaches 12.2 mm (series C). A
+#: pose 60 mm off is a wrong measurement or a wrong row, not a robot error.
+MAX_POINT_MM = 60.0
+#: When at most this fraction of the poses (at least one) are beyond :data:`MAX_POINT_MM` and the
+#: rest fit, those poses are named as wrong measurements rather than the whole campaign.
+OUTLIER_FRACTION = 0.05
+#: With ``frame = "base"`` the fit itself must be near identity: a robot's base error is a few
+#: mm and a fraction of a degree (the KR210 cell: 0.1 mm, 0.01 deg); a translation beyond
+#: this (mm) or a rotation beyond :data:`MAX_BASE_ROTATION_DEG` (deg) means the points are in
+#: another frame, the tracker's (the UR10's tracker: 3,820 mm and 20 deg from its base).
+MAX_BASE_TRANSLATION_MM = 100.0
+MAX_BASE_ROTATION_DEG = 3.0
+#: A hypothesis explains the data when its refit's RMS is within :data:`MAX_RMS_MM` and at most
+#: this fraction of the RMS of the data as given.
+EXPLAINS_FRACTION = 0.5
+
+
+# ------------------------------------------------------------------------ rigid transforms
+def rigid_fit(src, dst, weights=None):
+    """Best rigid transform (rotation and translation, no scale) of ``src`` onto ``dst``.
+
+    Minimises ``sum_i w_i |R src_i + t - dst_i|^2`` (Kabsch / Umeyama without scale, SVD with
+    the determinant sign fixed so that ``R`` is a proper rotation).
+
+    Parameters
+    ----------
+    src : array_like, shape (n, 3)
+        Points to be moved, e.g. mm in the tracker's frame. n >= 3, not all on one line.
+    dst : array_like, shape (n, 3)
+        Where they should land, same unit, e.g. nominal SMR positions in the base frame (mm).
+    weights : array_like, shape (n,), optional
+        Non-negative weight of each pair (default all 1).
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        Rotation, ``det(R) = +1``.
+    t : ndarray, shape (3,)
+        Translation, unit of the points; ``dst ~= apply(R, t, src) = src @ R.T + t``.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, fewer than 3 pairs, non-finite values, or the points are (nearly)
+        collinear so that the rotation is not determined.
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    if src.ndim != 2 or src.shape[1] != 3 or src.shape != dst.shape:
+        raise ValueError(f"rigid_fit needs two (n, 3) arrays of the same shape, got {src.shape} and {dst.shape}")
+    if len(src) < 3:
+        raise ValueError(f"rigid_fit needs at least 3 point pairs, got {len(src)}")
+    if not (np.isfinite(src).all() and np.isfinite(dst).all()):
+        raise ValueError("rigid_fit: non-finite coordinates")
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
+    if w.shape != (len(src),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+        raise ValueError("rigid_fit: weights must be (n,) finite, non-negative and not all zero")
+    w = w / w.sum()
+    cs, cd = w @ src, w @ dst
+    a, b = src - cs, dst - cd
+    H = (a * w[:, None]).T @ b
+    U, S, Vt = np.linalg.svd(H)
+    scale = max(S[0], np.finfo(float).tiny)
+    if S[1] <= 1e-12 * scale:
+        raise ValueError("rigid_fit: the points are (nearly) collinear; the rotation is not determined")
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    t = cd - R @ cs
+    return R, t
+
+
+def apply(R, t, pts):
+    """Move points by the rigid transform ``(R, t)``.
+
+    Parameters
+    ----------
+    R : array_like, shape (3, 3)
+    t : array_like, shape (3,), unit of the points
+    pts : array_like, shape (n, 3) or (3,)
+
+    Returns
+    -------
+    ndarray, same shape as ``pts``: ``pts @ R.T + t``.
+    """
+    pts = np.asarray(pts, float)
+    return pts @ np.asarray(R, float).T + np.asarray(t, float)
+
+
+def invert(R, t):
+    """The inverse transform ``(R.T, -R.T t)``."""
+    R = np.asarray(R, float)
+    return R.T, -R.T @ np.asarray(t, float)
+
+
+def compose(R1, t1, R2, t2):
+    """``(R1, t1) after (R2, t2)``: ``apply(*compose(R1, t1, R2, t2), p) == apply(R1, t1, apply(R2, t2, p))``."""
+    R1 = np.asarray(R1, float)
+    return R1 @ np.asarray(R2, float), R1 @ np.asarray(t2, float) + np.asarray(t1, float)
+
+
+def to_matrix(R, t):
+    """4x4 homogeneous matrix ``[[R, t], [0, 0, 0, 1]]`` (t in the points' unit, mm here)."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(R, float)
+    T[:3, 3] = np.asarray(t, float)
+    return T
+
+
+def from_matrix(T):
+    """``(R, t)`` of a 4x4 homogeneous matrix (e.g. the ``tracker_to_base`` metadata)."""
+    T = np.asarray(T, float)
+    if T.shape != (4, 4):
+        raise ValueError(f"expected a 4x4 matrix, got shape {T.shape}")
+    return T[:3, :3].copy(), T[:3, 3].copy()
+
+
+def rotation_angle_deg(R) -> float:
+    """Angle (deg) of the rotation ``R`` about its axis, in [0, 180]."""
+    c = (np.trace(np.asarray(R, float)) - 1.0) / 2.0
+    return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def describe(R, t) -> str:
+    """One phrase for a console line: translation (mm) and rotation (deg)."""
+    t = np.asarray(t, float)
+    return (f"translation [{t[0]:.1f}, {t[1]:.1f}, {t[2]:.1f}] mm (|t| {np.linalg.norm(t):.1f} mm), "
+            f"rotation {rotation_angle_deg(R):.2f} deg")
+
+
+def fit_residuals(src, dst, fit_rows=None):
+    """Best rigid fit of ``src`` onto ``dst`` over ``fit_rows`` and every point's residual.
+
+    Returns
+    -------
+    R, t : the fit (see :func:`rigid_fit`)
+    err : ndarray, shape (n,), ``|apply(R, t, src) - dst|`` of every point (unit of the points)
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    rows = slice(None) if fit_rows is None else fit_rows
+    R, t = rigid_fit(src[rows], dst[rows])
+    return R, t, np.linalg.norm(apply(R, t, src) - dst, axis=1)
+
+
+def rms(err) -> float:
+    err = np.asarray(err, float)
+    return float(np.sqrt(np.mean(err ** 2))) if len(err) else 0.0
+
+
+# ------------------------------------------------------------------------ consistency check
+@dataclass
+class Consistency:
+    """Outcome of :func:`consistency` (lengths mm, angles deg).
+
+    ``ok`` is False when the residual after the best rigid fit is beyond what a robot can do
+    (``kind = "residual"``: ``rms_mm > MAX_RMS_MM`` or ``max_mm > MAX_POINT_MM``; ``"outlier"``:
+    a few poses beyond :data:`MAX_POINT_MM` while the rest fit) or, with ``frame = "base"``, when
+    the fit itself is far from identity (``kind = "frame"``). ``R, t`` is the fit (nominal base
+    frame -> measurement frame, on the fit rows; for ``"outlier"`` without the outliers),
+    ``err`` every pose's residual (mm), ``worst`` the index of the worst pose. ``cause`` is the
+    explanation :func:`diagnose` found (empty when none), ``hypothesis`` its name (``radians``,
+    ``metres``, ``sign<j>``, ``swap<j><k>``, ``tool``, ``frame``, ``outlier``), ``file`` the file
+    it points at (``poses``, ``tracker`` or ``robot``) and ``column`` the column.
+    """
+
+    ok: bool
+    rms_mm: float
+    max_mm: float
+    worst: int
+    R: np.ndarray
+    t: np.ndarray
+    err: np.ndarray
+    kind: str = "ok"                 # ok | residual | outlier | frame
+    hypothesis: str = ""
+    cause: str = ""
+    file: str = "tracker"            # poses | tracker | robot
+    column: str | None = None
+    n_outliers: int = 0
+    rest_rms_mm: float = 0.0
+    tried: dict = field(default_factory=dict)
+
+    @property
+    def translation_mm(self) -> float:
+        """|t| of the fit, mm."""
+        return float(np.linalg.norm(self.t))
+
+    @property
+    def rotation_deg(self) -> float:
+        """Rotation angle of the fit, deg."""
+        return rotation_angle_deg(self.R)
+
+    def tracker_to_base(self):
+        """``(R, t)`` moving measured points onto the nominal base frame (inverse of the fit)."""
+        return invert(self.R, self.t)
+
+
+def _fk(model, q_deg):
+    """Flange rotations (n, 3, 3) and positions (n, 3) mm in the base frame."""
+    Rf, pf = placements(model, np.deg2rad(q_deg), "flange")
+    return Rf, pf
+
+
+def _smr(Rf, pf, tool):
+    return pf + Rf @ np.asarray(tool, float)
+
+
+def _skew(v):
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _exp_so3(w):
+    theta = float(np.linalg.norm(w))
+    K = _skew(w)
+    if theta < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta ** 2 * K @ K
+
+
+def fit_tool(Rf, pf, meas, tool0, fit_rows=None, iters=20):
+    """Best rigid fit of the nominal positions onto ``meas`` with the tool (SMR) offset free.
+
+    Gauss-Newton on ``meas_i = R (pf_i + Rf_i tool) + t`` (rotation, translation, tool: 9
+    unknowns), started from the rigid fit with the nominal tool.
+
+    Parameters
+    ----------
+    Rf : ndarray, shape (n, 3, 3)
+        Flange rotations in the base frame.
+    pf : ndarray, shape (n, 3), mm
+        Flange positions in the base frame.
+    meas : ndarray, shape (n, 3), mm
+        Measured SMR positions (any frame).
+    tool0 : array_like, shape (3,), mm
+        Starting tool offset in the flange frame.
+    fit_rows : array_like of bool, shape (n,), optional
+
+    Returns
+    -------
+    tool : ndarray, shape (3,), mm, in the flange frame
+    R, t : the rigid transform base -> measurement frame
+    err : ndarray, shape (n,), mm, residual of every pose
+    """
+    rows = np.arange(len(meas)) if fit_rows is None else np.flatnonzero(np.asarray(fit_rows))
+    Rr, pr, mr = Rf[rows], pf[rows], meas[rows]
+    tool = np.asarray(tool0, float).copy()
+    R, t = rigid_fit(_smr(Rr, pr, tool), mr)
+    for _ in range(iters):
+        v = _smr(Rr, pr, tool)                                   # (m, 3) base-frame SMR
+        res = (v @ R.T + t - mr).reshape(-1)
+        J = np.empty((len(rows), 3, 9))
+        # d/dw of R exp([w]) v at w = 0 is -R [v]_x
+        J[:, :, 0:3] = -np.einsum("ij,njk->nik", R, np.array([_skew(x) for x in v]))
+        J[:, :, 3:6] = np.eye(3)
+        J[:, :, 6:9] = np.einsum("ij,njk->nik", R, Rr)
+        step, *_ = np.linalg.lstsq(J.reshape(-1, 9), -res, rcond=None)
+        R = R @ _exp_so3(step[0:3])
+        t = t + step[3:6]
+        tool = tool + step[6:9]
+        if np.linalg.norm(step) < 1e-9 * (1.0 + np.linalg.norm(tool)):
+            break
+    err = np.linalg.norm(apply(R, t, _smr(Rf, pf, tool)) - meas, axis=1)
+    return tool, R, t, err
+
+
+def _passes(err) -> bool:
+    return rms(err) <= MAX_RMS_MM and float(np.max(err)) <= MAX_POINT_MM
+
+
+def consistency(robot, q_deg, meas_mm, fit_rows=None, frame="base", model=None, explain=True) -> Consistency:
+    """Can a real robot with ``robot``'s nominal kinematics have produced these points?
+
+    The nominal SMR positions are rigidly fitted onto the measured points over ``fit_rows``
+    and the residual of every pose is judged against :data:`MAX_RMS_MM` and
+    :data:`MAX_POINT_MM`; with ``frame = "base"`` the fit must also be near identity
+    (:data:`MAX_BASE_TRANSLATION_MM`, :data:`MAX_BASE_ROTATION_DEG`). Cost: one FK pass and a
+    rigid fit; when the check fails, :func:`diagnose` adds about 22 FK passes.
+
+    Parameters
+    ----------
+    robot : pipeline.robot.kinematics.Robot
+    q_deg : array_like, shape (n, 6), deg
+        Joint angles as given in poses.csv.
+    meas_mm : array_like, shape (n, 3), mm
+        Measured SMR positions as given in tracker.csv (tracker or base frame).
+    fit_rows : array_like of bool, shape (n,), optional
+        Poses the rigid fit is estimated on (the sample poses; default all, and all when fewer
+        than 3). The residual is judged on every pose.
+    frame : {"base", "tracker"}
+        The campaign's declared frame: with ``"base"`` a fit far from identity is refused too.
+    model : pinocchio.Model, optional
+        ``pipeline.robot.kinematics.build_model(robot)`` when already built.
+    explain : bool
+        Look for the likely cause when the check fails (:func:`diagnose`).
+
+    Returns
+    -------
+    Consistency
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 poses, or the fit poses are collinear (see :func:`rigid_fit`).
+    """
+    q = np.asarray(q_deg, float)
+    meas = np.asarray(meas_mm, float)
+    n = len(q)
+    rows = np.ones(n, bool) if fit_rows is None else np.asarray(fit_rows, bool)
+    if rows.sum() < 3:
+        rows = np.ones(n, bool)
+    model = model or build_model(robot)
+    Rf, pf = _fk(model, q)
+    nominal = _smr(Rf, pf, robot.tool_xyz_mm)
+    R, t, err = fit_residuals(nominal, meas, rows)
+    out = Consistency(True, rms(err), float(err.max()), int(np.argmax(err)), R, t, err)
+    if _passes(err):
+        if frame == "base" and (out.translation_mm > MAX_BASE_TRANSLATION_MM or out.rotation_deg > MAX_BASE_ROTATION_DEG):
+            out.ok, out.kind, out.hypothesis = False, "frame", "frame"
+            out.cause = ("the points look like they are in the tracker's frame: add frame = \"tracker\" to "
+                         f"campaign.toml (the best rigid fit of the points onto the nominal positions is "
+                         f"{describe(*invert(R, t))}; a robot's base error is a few mm and a fraction of a degree)")
+            out.file, out.column = "tracker", "x_mm"
+        return out
+    out.ok, out.kind = False, "residual"
+    bad = err > MAX_POINT_MM
+    keep = ~bad
+    if 0 < bad.sum() <= max(1, int(OUTLIER_FRACTION * n)) and (rows & keep).sum() >= 3:
+        try:
+            R2, t2, err2 = fit_residuals(nominal, meas, rows & keep)
+        except ValueError:
+            err2 = None
+        if err2 is not None and _passes(err2[keep]):
+            out.kind, out.hypothesis = "outlier", "outlier"
+            out.R, out.t, out.err = R2, t2, err2
+            out.worst, out.max_mm = int(np.argmax(err2)), float(err2.max())
+            out.n_outliers = int((err2 > MAX_POINT_MM).sum())
+            out.rest_rms_mm = rms(err2[keep])
+            out.cause = (f"{out.n_outliers} pose(s) beyond {MAX_POINT_MM:g} mm (the worst {out.max_mm:.0f} mm) while "
+                         f"the other poses fit within RMS {out.rest_rms_mm:.1f} mm: a wrong measurement, or a "
+                         "point_id that belongs to another pose")
+            out.file, out.column = "tracker", "x_mm"
+            return out
+    if explain:
+        diagnose(robot, model, q, meas, rows, Rf, pf, out)
+    return out
+
+
+def _hypotheses(q, meas):
+    """(name, file, column, description, q', meas') for every cause :func:`diagnose` tries."""
+    yield ("radians", "poses", "q1", "the joint angles look like radians (q * 180/pi fits the nominal kinematics{fit}); "
+           "the contract says degrees", np.rad2deg(q), meas)
+    yield ("metres", "tracker", "x_mm", "x_mm/y_mm/z_mm look like metres (x 1000 fits the nominal kinematics{fit}); "
+           "the contract says mm", q, meas * 1000.0)
+    for j in range(q.shape[1]):
+        qq = q.copy()
+        qq[:, j] = -qq[:, j]
+        yield (f"sign{j + 1}", "poses", f"q{j + 1}", f"joint {j + 1}'s sign looks flipped (-q{j + 1} fits the nominal "
+               "kinematics{fit}): check the joint's direction in the export against robot.toml", qq, meas)
+    for j, k in combinations(range(q.shape[1]), 2):
+        qq = q.copy()
+        qq[:, [j, k]] = qq[:, [k, j]]
+        yield (f"swap{j + 1}{k + 1}", "poses", f"q{j + 1}", f"joints {j + 1} and {k + 1} look swapped (q{j + 1} and "
+               f"q{k + 1} exchanged fit the nominal kinematics{{fit}}): check the order of the joint columns", qq, meas)
+
+
+def diagnose(robot, model, q, meas, rows, Rf, pf, out: Consistency) -> Consistency:
+    """Find the likely cause of a failed check; fills ``out.hypothesis/cause/file/column/tried``.
+
+    Each hypothesis of :func:`_hypotheses` (joint angles in radians, positions in metres, each
+    joint's sign flipped, each pair of joints swapped) is refitted: a rigid fit, one FK pass
+    when it changes the angles. The one with the lowest RMS that is within :data:`MAX_RMS_MM`
+    and at most :data:`EXPLAINS_FRACTION` of the data's RMS is the likely cause. When none is, a
+    wrong tool is tried: a fit with the tool offset free (:func:`fit_tool`). ``out.tried``
+    records every hypothesis's RMS (mm).
+    """
+    best = None
+    limit = min(MAX_RMS_MM, EXPLAINS_FRACTION * out.rms_mm)
+    for name, file, column, text, qq, mm in _hypotheses(q, meas):
+        if qq is q:
+            nominal = _smr(Rf, pf, robot.tool_xyz_mm)
+        else:
+            R2, p2 = _fk(model, qq)
+            nominal = _smr(R2, p2, robot.tool_xyz_mm)
+        try:
+            _, _, err = fit_residuals(nominal, mm, rows)
+        except ValueError:
+            continue
+        r = rms(err)
+        out.tried[name] = r
+        if r <= limit and (best is None or r < best[0]):
+            best = (r, name, file, column, text.replace("{fit}", f": RMS {r:.1f} mm"))
+    if best is None:
+        try:
+            tool, _, _, err = fit_tool(Rf, pf, meas, robot.tool_xyz_mm, rows)
+        except ValueError:
+            tool = None
+        if tool is not None:
+            r = rms(err)
+            out.tried["tool"] = r
+            if r <= limit:
+                off = tool - np.asarray(robot.tool_xyz_mm, float)
+                best = (r, "tool", "robot", "xyz_mm",
+                        f"a wrong tool: with the SMR at [{tool[0]:.1f}, {tool[1]:.1f}, {tool[2]:.1f}] mm in the "
+                        f"flange frame, {np.linalg.norm(off):.0f} mm from [tool] xyz_mm of robot.toml, the points "
+                        f"fit the nominal kinematics (RMS {r:.1f} mm)")
+    if best is not None:
+        _, out.hypothesis, out.file, out.column, out.cause = best
+    return out

@@ -1,0 +1,769 @@
+"""``jointcal import``: a measurement export (one row per pose) -> a robot campaign folder.
+
+Contract section 6. The map (``map.toml``) says how to read the export::
+
+    [source]    delimiter = ";"  decimal = ","            (defaults "," and ".")
+    [joints]    columns = [6 source columns]  unit = "rad" | "deg"
+    [position]  columns = [3 source columns]  unit = "mm" | "m"  frame = "tracker" | "base"
+    [columns]   contract column = source column          (optional: point_id, temperature_c,
+                payload_kg, timestamp, sigma_mm, dir1..dir6)
+    [split]     sample_fraction = 0.6  seed = 1          (seeded random split; default seed 0)
+                or column = "set"                        (values sample / target)
+
+Everything here is pure (text in, text out) except :func:`read_source_file` and
+:func:`install_campaign`. The source's row order is kept (it is the visiting order);
+unmapped columns are ignored. point_id defaults to the 1-based data row number, zero padded.
+Every problem is an :class:`InputError` naming the map's line and column, or the source's
+line and column name, or the robot file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import difflib
+import hashlib
+import io
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import InputError, parse_toml
+from ..core.files import _UMASK, read_text_input
+from .frame import apply, rigid_fit
+from .ingest import ingest_robot
+from .kinematics import build_model, parse_robot, positions
+from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
+
+SECTIONS = ("source", "joints", "position", "columns", "split")
+KEYS = {"source": ("delimiter", "decimal"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
+        "split": ("sample_fraction", "seed", "column")}
+EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(f"dir{j}" for j in range(1, 7))
+JOINT_UNITS = {"rad": 180.0 / np.pi, "deg": 1.0}
+LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}
+FRAMES = ("tracker", "base")
+NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+# a rigid-fit residual beyond this is no robot's error: a unit mix-up is looked for (mm RMS)
+IMPLAUSIBLE_RMS_MM = 20.0
+
+
+# ------------------------------------------------------------------------------ the map
+class _Locator:
+    """Lines and columns of the keys and values of a small TOML file (for error messages)."""
+
+    def __init__(self, text: str):
+        self.lines = text.splitlines()
+        self.sections: dict[str, tuple[int, int]] = {}
+        self.keys: dict[tuple[str, str], tuple[int, int]] = {}
+        section = ""
+        for n, raw in enumerate(self.lines, 1):
+            s = raw.strip()
+            m = re.match(r"^\[\s*([^\[\]]+?)\s*\]", s)
+            if m and not s.startswith("[["):
+                section = m.group(1).strip().strip("\"'")
+                self.sections.setdefault(section, (n, len(raw) - len(raw.lstrip()) + 1))
+                continue
+            m = re.match(r"^(\s*)[\"']?([A-Za-z0-9_-]+)[\"']?\s*=", raw)
+            if m:
+                self.keys.setdefault((section, m.group(2)), (n, len(m.group(1)) + 1))
+
+    def section(self, name):
+        return self.sections.get(name, (1, 1))
+
+    def key(self, section, key):
+        return self.keys.get((section, key), self.section(section))
+
+    def value(self, section, key, item: str):
+        """Line and column of the quoted string ``item`` in the value of ``key``."""
+        line, col = self.key(section, key)
+        if (section, key) not in self.keys:
+            return line, col
+        for k in range(line - 1, min(len(self.lines), line + 20)):
+            text = self.lines[k]
+            if k > line - 1 and re.match(r"^\s*(\[|[\"']?[A-Za-z0-9_-]+[\"']?\s*=)", text):
+                break
+            for q in ('"', "'"):
+                at = text.find(q + item + q, col - 1 if k == line - 1 else 0)
+                if at >= 0:
+                    return k + 1, at + 1
+        return line, col
+
+
+@dataclass
+class ImportMap:
+    """A checked ``map.toml``."""
+
+    path: str
+    delimiter: str
+    decimal: str
+    joint_columns: list
+    joint_unit: str
+    position_columns: list
+    position_unit: str
+    frame: str
+    columns: dict                       # contract column -> source column
+    sample_fraction: float | None
+    seed: int
+    split_column: str | None
+    where: _Locator = field(repr=False)
+
+    def locate_column(self, name: str):
+        """Line and column in the map where the source column ``name`` is named."""
+        for sec, key, values in (("joints", "columns", self.joint_columns), ("position", "columns", self.position_columns)):
+            if name in values:
+                return self.where.value(sec, key, name)
+        for key, src in self.columns.items():
+            if src == name:
+                return self.where.value("columns", key, name)
+        if self.split_column == name:
+            return self.where.value("split", "column", name)
+        return 1, 1
+
+    def describe_split(self) -> str:
+        if self.split_column is not None:
+            return f'column = "{self.split_column}"'
+        return f"sample_fraction = {self.sample_fraction:g}, seed = {self.seed}"
+
+
+def _fail(path, where: _Locator, section, key, message, item=None):
+    line, col = where.value(section, key, item) if item is not None else where.key(section, key)
+    raise InputError(path, message, line, col)
+
+
+def _unknown(path, where, found, known, section=None):
+    for k in found:
+        if k not in known:
+            close = difflib.get_close_matches(k, known, n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else f" (known: {', '.join(known)})"
+            if section is None:
+                line, col = where.sections.get(k, where.keys.get(("", k), (1, 1)))
+                raise InputError(path, f"unknown section [{k}] in the map{hint}", line, col)
+            line, col = where.key(section, k)
+            raise InputError(path, f"unknown key '{k}' in [{section}]{hint}", line, col)
+
+
+def _string_list(path, where, doc, section, key, n, what):
+    if section not in doc:
+        raise InputError(path, f"the map has no [{section}] section; it needs {key} = [{n} source columns] ({what})",
+                         1, 1)
+    if key not in doc[section]:
+        line, col = where.section(section)
+        raise InputError(path, f"[{section}] needs {key} = [{n} source column names] ({what})", line, col)
+    v = doc[section][key]
+    if not isinstance(v, list) or len(v) != n or not all(isinstance(s, str) and s.strip() for s in v):
+        got = f"{len(v)} entries" if isinstance(v, list) else repr(v)
+        _fail(path, where, section, key, f"[{section}] {key} must list {n} source column names ({what}); got {got}")
+    return [s.strip() for s in v]
+
+
+def _choice(path, where, doc, section, key, choices, default=None):
+    table = doc.get(section, {})
+    if key not in table:
+        if default is not None:
+            return default
+        line, col = where.section(section)
+        raise InputError(path, f"[{section}] needs {key} = " + " or ".join(f'"{c}"' for c in choices), line, col)
+    v = table[key]
+    if not isinstance(v, str) or v.strip() not in choices:
+        close = difflib.get_close_matches(str(v), list(choices), n=1) if isinstance(v, str) else []
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        _fail(path, where, section, key, f"[{section}] {key} = {v!r} is not one of " + ", ".join(f'"{c}"' for c in choices)
+              + hint)
+    return v.strip()
+
+
+def parse_map(text: str, path="<map.toml>") -> ImportMap:
+    """Parse and check a map (contract section 6); every problem is a located InputError."""
+    doc = parse_toml(text, path)
+    where = _Locator(text)
+    _unknown(path, where, list(doc), list(SECTIONS))
+    for sec in doc:
+        if not isinstance(doc[sec], dict):
+            line, col = where.key("", sec)
+            raise InputError(path, f"'{sec}' must be a [{sec}] section", line, col)
+        if sec in KEYS:
+            _unknown(path, where, list(doc[sec]), list(KEYS[sec]), sec)
+    src = doc.get("source", {})
+    delimiter = src.get("delimiter", ",")
+    decimal = src.get("decimal", ".")
+    if not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\"'\r\n" or delimiter.isalnum() \
+            or delimiter in ".-+":
+        _fail(path, where, "source", "delimiter",
+              f"[source] delimiter = {delimiter!r} must be one character such as \",\", \";\" or \"\\t\"")
+    if decimal not in (".", ","):
+        _fail(path, where, "source", "decimal", f"[source] decimal = {decimal!r} must be \".\" or \",\"")
+    if decimal == delimiter:
+        _fail(path, where, "source", "decimal",
+              f"[source] decimal and delimiter are both {delimiter!r}; a decimal comma needs another delimiter (\";\")")
+    joints = _string_list(path, where, doc, "joints", "columns", 6, "joint angles q1..q6 in order from the base")
+    junit = _choice(path, where, doc, "joints", "unit", tuple(JOINT_UNITS))
+    pos = _string_list(path, where, doc, "position", "columns", 3, "the SMR's x, y, z")
+    punit = _choice(path, where, doc, "position", "unit", tuple(LENGTH_UNITS))
+    frame = _choice(path, where, doc, "position", "frame", FRAMES)
+    cols = doc.get("columns", {})
+    if "set" in cols:
+        _fail(path, where, "columns", "set", "'set' is taken from [split]: write column = \"...\" there")
+    _unknown(path, where, list(cols), list(EXTRA_COLUMNS), "columns")
+    for k, v in cols.items():
+        if not isinstance(v, str) or not v.strip():
+            _fail(path, where, "columns", k, f"[columns] {k} must name one source column (a string), got {v!r}")
+    columns = {k: v.strip() for k, v in cols.items()}
+    if "split" not in doc:
+        raise InputError(path, "the map has no [split] section: give sample_fraction = 0.6 and seed = 1 (a seeded "
+                         "random split into sample and target poses) or column = \"<source column with sample/target>\"",
+                         1, 1)
+    split = doc["split"]
+    fraction = seed = column = None
+    if "column" in split:
+        if "sample_fraction" in split or "seed" in split:
+            _fail(path, where, "split", "column", "[split] takes either column or sample_fraction (+ seed), not both")
+        column = split["column"]
+        if not isinstance(column, str) or not column.strip():
+            _fail(path, where, "split", "column", f"[split] column must name a source column, got {column!r}")
+        column = column.strip()
+    else:
+        if "sample_fraction" not in split:
+            line, col = where.section("split")
+            raise InputError(path, "[split] needs sample_fraction (0 < f < 1, with seed) or column", line, col)
+        fraction = split["sample_fraction"]
+        if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0.0 < fraction < 1.0:
+            _fail(path, where, "split", "sample_fraction",
+                  f"[split] sample_fraction = {fraction!r} must be a number strictly between 0 and 1")
+        fraction = float(fraction)
+        seed = split.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            _fail(path, where, "split", "seed", f"[split] seed = {seed!r} must be a non-negative integer")
+    return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
+                     int(seed or 0), column, where)
+
+
+# --------------------------------------------------------------------------- the source
+@dataclass
+class Source:
+    """The export's header, data rows (lists of str) and the physical line of each row."""
+
+    path: str
+    header: list
+    rows: list
+    lines: list
+    sha256: str
+
+
+def decode(data: bytes) -> str:
+    """UTF-8 (with or without BOM); failing that Windows-1252, as spreadsheets write."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return data.decode("cp1252", errors="replace")
+
+
+def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") -> Source:
+    """Split the export into header and rows; every mapped column must be in the header."""
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=imap.delimiter)
+    header, hline, rows, lines = None, None, [], []
+    try:
+        for rec in reader:
+            if not rec or all(not f.strip() for f in rec):
+                continue
+            if header is None:
+                header, hline = [h.strip() for h in rec], reader.line_num
+                continue
+            rows.append(rec)
+            lines.append(reader.line_num)
+    except csv.Error as exc:
+        raise InputError(path, f"not readable as delimited text ({exc})", reader.line_num, None) from None
+    if header is None:
+        raise InputError(path, "file is empty; expected a header line and one row per pose", 1, None)
+    counts: dict[str, int] = {}
+    for h in header:
+        counts[h] = counts.get(h, 0) + 1
+    needed = [c for c in imap.joint_columns + imap.position_columns + list(imap.columns.values())
+              + ([imap.split_column] if imap.split_column else [])]
+    for name in needed:
+        if name not in counts:
+            line, col = imap.locate_column(name)
+            close = difflib.get_close_matches(name, header, n=3, cutoff=0.6)
+            hint = f"; close: {', '.join(repr(c) for c in close)}" if close else ""
+            if len(header) == 1:
+                seen = [d for d in (",", ";", "\t", "|") if d in header[0] and d != imap.delimiter]
+                hint += (f"; the header splits into one column with delimiter {imap.delimiter!r}"
+                         + (f" but contains {seen[0]!r}: set [source] delimiter" if seen else ""))
+            raise InputError(imap.path, f"column '{name}' is not in the header of {Path(path).name} (line {hline}){hint}",
+                             line, col)
+        if counts[name] > 1:
+            line, col = imap.locate_column(name)
+            raise InputError(imap.path, f"column '{name}' appears {counts[name]} times in the header of "
+                             f"{Path(path).name}; it is ambiguous", line, col)
+    if not rows:
+        raise InputError(path, "header only, no data rows", hline, None)
+    for rec, ln in zip(rows, lines):
+        if len(rec) != len(header):
+            raise InputError(path, f"{len(rec)} fields, the header has {len(header)} (delimiter {imap.delimiter!r}, "
+                             f"decimal {imap.decimal!r})", ln, None)
+    return Source(str(path), header, rows, lines, sha256)
+
+
+def read_source_file(path, imap: ImportMap) -> Source:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, "source file not found") from None
+    except IsADirectoryError:
+        raise InputError(path, "the source is a folder; give the exported file") from None
+    return parse_source(decode(data), imap, str(path), hashlib.sha256(data).hexdigest())
+
+
+def numbers(source: Source, imap: ImportMap, name: str, required: bool = True) -> np.ndarray:
+    """A source column as floats (NaN where empty and not required); located errors."""
+    k = source.header.index(name)
+    out = np.empty(len(source.rows))
+    comma = imap.decimal == ","
+    for i, rec in enumerate(source.rows):
+        s = rec[k].strip()
+        if not s:
+            if required:
+                raise InputError(source.path, f"empty value; '{name}' is needed (a number)", source.lines[i], name)
+            out[i] = np.nan
+            continue
+        t = s.replace(",", ".") if comma and "." not in s else s
+        if not NUMBER.match(t):
+            if comma and "." in s and NUMBER.match(s):
+                hint = "; the map says decimal = \",\" but this is a decimal point: [source] decimal = \".\"?"
+            elif not comma and "," in s and NUMBER.match(s.replace(",", ".")):
+                hint = "; the map says decimal = \".\" but this is a decimal comma: [source] decimal = \",\"?"
+            elif s.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+                hint = "; expected a finite number"
+            else:
+                hint = ""
+            raise InputError(source.path, f"'{s}' is not a number{hint}", source.lines[i], name)
+        out[i] = float(t)
+    return out
+
+
+def strings(source: Source, name: str) -> list:
+    k = source.header.index(name)
+    return [rec[k].strip() for rec in source.rows]
+
+
+# ------------------------------------------------------------------------ the campaign
+def seeded_split(n: int, fraction: float, seed: int) -> np.ndarray:
+    """``sample`` / ``target`` for n poses in visiting order: round(fraction n) random samples."""
+    n_sample = int(round(fraction * n))
+    sets = np.full(n, "target", dtype=object)
+    sets[np.random.default_rng(seed).permutation(n)[:n_sample]] = "sample"
+    return sets
+
+
+def _fmt(v: float, decimals: int) -> str:
+    if not np.isfinite(v):
+        return ""
+    s = f"{v:.{decimals}f}".rstrip("0")
+    s = s + "0" if s.endswith(".") else s
+    return "0.0" if s in ("-0.0", "0.0") else s
+
+
+def _csv(header, rows) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+@dataclass
+class Campaign:
+    """The imported campaign in memory: file texts and the arrays behind them."""
+
+    files: dict          # name -> text
+    q_deg: np.ndarray
+    xyz_mm: np.ndarray
+    sets: np.ndarray
+    point_id: list
+    columns: dict        # contract column (poses/tracker) -> source column
+
+
+def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, provenance: list) -> Campaign:
+    """poses.csv, tracker.csv, robot.toml and campaign.toml texts (pure; same input -> same bytes).
+
+    ``provenance``: comment lines for campaign.toml (file names, hashes; no absolute paths).
+    """
+    n = len(source.rows)
+    q = np.column_stack([numbers(source, imap, c) for c in imap.joint_columns]) * JOINT_UNITS[imap.joint_unit]
+    xyz = np.column_stack([numbers(source, imap, c) for c in imap.position_columns]) * LENGTH_UNITS[imap.position_unit]
+    cols = {f"q{j + 1}": c for j, c in enumerate(imap.joint_columns)}
+    cols.update({k: c for k, c in zip(("x_mm", "y_mm", "z_mm"), imap.position_columns)})
+    cols.update(imap.columns)
+    if "point_id" in imap.columns:
+        pid = strings(source, imap.columns["point_id"])
+        seen: dict[str, int] = {}
+        for i, p in enumerate(pid):
+            if not p:
+                raise InputError(source.path, "empty point id", source.lines[i], imap.columns["point_id"])
+            if p in seen:
+                raise InputError(source.path, f"point id '{p}' repeats line {source.lines[seen[p]]}; ids must be unique",
+                                 source.lines[i], imap.columns["point_id"])
+            seen[p] = i
+    else:
+        width = max(4, len(str(n)))
+        pid = [f"{i + 1:0{width}d}" for i in range(n)]
+    if imap.split_column is not None:
+        raw = strings(source, imap.split_column)
+        sets = np.array([s.lower() for s in raw], dtype=object)
+        bad = ~np.isin(sets, ("sample", "target"))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(source.path, f"'{raw[i]}' is not sample or target (the [split] column of the map)",
+                             source.lines[i], imap.split_column)
+        cols["set"] = imap.split_column
+    else:
+        sets = seeded_split(n, imap.sample_fraction, imap.seed)
+    if not (sets == "sample").any():
+        line, col = imap.where.key("split", "column" if imap.split_column else "sample_fraction")
+        raise InputError(imap.path, f"no pose is a sample pose ({n} rows): nothing to fit a model on", line, col)
+    if imap.split_column is None and not (sets == "target").any():
+        line, col = imap.where.key("split", "sample_fraction")
+        raise InputError(imap.path, f"sample_fraction = {imap.sample_fraction:g} of {n} rows leaves no target pose",
+                         line, col)
+    extra_pose = [c for c in ("payload_kg", "temperature_c", "timestamp") + tuple(f"dir{j}" for j in range(1, 7))
+                  if c in imap.columns]
+    values = {}
+    for c in extra_pose + (["sigma_mm"] if "sigma_mm" in imap.columns else []):
+        src = imap.columns[c]
+        if c == "timestamp":
+            values[c] = strings(source, src)
+            continue
+        v = numbers(source, imap, src, required=False)
+        if c == "sigma_mm":
+            v = v * LENGTH_UNITS[imap.position_unit]
+        if c.startswith("dir"):
+            bad = np.isfinite(v) & ~np.isin(v, (-1.0, 1.0))
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise InputError(source.path, f"'{source.rows[i][source.header.index(src)].strip()}' is not +1 or -1 "
+                                 f"(mapped to {c})", source.lines[i], src)
+            values[c] = ["" if not np.isfinite(x) else str(int(x)) for x in v]
+        else:
+            values[c] = [_fmt(x, 9) for x in v]
+    pose_header = ["point_id", "set"] + [f"q{j}" for j in range(1, 7)] + extra_pose
+    pose_rows = [[pid[i], sets[i]] + [_fmt(x, 10) for x in q[i]] + [values[c][i] for c in extra_pose] for i in range(n)]
+    track_header = ["point_id", "x_mm", "y_mm", "z_mm"] + (["sigma_mm"] if "sigma_mm" in values else [])
+    track_rows = [[pid[i]] + [_fmt(x, 9) for x in xyz[i]] + ([values["sigma_mm"][i]] if "sigma_mm" in values else [])
+                  for i in range(n)]
+    n_s = int((sets == "sample").sum())
+    camp = ["# Robot campaign written by `jointcal import` (contract sections 2 and 6).", *provenance,
+            f"# {n} poses in the source's row order: {n_s} sample, {n - n_s} target ([split] {imap.describe_split()})",
+            f"# frame: the positions are in the {'tracker' if imap.frame == 'tracker' else 'robot base'}'s frame",
+            f'frame = "{imap.frame}"', ""]
+    files = {"robot.toml": robot_text, "poses.csv": _csv(pose_header, pose_rows),
+             "tracker.csv": _csv(track_header, track_rows), "campaign.toml": "\n".join(camp)}
+    return Campaign(files, q, xyz, sets, pid, cols)
+
+
+# -------------------------------------------------------------- plausibility (unit hints)
+def rigid_fit_rms(nominal: np.ndarray, measured: np.ndarray) -> float:
+    """RMS distance (mm) after the best rigid transform of ``nominal`` onto ``measured``."""
+    R, t = rigid_fit(nominal, measured)
+    r = measured - apply(R, t, nominal)
+    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
+def _spread(P: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((P - P.mean(0)) ** 2, axis=1)))) if len(P) else 0.0
+
+
+def nominal_fit(robot, q_deg, xyz_mm, frame: str) -> tuple[float, float]:
+    """Nominal-vs-measured RMS (mm) after a rigid fit (tracker frame) or as it is (base frame),
+    and that RMS relative to the smaller spread of the two point clouds (0: perfect, ~1: nothing fits)."""
+    ok = np.isfinite(q_deg).all(1) & np.isfinite(xyz_mm).all(1)
+    nom, meas = positions(build_model(robot), np.deg2rad(q_deg[ok])), xyz_mm[ok]
+    if frame == "tracker":
+        rms = rigid_fit_rms(nom, meas)
+    else:
+        d = nom - meas
+        rms = float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+    scale = min(_spread(nom), _spread(meas))
+    return rms, (rms / scale if scale > 0 else np.inf)
+
+
+def nominal_rms(robot, q_deg, xyz_mm, frame: str) -> float:
+    """Nominal-vs-measured RMS (mm): after a rigid fit (tracker frame) or as it is (base frame)."""
+    return nominal_fit(robot, q_deg, xyz_mm, frame)[0]
+
+
+def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float:
+    """Refuse joint angles or positions whose unit the map mislabels; returns the nominal RMS (mm).
+
+    The magnitudes are checked first (positions below 5 labelled mm; values beyond 1 km
+    labelled m), then, when the nominal kinematics fit the data implausibly badly, the other
+    units are tried (deg -> rad only when every value is within +-2 pi): if one reading fits
+    well (RMS below 20 mm and a tenth of the points' spread), the map's unit line is named
+    with the fix. Anything else is left to the nominal-consistency check of ingest.
+    """
+    where = imap.where
+    ax = np.abs(camp.xyz_mm[np.isfinite(camp.xyz_mm)])
+    if imap.position_unit == "mm" and len(ax) > 9 and ax.max() < 5.0:
+        _fail(imap.path, where, "position", "unit", f"every position is below 5 (largest {ax.max():.4g}) though the map "
+              "says unit = \"mm\": they look like metres; set unit = \"m\"")
+    if imap.position_unit == "m" and len(ax) and ax.max() > 1e6:
+        _fail(imap.path, where, "position", "unit", f"positions up to {ax.max() / 1000:.4g} with unit = \"m\" are beyond "
+              "1 km: they look like millimetres; set unit = \"mm\"")
+    rms, rel = nominal_fit(robot, camp.q_deg, camp.xyz_mm, imap.frame)
+    if rms <= IMPLAUSIBLE_RMS_MM:
+        return rms
+    jmax = float(np.nanmax(np.abs(camp.q_deg / JOINT_UNITS[imap.joint_unit])))
+    other_j = {"deg": "rad", "rad": "deg"}[imap.joint_unit]
+    other_p = {"mm": "m", "m": "mm"}[imap.position_unit]
+    junits = [imap.joint_unit] + ([other_j] if other_j == "deg" or jmax <= 2 * np.pi + 1e-9 else [])
+    best = None
+    for ju in junits:
+        for pu in (imap.position_unit, other_p):
+            if (ju, pu) == (imap.joint_unit, imap.position_unit):
+                continue
+            q = camp.q_deg / JOINT_UNITS[imap.joint_unit] * JOINT_UNITS[ju]
+            xyz = camp.xyz_mm / LENGTH_UNITS[imap.position_unit] * LENGTH_UNITS[pu]
+            alt, alt_rel = nominal_fit(robot, q, xyz, imap.frame)
+            if alt < IMPLAUSIBLE_RMS_MM and alt_rel < 0.1 and (best is None or alt_rel < best[3]):
+                best = (ju, pu, alt, alt_rel)
+    if best is None:
+        return rms
+    ju, pu, alt, _ = best
+    fixes = ([f"[joints] unit = \"{ju}\""] if ju != imap.joint_unit else []) + \
+            ([f"[position] unit = \"{pu}\""] if pu != imap.position_unit else [])
+    why = []
+    if ju != imap.joint_unit:
+        why.append(f"the joint angles look like {ju}, not {imap.joint_unit}"
+                   + (f" (every value is within +-2 pi, largest {jmax:.4g})" if ju == "rad" else ""))
+    if pu != imap.position_unit:
+        why.append(f"the positions look like {pu}, not {imap.position_unit}")
+    fit = "after a rigid fit of the tracker frame" if imap.frame == "tracker" else "in the base frame"
+    section = "joints" if ju != imap.joint_unit else "position"
+    _fail(imap.path, where, section, "unit",
+          f"{' and '.join(why)}: the robot's nominal kinematics miss the measured points by {rms:.4g} mm RMS {fit} "
+          f"as the map says, by {alt:.4g} mm with {ju} and {pu}; set {' and '.join(fixes)}")
+    return rms
+
+
+def check_limits(camp: Campaign, imap: ImportMap, robot, source: Source) -> None:
+    """Joint angles outside robot.toml's ranges, named at the source line and column."""
+    for j in range(6):
+        q = camp.q_deg[:, j]
+        lo, hi = robot.lower_deg[j], robot.upper_deg[j]
+        out = (q < lo - 1e-6) | (q > hi + 1e-6)
+        if out.any():
+            i = int(np.argmax(out))
+            raw = q[i] / JOINT_UNITS[imap.joint_unit]
+            hint = ""
+            if imap.joint_unit == "deg" and lo <= np.rad2deg(raw) <= hi:
+                hint = "; as radians it would fit: [joints] unit = \"rad\"?"
+            elif imap.joint_unit == "rad" and lo <= raw <= hi:
+                hint = "; as degrees it would fit: [joints] unit = \"deg\"?"
+            raise InputError(source.path, f"{raw:g} {imap.joint_unit} = {q[i]:g} deg is outside joint {j + 1}'s range "
+                             f"[{lo:g}, {hi:g}] deg of the robot ({Path(robot.path).name})", source.lines[i],
+                             imap.joint_columns[j])
+
+
+# ------------------------------------------------------------------ install (atomic)
+# what a nominal-consistency refusal most likely needs changed, and where in the map, by the
+# cause the check found (InputError.hypothesis, see pipeline.robot.frame)
+_MAP_FIXES = {"frame": ("position", "frame", "[position] frame in the map"),
+              "radians": ("joints", "unit", "[joints] unit in the map"),
+              "metres": ("position", "unit", "[position] unit in the map"),
+              "swap": ("joints", "columns", "the order of [joints] columns in the map"),
+              "sign": ("joints", "columns", "the joint columns of the map (a joint's sign)")}
+
+
+def _map_fix(hypothesis: str):
+    for key, fix in _MAP_FIXES.items():
+        if hypothesis == key or (key in ("swap", "sign") and hypothesis.startswith(key)):
+            return fix
+    return None
+
+
+def _robot_location(exc: InputError, tmpdir: Path, robot_path):
+    """Where in the user's robot file the key that an error names in the imported robot.toml is."""
+    if not isinstance(exc.line, int):
+        return None, None
+    try:
+        copied = (tmpdir / "robot.toml").read_text(encoding="utf-8").splitlines()
+        original = Path(robot_path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None, None
+    if exc.line > len(copied):
+        return None, None
+    m = re.match(r"^\s*([A-Za-z0-9_]+)\s*=", copied[exc.line - 1])
+    if not m or is_urdf(robot_path):
+        return None, None
+    nth = sum(1 for ln in copied[: exc.line] if re.match(r"^\s*\[\[\s*joint\s*\]\]", ln))
+    count, inside = 0, nth == 0
+    for k, ln in enumerate(original.splitlines(), 1):
+        if re.match(r"^\s*\[\[\s*joint\s*\]\]", ln):
+            count += 1
+            inside = count == nth
+        elif re.match(r"^\s*\[", ln):
+            inside = nth == 0 and ln.strip().startswith("[tool]") if m.group(1) == "xyz_mm" else nth == 0
+        km = re.match(r"^(\s*)" + re.escape(m.group(1)) + r"\s*=", ln)
+        if inside and km:
+            return k, len(km.group(1)) + 1
+    return None, None
+
+
+def translate(exc: InputError, tmpdir: Path, camp: Campaign, imap: ImportMap, source: Source, robot_path,
+              robot_where=(None, None)) -> InputError:
+    """An error ``ingest_robot`` found in the temporary campaign, named where the user can fix it.
+
+    A row's problem is named at the source's line and column; a refusal of the whole campaign
+    by the nominal-consistency check at the map line its likely cause points to (frame, unit,
+    joint columns); a robot problem in the robot file given (at ``robot_where`` for a URDF).
+    """
+    p = Path(exc.path)
+    if p.parent.resolve() != Path(tmpdir).resolve():
+        return exc
+    name = p.name
+    if name in ("poses.csv", "tracker.csv"):
+        fix = _map_fix(getattr(exc, "hypothesis", "") or "")
+        if fix is not None:
+            section, key, what = fix
+            line, col = imap.where.key(section, key)
+            return InputError(imap.path, f"{exc.message} (nominal check of the imported campaign; change {what})",
+                              line, col)
+        if isinstance(exc.line, int) and exc.line >= 2 and exc.line - 2 < len(source.lines):
+            col = camp.columns.get(str(exc.column), exc.column) if exc.column is not None else None
+            return InputError(source.path, f"{exc.message} (in the imported {name})", source.lines[exc.line - 2], col)
+        line, col = imap.where.key("joints", "columns")
+        return InputError(imap.path, f"{exc.message} (in the imported {name})", line, col)
+    if name == "campaign.toml":
+        line, col = imap.where.key("position", "frame")
+        return InputError(imap.path, f"{exc.message} (in the imported campaign.toml)", line, col)
+    line, col = robot_where if is_urdf(robot_path) else _robot_location(exc, Path(tmpdir), robot_path)
+    return InputError(robot_path, f"{exc.message} (in the imported robot.toml)", line, col)
+
+
+def install_campaign(out_dir, files: dict, validate) -> None:
+    """Write ``files`` into ``out_dir`` only if ``validate(tmpdir)`` passes; nothing half-written.
+
+    The folder is built in a temporary sibling, validated, then renamed into place (new
+    folder) or its files renamed one by one over the old ones (existing folder). On any
+    error the temporary folder (and any parent folder made for it) is removed.
+    """
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "--out exists and is not a folder")
+    made = []
+    parent = out.absolute().parent
+    for d in reversed([parent, *parent.parents]):
+        if not d.exists():
+            d.mkdir()
+            made.append(d)
+    tmp = None
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.import-", dir=parent))
+        for name, text in files.items():
+            with open(tmp / name, "w", encoding="utf-8", newline="") as fh:
+                fh.write(text)
+        validate(tmp)
+        if not out.exists():
+            os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp makes 0700; a campaign is an ordinary folder
+            os.rename(tmp, out)
+            tmp = None
+        else:
+            for name in files:
+                os.replace(tmp / name, out / name)
+    except BaseException:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+            tmp = None
+        for d in reversed(made):
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+# ------------------------------------------------------------------------ the command
+def _sha(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def is_urdf(path) -> bool:
+    path = Path(path)
+    if path.suffix.lower() in (".urdf", ".xml"):
+        return True
+    if path.suffix.lower() == ".toml":
+        return False
+    with contextlib.suppress(OSError):
+        with open(path, "rb") as fh:
+            return fh.read(256).lstrip().startswith((b"<?xml", b"<robot"))
+    return False
+
+
+def load_import_robot(robot_path, tip=None, base=None, tool_mm=None):
+    """The robot of an import: ``robot.toml`` as parsed, or derived from a URDF (``tip`` needed).
+
+    Returns the Robot, the text of the campaign's robot.toml and a provenance line.
+    """
+    name = Path(robot_path).name
+    if not Path(robot_path).exists():
+        raise InputError(robot_path, "robot file not found (a robot.toml, or a URDF with --tip LINK)")
+    if is_urdf(robot_path):
+        if not tip:
+            raise InputError(robot_path, "a URDF robot needs --tip LINK: the link whose origin is the SMR "
+                             "(or the flange link, with --tool-mm X Y Z in its frame)")
+        robot, info = robot_from_urdf(robot_path, tip, base, tool_mm)
+        tool = "" if tool_mm is None else f" + tool_mm [{', '.join(_fmt(v, 9) for v in tool_mm)}]"
+        head = [f"# Nominal kinematics derived by `jointcal import` from {name} (sha256 {_sha(robot_path)}):",
+                f"# chain {', '.join(info['chain'])}; base frame '{info['base']}'; SMR at link '{tip}'{tool}.",
+                "# Classic DH plus beta (contract section 2), taken at q = 0 from the URDF's joint axes;",
+                f"# checked: the SMR agrees with pinocchio's URDF model to < {FK_TOLERANCE_MM:g} mm at "
+                f"{info['checks']} random configurations.",
+                "# Masses and centres of mass (link frame {i}) from the URDF's inertias; limits from its <limit>s."]
+        return robot, "\n".join(head) + "\n" + robot.to_toml(), f"# robot: {name} (sha256 {_sha(robot_path)}), tip " \
+            f"'{tip}'{', base ' + repr(base) if base else ''}{tool}"
+    if tip or base:
+        raise InputError(robot_path, "--tip and --base name links of a URDF; this robot is a robot.toml (its [tool] "
+                         "is the SMR in the flange frame)")
+    text = read_text_input(robot_path, "robot.toml")
+    robot = parse_robot(text, str(robot_path))
+    tool = ""
+    if tool_mm is not None:
+        robot = replace(robot, tool_xyz_mm=tuple(float(v) for v in tool_mm))
+        tool = f" with [tool] xyz_mm = [{', '.join(_fmt(v, 9) for v in tool_mm)}] from --tool-mm"
+    head = f"# Nominal kinematics copied by `jointcal import` from {name} (sha256 {_sha(robot_path)}){tool}.\n"
+    return robot, head + robot.to_toml(), f"# robot: {name} (sha256 {_sha(robot_path)}){tool}"
+
+
+def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=None, tool_mm=None) -> dict:
+    """Read, check and install a campaign folder (contract section 6). Returns a summary.
+
+    Nothing is written unless everything passes, including ``ingest_robot`` on the result.
+    """
+    map_text = read_text_input(map_path, "map")
+    imap = parse_map(map_text, str(map_path))
+    robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm)
+    source = read_source_file(source_path, imap)
+    prov = [f"# source: {Path(source_path).name} (sha256 {source.sha256})",
+            f"# map: {Path(map_path).name} (sha256 {_sha(map_path)})", robot_line]
+    camp = build_campaign(source, imap, robot, robot_text, prov)
+    check_limits(camp, imap, robot, source)
+    rms = check_units(camp, imap, robot, source)
+    robot_where = (None, None)
+    if is_urdf(robot_path):
+        robot_where = tag_line(Path(robot_path).read_text(encoding="utf-8"), "link", tip)
+
+    def validate(tmp):
+        try:
+            ingest_robot(tmp)
+        except InputError as exc:
+            raise translate(exc, Path(tmp), camp, imap, source, robot_path, robot_where) from None
+
+    install_campaign(out_dir, camp.files, validate)
+    n_s = int((camp.sets == "sample").sum())
+    return {"n": len(camp.sets), "sample": n_s, "target": len(camp.sets) - n_s, "frame": imap.frame,
+            "nominal_rms_mm": rms}

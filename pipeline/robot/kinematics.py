@@ -1,0 +1,416 @@
+"""Robot description (contract section 2, ``robot.toml``) and its pinocchio models.
+
+Link transform of joint i (contract, Eq. 2 of the second paper)::
+
+    T_i = Rz(q_i + theta_offset_i) . Tz(d_i) . Tx(a_i) . Rx(alpha_i) . Ry(beta_i)
+
+and the SMR position is ``T_1 ... T_6 . [tool.xyz_mm, 1]``. Writing
+``L_i = Tz(d_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)`` the chain is
+
+    Rz(off_1) Rz(q_1) L_1 Rz(off_2) Rz(q_2) L_2 ... Rz(off_6) Rz(q_6) L_6 Trans(tool)
+
+so a pinocchio revolute-Z joint i placed at ``L_{i-1} Rz(off_i)`` (``Rz(off_1)`` for
+the first) reproduces it exactly; the MDH link frame {i} is an operational frame at ``L_i``
+on joint i, the SMR a frame at ``L_6 Trans(tool)``.
+
+Two models are built from one description:
+
+* :func:`build_model` - the plain 6-joint arm with link inertias (``mass_kg``, ``com_mm``
+  in link frame {i}) for kinematics and gravity torques;
+* :func:`build_error_model` - the same chain with *error joints* inserted: a 6-dof base
+  error (PX PY PZ RX RY RZ) before joint 1, a 6-dof error after every link frame {i}
+  (the error transfer matrix E_i of Eq. 7-8 of the paper, realised as an exact rigid
+  transform) and a 3-dof tool offset before the SMR. Every robot effect is linear in its
+  parameters through these coordinates ("channels"), so one forward-kinematics call gives
+  the predicted SMR position and one frame Jacobian gives the derivative with respect to
+  every channel. pinocchio works in metres and radians; files and reports use mm and deg.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from ..core.errors import InputError, parse_toml
+from ..core.files import read_text_input
+
+JOINT_FIELDS = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "lower_deg", "upper_deg")
+GRAVITY_FIELDS = ("mass_kg", "com_mm")
+N_JOINTS = 6
+G = 9.81
+TWIST = ("dx", "dy", "dz", "ex", "ey", "ez")
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One ``[[joint]]`` table: lengths in mm, angles in deg, mass in kg."""
+
+    a_mm: float
+    alpha_deg: float
+    d_mm: float
+    theta_offset_deg: float
+    beta_deg: float
+    lower_deg: float
+    upper_deg: float
+    mass_kg: float = 0.0
+    com_mm: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Robot:
+    """Nominal robot of a campaign (``robot.toml``)."""
+
+    name: str
+    joints: tuple
+    tool_xyz_mm: tuple
+    path: str = "<robot>"
+
+    @property
+    def lower_deg(self) -> np.ndarray:
+        return np.array([j.lower_deg for j in self.joints])
+
+    @property
+    def upper_deg(self) -> np.ndarray:
+        return np.array([j.upper_deg for j in self.joints])
+
+    def replace_joint(self, i: int, **changes) -> "Robot":
+        """A copy with joint ``i`` (0-based) changed; for perturbed (true) robots."""
+        joints = list(self.joints)
+        joints[i] = Joint(**{**joints[i].__dict__, **changes})
+        return Robot(self.name, tuple(joints), self.tool_xyz_mm, self.path)
+
+    def to_toml(self) -> str:
+        lines = [f'name = "{self.name}"', "", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
+        for j in self.joints:
+            lines += ["", "[[joint]]"]
+            for f in JOINT_FIELDS + ("mass_kg",):
+                lines.append(f"{f} = {_num(getattr(j, f))}")
+            lines.append(f"com_mm = [{', '.join(_num(v) for v in j.com_mm)}]")
+        return "\n".join(lines) + "\n"
+
+
+def _num(v) -> str:
+    v = float(v)
+    return str(int(v)) + ".0" if v == int(v) else repr(v)
+
+
+# ------------------------------------------------------------------------------ loading
+def _table_lines(text: str, header: str) -> list[int]:
+    return [text.count("\n", 0, m.start()) + 1
+            for m in re.finditer(r"^[ \t]*\[\[[ \t]*" + re.escape(header) + r"\s*\]\]", text, flags=re.MULTILINE)]
+
+
+def _key_line(text: str, start_line: int, key: str):
+    lines = text.splitlines()
+    for k in range(start_line - 1, len(lines)):
+        if k > start_line - 1 and lines[k].lstrip().startswith("["):
+            break
+        m = re.match(r"^\s*" + re.escape(key) + r"\s*=", lines[k])
+        if m:
+            return k + 1, len(lines[k]) - len(lines[k].lstrip()) + 1
+    return start_line, 1
+
+
+def parse_robot(text: str, path="<robot.toml>") -> Robot:
+    """Parse ``robot.toml`` text; every problem is an InputError with line and column."""
+    doc = parse_toml(text, path)
+    tables = doc.get("joint")
+    starts = _table_lines(text, "joint")
+    if not isinstance(tables, list) or len(tables) != N_JOINTS:
+        n = len(tables) if isinstance(tables, list) else 0
+        line = starts[-1] if starts else 1
+        raise InputError(path, f"found {n} [[joint]] tables; expected {N_JOINTS}, one per joint from the base", line, 1)
+    joints = []
+    for i, t in enumerate(tables):
+        start = starts[i] if i < len(starts) else 1
+        for f in JOINT_FIELDS:
+            if f not in t:
+                close = difflib.get_close_matches(f, [k for k in t if k not in JOINT_FIELDS + GRAVITY_FIELDS], n=1)
+                hint = f" (found '{close[0]}': misspelled?)" if close else ""
+                raise InputError(path, f"joint {i + 1}: missing field '{f}'{hint}", start, 1)
+        for f in t:
+            if f not in JOINT_FIELDS + GRAVITY_FIELDS:
+                line, col = _key_line(text, start, f)
+                raise InputError(path, f"joint {i + 1}: unknown field '{f}' (known: {', '.join(JOINT_FIELDS + GRAVITY_FIELDS)})",
+                                 line, col)
+        vals = {}
+        for f in JOINT_FIELDS + ("mass_kg",):
+            if f not in t:
+                continue
+            v = t[f]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                line, col = _key_line(text, start, f)
+                raise InputError(path, f"joint {i + 1}: '{f}' must be a finite number, got {v!r}", line, col)
+            vals[f] = float(v)
+        com = t.get("com_mm", [0.0, 0.0, 0.0])
+        if (not isinstance(com, list) or len(com) != 3
+                or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in com)):
+            line, col = _key_line(text, start, "com_mm")
+            raise InputError(path, f"joint {i + 1}: com_mm must be [x, y, z] in mm", line, col)
+        if vals.get("mass_kg", 0.0) < 0:
+            line, col = _key_line(text, start, "mass_kg")
+            raise InputError(path, f"joint {i + 1}: mass_kg must not be negative", line, col)
+        if vals["lower_deg"] >= vals["upper_deg"]:
+            line, col = _key_line(text, start, "upper_deg")
+            raise InputError(path, f"joint {i + 1}: upper_deg must be above lower_deg", line, col)
+        joints.append(Joint(com_mm=tuple(float(c) for c in com), **vals))
+    lengths = np.array([[j.a_mm, j.d_mm] for j in joints])
+    if np.abs(lengths).max() < 10.0:
+        raise InputError(path, "all link lengths are below 10: a_mm/d_mm look like metres; the contract says mm",
+                         starts[0], 1)
+    angles = np.array([[j.alpha_deg, j.beta_deg, j.theta_offset_deg] for j in joints])
+    if np.any(np.isclose(np.abs(angles), np.pi / 2, atol=1e-3)) or np.any(np.isclose(np.abs(angles), np.pi, atol=1e-3)):
+        k = int(np.argmax(np.isclose(np.abs(angles), np.pi / 2, atol=1e-3).any(axis=1)
+                          | np.isclose(np.abs(angles), np.pi, atol=1e-3).any(axis=1)))
+        raise InputError(path, f"joint {k + 1}: an angle of about pi/2 or pi looks like radians; the contract says deg",
+                         starts[k], 1)
+    spans = np.array([j.upper_deg - j.lower_deg for j in joints])
+    if np.all(spans <= 2 * np.pi + 1e-9):
+        raise InputError(path, "every joint range spans less than 6.3: lower_deg/upper_deg look like radians; "
+                         "the contract says deg", starts[0], 1)
+    tool = doc.get("tool", {}).get("xyz_mm") if isinstance(doc.get("tool"), dict) else None
+    if (not isinstance(tool, list) or len(tool) != 3
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in tool)):
+        line = next((k + 1 for k, s in enumerate(text.splitlines()) if re.match(r"^\s*\[tool\]", s)), 1)
+        raise InputError(path, "missing or bad [tool] xyz_mm = [x, y, z] (SMR in the flange frame, mm)", line, 1)
+    name = str(doc.get("name", Path(str(path)).parent.name or "robot"))
+    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path))
+
+
+def load_robot(path) -> Robot:
+    """Read ``robot.toml`` (raises InputError naming file, line and column)."""
+    text = read_text_input(path, "robot.toml (a robot campaign needs the nominal kinematics)")
+    return parse_robot(text, str(path))
+
+
+# ------------------------------------------------------------------------------- models
+def link_placement(joint: Joint) -> pin.SE3:
+    """``L_i = Tz(d) Tx(a) Rx(alpha) Ry(beta)`` in metres."""
+    rx = pin.utils.rotate("x", np.deg2rad(joint.alpha_deg))
+    ry = pin.utils.rotate("y", np.deg2rad(joint.beta_deg))
+    return pin.SE3(rx @ ry, np.array([joint.a_mm, 0.0, joint.d_mm]) / 1000.0)
+
+
+def _rz(deg) -> pin.SE3:
+    return pin.SE3(pin.utils.rotate("z", np.deg2rad(deg)), np.zeros(3))
+
+
+def _link_inertia(joint: Joint) -> pin.Inertia:
+    # mass at com (link frame {i}) with a small rotational inertia; gravity needs mass and com only
+    c = np.asarray(joint.com_mm, float) / 1000.0
+    m = joint.mass_kg
+    return pin.Inertia(m, c, np.eye(3) * max(m, 1e-9) * 0.01)
+
+
+def build_model(robot: Robot) -> pin.Model:
+    """The plain arm: 6 revolute-Z joints, link inertias, frames ``link1..link6``, ``flange``, ``smr``.
+
+    The body of joint i carries its link's mass; ``com_mm`` is given in link frame {i}
+    (the frame after ``T_i``), i.e. at ``L_i . com`` in the joint frame.
+    """
+    model = pin.Model()
+    model.name = robot.name
+    parent = 0
+    prev_L = pin.SE3.Identity()
+    for i, j in enumerate(robot.joints):
+        placement = prev_L * _rz(j.theta_offset_deg)
+        jid = model.addJoint(parent, pin.JointModelRZ(), placement, f"q{i + 1}",
+                             np.array([1e4]), np.array([1e2]),
+                             np.array([np.deg2rad(j.lower_deg)]), np.array([np.deg2rad(j.upper_deg)]))
+        L = link_placement(j)
+        model.appendBodyToJoint(jid, L.act(_link_inertia(j)), pin.SE3.Identity())
+        model.addFrame(pin.Frame(f"link{i + 1}", jid, 0, L, pin.FrameType.OP_FRAME))
+        parent, prev_L = jid, L
+    model.addFrame(pin.Frame("flange", parent, 0, prev_L, pin.FrameType.OP_FRAME))
+    tool = pin.SE3(np.eye(3), np.asarray(robot.tool_xyz_mm, float) / 1000.0)
+    model.addFrame(pin.Frame("smr", parent, 0, prev_L * tool, pin.FrameType.OP_FRAME))
+    model.gravity = pin.Motion(np.array([0.0, 0.0, -G, 0.0, 0.0, 0.0]))
+    return model
+
+
+@dataclass(frozen=True)
+class ErrorModelIndex:
+    """Positions of the channels in the error model's configuration vector (nq = nv = 51)."""
+
+    joints: np.ndarray        # (6,) main joints q1..q6
+    links: np.ndarray         # (6, 6) link i error twist dx dy dz ex ey ez
+    base: np.ndarray          # (6,) base error twist
+    tool: np.ndarray          # (3,) tool offset dx dy dz
+    nq: int
+
+
+def build_error_model(robot: Robot) -> tuple[pin.Model, ErrorModelIndex]:
+    """The arm with error joints (see module docstring); no inertias (kinematics only)."""
+    model = pin.Model()
+    model.name = robot.name + "_errors"
+    kinds = [pin.JointModelPX, pin.JointModelPY, pin.JointModelPZ, pin.JointModelRX, pin.JointModelRY, pin.JointModelRZ]
+    big = np.array([1e3])
+
+    def add(parent, jm, placement, name):
+        jid = model.addJoint(parent, jm(), placement, name, big, big, -big, big)
+        model.appendBodyToJoint(jid, pin.Inertia.Zero(), pin.SE3.Identity())
+        return jid
+
+    parent = 0
+    base = []
+    for k, kind in enumerate(kinds):
+        parent = add(parent, kind, pin.SE3.Identity(), f"base_{TWIST[k]}")
+        base.append(parent)
+    joints, links = [], []
+    placement = pin.SE3.Identity()
+    for i, j in enumerate(robot.joints):
+        parent = add(parent, pin.JointModelRZ, placement * _rz(j.theta_offset_deg), f"q{i + 1}")
+        joints.append(parent)
+        row = []
+        for k, kind in enumerate(kinds):
+            parent = add(parent, kind, link_placement(j) if k == 0 else pin.SE3.Identity(), f"link{i + 1}_{TWIST[k]}")
+            row.append(parent)
+        links.append(row)
+        model.addFrame(pin.Frame(f"link{i + 1}", parent, 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
+        placement = pin.SE3.Identity()
+    model.addFrame(pin.Frame("flange", parent, 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
+    tool = []
+    for k, kind in enumerate(kinds[:3]):
+        parent = add(parent, kind, pin.SE3.Identity(), f"tool_{TWIST[k]}")
+        tool.append(parent)
+    model.addFrame(pin.Frame("smr", parent, 0, pin.SE3(np.eye(3), np.asarray(robot.tool_xyz_mm, float) / 1000.0),
+                             pin.FrameType.OP_FRAME))
+    # every joint is 1-dof: configuration index = joint id - 1
+    idx = ErrorModelIndex(np.array(joints) - 1, np.array(links) - 1, np.array(base) - 1, np.array(tool) - 1, model.nq)
+    return model, idx
+
+
+# ------------------------------------------------------------------------ batch helpers
+def frame_id(model: pin.Model, name: str) -> int:
+    return model.getFrameId(name)
+
+
+def positions(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> np.ndarray:
+    """Position of ``frame`` for every configuration.
+
+    Parameters
+    ----------
+    Q : ndarray, shape (n, nq), rad (and m for prismatic error joints)
+
+    Returns
+    -------
+    ndarray, shape (n, 3), mm
+    """
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    out = np.empty((len(Q), 3))
+    for k, q in enumerate(np.asarray(Q, float)):
+        pin.forwardKinematics(model, data, q)
+        out[k] = pin.updateFramePlacement(model, data, fid).translation
+    return out * 1000.0
+
+
+def placements(model: pin.Model, Q: np.ndarray, frame: str = "flange") -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (n, 3, 3) and translation (n, 3) mm of ``frame``."""
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    R = np.empty((len(Q), 3, 3))
+    p = np.empty((len(Q), 3))
+    for k, q in enumerate(np.asarray(Q, float)):
+        pin.forwardKinematics(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        R[k] = M.rotation
+        p[k] = M.translation
+    return R, p * 1000.0
+
+
+def positions_and_jacobians(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> tuple[np.ndarray, np.ndarray]:
+    """Position and positional frame Jacobian (world-aligned) of ``frame``.
+
+    Returns
+    -------
+    P : ndarray, shape (n, 3), mm
+    J : ndarray, shape (n, 3, nv), mm per unit of each coordinate (rad or m)
+    """
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    n = len(Q)
+    P = np.empty((n, 3))
+    J = np.empty((n, 3, model.nv))
+    for k, q in enumerate(np.asarray(Q, float)):
+        pin.computeJointJacobians(model, data, q)
+        P[k] = pin.updateFramePlacement(model, data, fid).translation
+        J[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+    return P * 1000.0, J * 1000.0
+
+
+def pose_jacobians(model: pin.Model, Q: np.ndarray, frame: str = "smr"):
+    """Placement and 6-row world-aligned Jacobian (linear mm, angular rad) of ``frame``."""
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    n = len(Q)
+    R = np.empty((n, 3, 3))
+    P = np.empty((n, 3))
+    J = np.empty((n, 6, model.nv))
+    for k, q in enumerate(np.asarray(Q, float)):
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        R[k], P[k] = M.rotation, M.translation
+        J[k] = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
+    J[:, :3] *= 1000.0
+    return R, P * 1000.0, J
+
+
+def gravity_torques(robot: Robot, q_deg: np.ndarray, payload_kg=None, model: pin.Model | None = None) -> np.ndarray:
+    """Joint torques that hold the arm (and a payload at the SMR point) against gravity.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, 6), deg
+    payload_kg : ndarray, shape (n,), kg, optional
+        Mass carried at the flange, lumped at the SMR point.
+
+    Returns
+    -------
+    ndarray, shape (n, 6), N m (positive: the torque the motor must apply in +q_i)
+    """
+    model = model or build_model(robot)
+    data = model.createData()
+    fid = model.getFrameId("smr")
+    q = np.deg2rad(np.atleast_2d(np.asarray(q_deg, float)))
+    payload = np.zeros(len(q)) if payload_kg is None else np.broadcast_to(np.asarray(payload_kg, float), (len(q),))
+    out = np.empty((len(q), model.nv))
+    for k in range(len(q)):
+        tau = pin.computeGeneralizedGravity(model, data, q[k]).copy()
+        if payload[k] != 0.0:
+            pin.computeJointJacobians(model, data, q[k])
+            Jz = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[2]
+            tau += payload[k] * G * Jz
+        out[k] = tau
+    return out
+
+
+def inverse_kinematics(model: pin.Model, R_target, p_target_mm, q0_rad, frame="smr", iters=50, tol=1e-12):
+    """Joint angles (rad) that put ``frame`` at the target pose (damped Newton on log6).
+
+    Parameters
+    ----------
+    model : pin.Model
+        The plain arm (6 joints).
+    R_target : ndarray, shape (3, 3)
+    p_target_mm : ndarray, shape (3,), mm
+    q0_rad : ndarray, shape (6,), rad, start
+    """
+    data = model.createData()
+    fid = model.getFrameId(frame)
+    target = pin.SE3(np.asarray(R_target, float), np.asarray(p_target_mm, float) / 1000.0)
+    q = np.array(q0_rad, float)
+    for _ in range(iters):
+        pin.forwardKinematics(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        err = pin.log6(M.actInv(target)).vector
+        if err @ err < tol:
+            break
+        J = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL)
+        q = q + np.linalg.solve(J.T @ J + 1e-12 * np.eye(model.nv), J.T @ err)
+    return q

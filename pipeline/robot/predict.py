@@ -1,0 +1,204 @@
+"""A fitted robot model as a document, and the model applied to other measurements (contract section 7).
+
+``jointcal fit --campaign`` writes, beside its held-out numbers, everything needed to apply the
+model elsewhere (:func:`model_document`): the nominal robot (its ``robot.toml`` text), the spec's
+effects (their ``[[effect]]`` tables), every parameter with its unit and whether it was fitted or
+left at nominal (and why), the joint ranges of the sample poses the model was fitted on, and the
+tracker-to-base transform of the fit's campaign.
+
+``jointcal predict`` (:func:`predict_campaign`) rebuilds that model (:func:`load_model_document`),
+predicts every pose of another campaign of the same robot and compares with its tracker points:
+
+* without ``--register`` the other campaign's points are taken as they are (frame ``base``), or,
+  when they are in the tracker's frame, through the fit campaign's tracker-to-base transform (the
+  tracker has not moved);
+* with ``--register`` only the rigid tracker-to-base transform is estimated again, on the other
+  campaign's ``sample`` poses (best rigid fit of its points onto the model's predictions); every
+  other parameter is the model's.
+
+Errors are ``|measured - predicted|`` (mm) on the ``target`` poses, on every pose when there are none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.spec import parse_spec
+from .calibrate import RobotErrorModel
+from .frame import apply, rigid_fit, rotation_angle_deg, to_matrix
+from .kinematics import Robot, parse_robot
+
+#: Largest difference (mm, deg) between two robot descriptions that are still "the same robot".
+SAME_ROBOT_TOL = 1e-6
+
+DOCUMENT_VERSION = 1
+
+
+def sampled_range(q_deg) -> dict:
+    """Joint ranges of the poses a model was fitted on.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, 6), deg
+
+    Returns
+    -------
+    dict ``{"lower_deg": [6], "upper_deg": [6]}``
+    """
+    q = np.asarray(q_deg, float)
+    return {"lower_deg": q.min(axis=0).tolist(), "upper_deg": q.max(axis=0).tolist()}
+
+
+def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
+    """Which poses have a joint outside ``rng`` (see :func:`sampled_range`).
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, 6), deg
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    q = np.asarray(q_deg, float)
+    lo, hi = np.asarray(rng["lower_deg"], float), np.asarray(rng["upper_deg"], float)
+    return np.any((q < lo - tol_deg) | (q > hi + tol_deg), axis=1)
+
+
+def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | None = None) -> dict:
+    """The JSON-ready description of a fitted robot model (the part of ``fit.json`` that predict reads).
+
+    Parameters
+    ----------
+    robot : Robot
+        Nominal robot of the fit's campaign.
+    effects : list of RobotEffect
+    model : RobotErrorModel
+        Fitted (``coef_``, ``names_``, ``units_``, ``identifiability_``).
+    sample_q_deg : ndarray, shape (n, 6), deg
+        Joint angles of the poses the model was fitted on.
+    frame : dict, optional
+        ``{"frame": "base" | "tracker", "tracker_to_base": 4x4 list (mm)}`` of the fit's campaign.
+    """
+    ident = getattr(model, "identifiability_", None) or {}
+    reasons = ident.get("fixed_reasons", {})
+    params = []
+    for p in model.parameters():
+        entry = dict(p)
+        if p["fixed"]:
+            entry["why_fixed"] = reasons.get(p["name"], {}).get("reason", "not identifiable on these poses")
+        params.append(entry)
+    return {"version": DOCUMENT_VERSION,
+            "robot_toml": robot.to_toml(),
+            "spec_effects": [e.spec_lines() for e in effects],
+            "parameters": params,
+            "sampled_range": sampled_range(sample_q_deg),
+            "frame": frame or {"frame": "base", "tracker_to_base": np.eye(4).tolist()},
+            "identification": {"rank_tol": ident.get("rank_tol"), "condition_number": ident.get("condition_number"),
+                               "fixed": {n: r.get("reason") for n, r in reasons.items()}}}
+
+
+def load_model_document(doc: dict, path) -> tuple:
+    """Rebuild a fitted model from :func:`model_document` (``fit.json``); bad content -> InputError.
+
+    Returns
+    -------
+    robot : Robot
+    effects : list of RobotEffect
+    model : RobotErrorModel
+    sampled : dict (:func:`sampled_range`)
+    frame : dict
+    """
+    need = ("robot_toml", "spec_effects", "parameters", "sampled_range")
+    if not isinstance(doc, dict) or doc.get("kind") not in (None, "robot") or any(k not in doc for k in need):
+        missing = [k for k in need if not isinstance(doc, dict) or k not in doc]
+        raise InputError(path, "not a fitted robot model: write one with `jointcal fit --campaign <robot campaign> "
+                               f"--spec <robot spec> --out FIT.json`{' (missing ' + missing[0] + ')' if missing else ''}",
+                         1, 1)
+    try:
+        robot = parse_robot(doc["robot_toml"], f"{path} (robot_toml)")
+        spec = parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(doc["spec_effects"]) + "\n", f"{path} (spec_effects)")
+    except InputError as exc:
+        raise InputError(path, f"the model's {exc.path.split('(')[-1].rstrip(')')} is not valid: {exc.message}", 1, 1) from None
+    effects = list(spec.effects)
+    params = doc["parameters"]
+    try:
+        model = RobotErrorModel.from_parameters(robot, effects, params)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(path, f"the model's parameters do not match its effects ({exc})", 1, 1) from None
+    if not np.all(np.isfinite(model.coef_)):
+        raise InputError(path, "the model has a parameter that is not a finite number", 1, 1)
+    frame = doc.get("frame") or {"frame": "base", "tracker_to_base": np.eye(4).tolist()}
+    return robot, effects, model, doc["sampled_range"], frame
+
+
+def same_robot_problem(a: Robot, b: Robot) -> str:
+    """Why ``b`` is not the robot ``a`` describes ('' when it is: same joints and tool)."""
+    fields = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg")
+    for i, (ja, jb) in enumerate(zip(a.joints, b.joints)):
+        for f in fields:
+            if abs(getattr(ja, f) - getattr(jb, f)) > SAME_ROBOT_TOL:
+                return (f"joint {i + 1}: {f} = {getattr(jb, f):g} here, {getattr(ja, f):g} in the model's robot "
+                        f"'{a.name}': a model applies to the robot it was fitted on")
+    if np.max(np.abs(np.subtract(a.tool_xyz_mm, b.tool_xyz_mm))) > SAME_ROBOT_TOL:
+        return (f"tool xyz_mm = {list(b.tool_xyz_mm)} here, {list(a.tool_xyz_mm)} in the model: the SMR was moved "
+                "(fit the model again with this tool)")
+    return ""
+
+
+def error_summary(err_mm) -> dict:
+    """RMS, max, mean, std (mm) of 3-D errors of shape (n, 3)."""
+    n = np.linalg.norm(np.asarray(err_mm, float), axis=1)
+    return {"n": int(n.size), "rms_mm": float(np.sqrt(np.mean(n ** 2))), "max_mm": float(n.max()),
+            "mean_mm": float(n.mean()), "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0}
+
+
+def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bool) -> dict:
+    """Apply a fitted model to another campaign's poses (contract section 7).
+
+    Parameters
+    ----------
+    model : RobotErrorModel
+        Fitted model (its robot is the campaign's).
+    data : RobotData
+        Every pose of the other campaign (joint angles deg, directions, torques N m).
+    sets : ndarray of str, shape (n,)
+        ``sample`` / ``target`` / ``repeat`` of each pose.
+    measured_mm : ndarray, shape (n, 3), mm
+        Tracker points in the model's base frame (without ``register``), or in any frame
+        (with ``register``: only a rigid transform onto the predictions is estimated).
+    sampled : dict
+        Joint ranges the model was fitted on (:func:`sampled_range`).
+    register : bool
+        Re-estimate the rigid tracker-to-base transform on the ``sample`` poses first.
+
+    Returns
+    -------
+    dict with the contract's keys (``n``, ``rms_mm``, ``max_mm``, ``mean_mm``, ``std_mm``,
+    ``outside_sampled_range``, ``points``) and ``evaluated_on``, ``registration``.
+    """
+    sets = np.asarray(sets).astype(str)
+    pred = model.predict(data)
+    meas = np.asarray(measured_mm, float)
+    registration = None
+    if register:
+        on = sets == "sample"
+        if on.sum() < 3:
+            raise ValueError("--register needs at least 3 sample poses in the campaign to estimate the "
+                             "tracker-to-base transform on")
+        R, t = rigid_fit(meas[on], pred[on])
+        meas = apply(R, t, meas)
+        registration = {"on": "sample", "n": int(on.sum()), "rotation_deg": float(rotation_angle_deg(R)),
+                        "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
+    ev = sets == "target"
+    if not ev.any():
+        ev = np.ones(len(sets), bool)
+    err = meas[ev] - pred[ev]
+    out = error_summary(err)
+    out["outside_sampled_range"] = int(outside_range(data.q_deg[ev], sampled).sum())
+    out["evaluated_on"] = "target" if (sets == "target").any() else "all"
+    out["registration"] = registration
+    e = np.linalg.norm(err, axis=1)
+    out["points"] = [{"point_id": str(p), "error_mm": float(v)} for p, v in zip(np.asarray(data.point_id)[ev], e)]
+    return out

@@ -7,7 +7,10 @@
 * ``predict``: ``jointcal predict --register`` of that fit on a campaign of 10,000 poses
   (Series C's poses repeated with the tracker points; goal: under 2 s), a fresh process.
 
-Best of 3 runs each.
+* ``diagnose``: ``jointcal diagnose`` of Series C (1,664 sample poses; goal under 20 s) and of
+  a 10,000-pose campaign (goal under 2 minutes), geometry + base + tool, one run each.
+
+Best of 3 runs each (diagnosis: one run).
 """
 
 from __future__ import annotations
@@ -59,7 +62,17 @@ def run() -> dict:
         T.to_csv(big / "tracker.csv", index=False)
         t_pred = _timed([JC, "predict", "--campaign", str(big), "--model", str(fit), "--json", str(tmp / "p.json"),
                          "--register"])
-        return {"import_seconds": t_import, "fit_seconds": t_fit, "import_plus_fit_seconds": t_import + t_fit,
+        # diagnosis (issue #12): Series C's 1,664 sample poses, and 10,000 sample poses (its poses
+        # repeated, every one a sample), geometry + base + tool, a fresh process each, one run
+        diag = [JC, "diagnose", "--campaign", str(camp), "--spec", str(ROOT / "specs" / "robot_kinematic.toml"),
+                "--json", str(tmp / "d.json"), "--quiet"]
+        t_diag = _timed(diag, repeat=1)
+        P10 = P.assign(set="sample")
+        P10.to_csv(big / "poses.csv", index=False)
+        t_diag10 = _timed([*diag[:3], str(big), *diag[4:]], repeat=1)
+        return {"diagnose_1664_seconds": t_diag, "diagnose_1664_goal_s": 20.0,
+                "diagnose_10000_seconds": t_diag10, "diagnose_10000_goal_s": 120.0,
+                "import_seconds": t_import, "fit_seconds": t_fit, "import_plus_fit_seconds": t_import + t_fit,
                 "import_plus_fit_goal_s": 5.0, "n_poses_import": int(len(poses)),
                 "predict_seconds": t_pred, "predict_goal_s": 2.0, "n_poses_predict": 10000,
                 "note": "fresh jointcal processes (interpreter start and imports included); best of 3"}

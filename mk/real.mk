@@ -7,7 +7,7 @@ REAL_RAW := raw/real/ur10-ipa
 REAL_SERIES := B C
 REAL_SRC_B := $(REAL_RAW)/Series_B/measurements_joint_configurations.csv
 REAL_SRC_C := $(REAL_RAW)/Series_C/measurements_random_poses.csv
-REAL_SPECS := kinematic paper
+REAL_SPECS := kinematic paper diagnosed
 REAL_RES := results/real
 other = $(if $(filter B,$(1)),C,B)
 
@@ -16,10 +16,13 @@ SUMMARY_DEPS += $(REAL_RES)/transfer.json
 REAL_FITS := $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(REAL_RES)/$(s)_$(m).json))
 REAL_SELF := $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(REAL_RES)/$(s)_$(m)_self.json))
 REAL_XFER := $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(REAL_RES)/$(s)_$(m)_on_$(call other,$(s)).json))
+REAL_LOOPS := $(foreach s,$(REAL_SERIES),$(REAL_RES)/$(s)_loop.json)
+REAL_DIAGNOSED := $(foreach s,$(REAL_SERIES),$(REAL_RES)/$(s)_diagnosed.toml)
 
 .PHONY: real
+.SECONDARY: $(REAL_DIAGNOSED)
 
-real: reports/real.pdf $(REAL_RES)/transfer.json ## real UR10: import both series, fit, held-out and cross-series errors, report
+real: reports/real.pdf $(REAL_RES)/transfer.json $(REAL_DIAGNOSED) ## real UR10: import both series, fit, held-out and cross-series errors, report
 
 interim/real/%/poses.csv: $$(REAL_SRC_$$*) $(REAL_RAW)/map.toml $(REAL_RAW)/robot.toml $(CODE.importer.import_cmd) | $(STAMP) ## imported real series (robot.toml, poses.csv, tracker.csv, campaign.toml)
 	$(JC) import --source $(REAL_SRC_$*) --map $(REAL_RAW)/map.toml --robot $(REAL_RAW)/robot.toml --out interim/real/$*
@@ -29,6 +32,14 @@ $(REAL_RES)/%_kinematic.json: interim/real/%/poses.csv specs/robot_kinematic.tom
 
 $(REAL_RES)/%_paper.json: interim/real/%/poses.csv $(ROBOT_SPEC) $(CODE.campaign.fit) | $(STAMP) ## the second paper's model fitted on a series' sample poses
 	$(JC) fit --campaign interim/real/$* --spec $(ROBOT_SPEC) --out $@
+
+# issue #12: the user's loop on each series (diagnose, add what is recommended, diagnose again),
+# each round also judged on the other series; the spec it ends with is fitted like the others
+$(REAL_RES)/%_loop.json $(REAL_RES)/%_diagnosed.toml &: interim/real/%/poses.csv interim/real/$$(call other,$$*)/poses.csv specs/robot_kinematic.toml $(CODE.robot.diagnose_loop_cmd) | $(STAMP) ## diagnosis loop from geometry + base + tool until nothing is recommended
+	$(JC) robot diagnose-loop --campaign interim/real/$* --spec specs/robot_kinematic.toml --other interim/real/$(call other,$*) --json $(REAL_RES)/$*_loop.json --spec-out $(REAL_RES)/$*_diagnosed.toml
+
+$(REAL_RES)/%_diagnosed.json: $(REAL_RES)/%_diagnosed.toml interim/real/%/poses.csv $(CODE.campaign.fit) | $(STAMP) ## the spec the diagnosis loop ended with, fitted on a series' sample poses
+	$(JC) fit --campaign interim/real/$* --spec $< --out $@
 
 $(REAL_RES)/%_self.json: $(REAL_RES)/%.json $(CODE.robot.predict_cmd) | $(STAMP) ## a fit's error on each held-out pose of its own series
 	$(JC) predict --campaign interim/real/$(firstword $(subst _, ,$*)) --model $< --json $@
@@ -40,5 +51,5 @@ $(REAL_RES)/$(1)_$(2)_on_$(3).json: $(REAL_RES)/$(1)_$(2).json interim/real/$(3)
 endef
 $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(eval $(call REAL_TRANSFER,$(s),$(m),$(call other,$(s))))))
 
-$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) $(CODE.robot.real_report_cmd) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series
+$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) $(REAL_LOOPS) $(CODE.robot.real_report_cmd) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series
 	$(JC) robot real-report --results $(REAL_RES) --campaigns interim/real --out-json $(REAL_RES)/transfer.json --out reports/real.pdf

@@ -17,7 +17,10 @@ import click
 @click.option("--report", "report_out", default=None, type=click.Path(dir_okay=False),
               help="Also write a PDF: residuals against every signature, the candidates' gains.")
 @click.option("--quiet", is_flag=True, help="Do not print the table.")
-def diagnose(campaign, spec_path, json_out, report_out, quiet):
+@click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True,
+              help="Processes for the candidates' fits (robot: each candidate is a linear correction to one "
+                   "shared fit, so 1 is usually as fast).")
+def diagnose(campaign, spec_path, json_out, report_out, quiet, workers):
     """Find where the spec's model fails and which physical effect is missing.
 
     Fits the spec's model with cross-validation (folds by run for an encoder, by pose
@@ -25,6 +28,13 @@ def diagnose(campaign, spec_path, json_out, report_out, quiet):
     by the cross-validated gain. Prints the evidence in the residuals, the physical
     explanation and the [[effect]] lines to paste into the spec. Effects these data
     cannot reveal are named with the reason, not ranked.
+
+    \b
+    Robot: the baseline is fitted once; each candidate is a linear correction to it. A
+    candidate is recommended only when it also lowers the error on regions of joint
+    space held out in turn, and is physically plausible (no joint angle error beyond the
+    robot's own error budget, no wild prediction anywhere in the sampled joint box); a
+    refused one is listed with the reason. Add every recommended candidate, diagnose again.
     """
     from ..core.files import write_json
     from ..diagnosis.campaign import run_diagnosis
@@ -34,7 +44,7 @@ def diagnose(campaign, spec_path, json_out, report_out, quiet):
         if not quiet:
             click.echo(f"  {msg}", err=True)
 
-    result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress)
+    result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress, workers)
     write_json(json_out, result)
     if report_out:
         from ..diagnosis.report import diagnosis_report  # matplotlib (0.4 s): only with --report

@@ -580,6 +580,46 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
         for s, t in table.items() if "kinematic" in t), err=True)
 
 
+@robot_group.command("diagnose-loop")
+@click.option("--campaign", required=True, type=click.Path(), help="Robot campaign (raw folder) to diagnose.")
+@click.option("--spec", "spec_path", required=True, type=click.Path(), help="The robot spec to start from.")
+@click.option("--other", "other_campaign", default=None, type=click.Path(),
+              help="Another campaign of the same robot: each round's model is also judged on it (tracker re-registered).")
+@click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False),
+              help="Each round: the model, its held-out and other-series errors (mm), what diagnosis recommended "
+                   "and refused.")
+@click.option("--spec-out", default=None, type=click.Path(dir_okay=False), help="The spec the loop ends with.")
+@click.option("--rounds", type=click.IntRange(1, 10), default=5, show_default=True, help="Rounds at most.")
+def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, rounds):
+    """The user's loop, run for you: diagnose, add every recommended effect, diagnose again, until
+    nothing is recommended. Prints each round's held-out error (mm) on the campaign's own target
+    poses and, with --other, on the other series' target poses (jointcal predict --register)."""
+    from ..core.files import read_text_input, write_json, write_text
+    from ..core.spec import load_spec
+    from ..diagnosis.loop import diagnosis_loop
+    from ..robot.ingest import robot_data_sets
+
+    _edge()
+    spec = load_spec(spec_path)
+    spec.require_kind("robot", campaign)
+    robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+    other = robot_data_sets(other_campaign, ("sample",), ("target",))[1] if other_campaign else None
+
+    def say(msg):
+        click.echo(f"  {msg}", err=True)
+
+    result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, rounds, say)
+    result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
+    write_json(json_out, result)
+    if spec_out:
+        write_text(spec_out, result["final_spec"])
+    for r in result["rounds"]:
+        own, far = r["own"], r["other"]
+        click.echo(f"{json_out}: round {r['round']}: held-out RMS {own['rms_mm']:.3f} mm (max {own['max_mm']:.3f})"
+                   + (f", other series {far['rms_mm']:.3f} mm (max {far['max_mm']:.3f})" if far else "")
+                   + f"; recommended: {', '.join(x['label'] for x in r['recommended']) or 'nothing'}", err=True)
+
+
 def _warn_outside(sample_q, target_q, target_ids):
     """Warn (as map-joints does) about targets outside the joint ranges of the sample poses."""
     import numpy as np

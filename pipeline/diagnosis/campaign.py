@@ -10,15 +10,15 @@ from .engine import diagnose
 from .robot import RobotAdapter
 
 
-def adapter_and_data(campaign, kind):
+def adapter_and_data(campaign, kind, workers=1):
     """The adapter of a ``kind`` campaign and its data (robot: the sample poses)."""
     if kind == "encoder":
         return EncoderAdapter(), encoder_data_from_campaign(campaign)
     robot, data = robot_data_from_campaign(campaign)
-    return RobotAdapter(robot), data
+    return RobotAdapter(robot, workers=workers), data
 
 
-def run_diagnosis(campaign, spec_path, progress=None):
+def run_diagnosis(campaign, spec_path, progress=None, workers=1):
     """Load a raw campaign and a spec, check they match, and diagnose.
 
     Returns the result dict (contract section 4) and ``(adapter, spec, data)`` for the report.
@@ -26,7 +26,7 @@ def run_diagnosis(campaign, spec_path, progress=None):
     spec = load_spec(spec_path)
     kind = campaign_kind(campaign)
     spec.require_kind(kind, campaign)
-    adapter, data = adapter_and_data(campaign, kind)
-    result = diagnose(adapter, spec, data, progress=progress)
+    adapter, data = adapter_and_data(campaign, kind, workers)
+    result = diagnose(adapter, spec, data, progress=progress, workers=workers if kind == "encoder" else None)
     result = {"kind": result.pop("kind"), "campaign": str(campaign), "spec": str(spec_path), **result}
     return result, (adapter, spec, data)

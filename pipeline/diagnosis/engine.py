@@ -112,7 +112,11 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     say = progress or (lambda s: None)
     base_effects = adapter.baseline_effects(spec, data)
     say(f"baseline: {', '.join(e.name for e in base_effects)}")
+    regional = hasattr(adapter, "evaluate")
+    if regional:
+        adapter.linear(base_effects, data)     # the one shared fit every model below is a correction to
     base = adapter.cross_validate(base_effects, data)
+    base_region = adapter.cross_validate(base_effects, data, folds="region") if regional else None
     residual_view = adapter.residual_view(base, data)
     candidates, unrevealable, cand_objects = [], [], {}
     revealable = []
@@ -126,10 +130,17 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
         else:
             unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
                                  "explanation": cand.explanation})
-    jobs = workers if workers is not None else (min(2, os.cpu_count() or 1) if getattr(adapter, "parallel", False) else 1)
-    say(f"{len(revealable)} candidates, {jobs} process(es)")
-    fits = _cross_validate_all(adapter, data, base_effects, revealable, jobs)
-    for cand, with_cv in zip(revealable, fits):
+    if regional:
+        say(f"{len(revealable)} candidates, each a linear correction to the shared baseline fit")
+        evaluated = adapter.evaluate(base_effects, revealable, data, say)
+        fits = [ev["with"] for ev in evaluated]
+    else:
+        jobs = workers if workers is not None else (min(2, os.cpu_count() or 1) if getattr(adapter, "parallel", False)
+                                                    else 1)
+        say(f"{len(revealable)} candidates, {jobs} process(es)")
+        fits = _cross_validate_all(adapter, data, base_effects, revealable, jobs)
+        evaluated = [{} for _ in fits]
+    for cand, with_cv, ev in zip(revealable, fits, evaluated):
         if with_cv is None:
             unrevealable.append({"effect": cand.name, "target": cand.target(),
                                  "reason": "the fit with this effect is singular on these data", "explanation": cand.explanation})
@@ -142,21 +153,37 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             "evidence": adapter.evidence(cand, base, data),
             "explanation": cand.explanation, "spec_line": cand.spec_lines(),
         })
+        if hasattr(cand, "orders") and cand.name == "joint_harmonic":
+            candidates[-1]["order"] = cand.orders()[0] if len(cand.orders()) == 1 else cand.orders()
+        if ev.get("region") is not None:
+            candidates[-1]["cv_rms_region"] = ev["region"].rms
+            candidates[-1]["gain_region"] = 1.0 - ev["region"].rms / base_region.rms if base_region.rms > 0 else 0.0
+        if ev.get("refused"):
+            candidates[-1]["refused"] = ev["refused"]
         cand_objects[id(candidates[-1])] = cand
     # Bonferroni over the candidates tried: the chance that any candidate of a model that
     # lacks nothing is marked meaningful stays below alpha.
     p_max = alpha / max(1, len(candidates))
     for c in candidates:
         c["meaningful"] = bool(c["gain"] >= min_gain and c["p"] <= p_max)
+        if c["meaningful"] and "gain_region" in c and c["gain_region"] <= 0.0:
+            c["meaningful"] = False
+            c["refused"] = (f"does not carry over to poses away from those it was fitted on: held out region by "
+                            f"region of joint space, the RMS goes from {base_region.rms:.4g} to "
+                            f"{c['cv_rms_region']:.4g} {adapter.unit} ({100 * c['gain_region']:+.1f} %)")
+        elif c["meaningful"] and c.get("refused"):
+            c["meaningful"] = False
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
-    _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say)
+    _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say,
+                   base_region if regional else None)
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     if not any(c["meaningful"] for c in candidates):
         say("no candidate is meaningful: the model explains the data down to their noise")
     return {
         "kind": spec.kind,
         "baseline": {"effects": [e.name for e in base_effects], "cv_rms": base.rms, "unit": adapter.unit,
-                     "folds": adapter.fold_description(data)},
+                     "folds": adapter.fold_description(data),
+                     **({"cv_rms_region": base_region.rms} if regional else {})},
         "candidates": candidates,
         "not_revealable": unrevealable,
         "thresholds": {"alpha": alpha, "p_max": p_max, "min_gain": min_gain},
@@ -164,7 +191,7 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     }
 
 
-def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max, min_gain, say):
+def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max, min_gain, say, base_region=None):
     """Re-test each further meaningful candidate given the ones already accepted.
 
     Candidates are tested one at a time against the baseline; two can both look meaningful
@@ -175,28 +202,57 @@ def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max
     """
     accepted = []
     current_effects, current = list(base_effects), base
+    current_region = base_region
     for c in [c for c in candidates if c["meaningful"]]:
         if not accepted:
             accepted.append(c)
             current_effects = adapter.add(current_effects, objects[id(c)])
             current = adapter.cross_validate(current_effects, data)
+            if base_region is not None:
+                current_region = adapter.cross_validate(current_effects, data, folds="region")
             continue
         cand = objects[id(c)]
-        say(f"re-testing {c['effect']} {c['target'] if c['target'] is not None else ''} given "
-            f"{', '.join(a['effect'] for a in accepted)}")
+        say(f"re-testing {label(c)} given {', '.join(label(a) for a in accepted)}")
         trial_effects = adapter.add(current_effects, cand)
         trial = adapter.cross_validate(trial_effects, data)
         extra_gain = 1.0 - trial.rms / current.rms if current.rms > 0 else 0.0
         test = adapter.significance(cand, current, trial, data)
-        c["given_accepted"] = {"effects": [a["effect"] for a in accepted], "extra_gain": extra_gain, "p": test["p"]}
-        if extra_gain >= min_gain and test["p"] <= p_max:
+        c["given_accepted"] = {"effects": [label(a) for a in accepted], "extra_gain": extra_gain, "p": test["p"]}
+        trial_region = adapter.cross_validate(trial_effects, data, folds="region") if base_region is not None else None
+        carries = trial_region is None or trial_region.rms < current_region.rms
+        if extra_gain >= min_gain and test["p"] <= p_max and carries:
             accepted.append(c)
-            current_effects, current = trial_effects, trial
+            current_effects, current, current_region = trial_effects, trial, trial_region
+        elif extra_gain >= min_gain and test["p"] <= p_max:
+            c["meaningful"] = False
+            c["refused"] = (f"with {' + '.join(label(a) for a in accepted)} in the model, it no longer lowers the error "
+                            f"on regions of joint space it was not fitted on ({current_region.rms:.4g} -> "
+                            f"{trial_region.rms:.4g})")
         else:
             c["meaningful"] = False
-            c["explained_by"] = accepted[-1]["effect"] if len(accepted) == 1 else [a["effect"] for a in accepted]
-            c["evidence"] += (f"; but with {' + '.join(a['effect'] for a in accepted)} in the model it adds only "
+            c["explained_by"] = label(accepted[-1]) if len(accepted) == 1 else [label(a) for a in accepted]
+            c["evidence"] += (f"; but with {' + '.join(label(a) for a in accepted)} in the model it adds only "
                               f"{100 * extra_gain:.1f} % (p = {test['p']:.2g}): it was mimicking that effect")
+
+
+def label(c: dict) -> str:
+    """A candidate as a user reads it: ``backlash joint 2``, ``joint_harmonic joint 3 order 8``,
+    ``harmonic order 6``, ``thermal``."""
+    if c.get("target") is None:
+        return c["effect"]
+    if c["effect"] == "harmonic":
+        return f"harmonic order {c['target']}"
+    text = f"{c['effect']} joint {c['target']}"
+    if c.get("order") is not None:
+        text += f" order {c['order']}"
+    return text
+
+
+def target_text(c: dict) -> str:
+    """The target column: the joint, with the order of a joint harmonic (``3/k8``)."""
+    if c.get("target") is None:
+        return "-"
+    return f"{c['target']}/k{c['order']}" if c.get("order") is not None else str(c["target"])
 
 
 def format_table(result: dict, width: int = 110) -> str:
@@ -204,27 +260,43 @@ def format_table(result: dict, width: int = 110) -> str:
     unit = result["baseline"]["unit"]
     lines = [f"baseline ({' + '.join(result['baseline']['effects']) or 'nothing'}): cross-validated RMS "
              f"{result['baseline']['cv_rms']:.4g} {unit}  [{result['baseline'].get('folds', '')}]", ""]
-    head = f"{'#':>2}  {'effect':<15}{'target':>6}  {'cv_rms_with':>11}  {'gain':>7}  {'p':>8}  meaningful"
+    region = "cv_rms_region" in result["baseline"]
+    head = (f"{'#':>2}  {'effect':<15}{'target':>7}  {'cv_rms_with':>11}  {'gain':>7}"
+            + (f"  {'regions':>8}" if region else "") + f"  {'p':>8}  meaningful")
     lines += [head, "-" * len(head)]
     for k, c in enumerate(result["candidates"], 1):
-        tgt = "-" if c["target"] is None else str(c["target"])
-        lines.append(f"{k:>2}  {c['effect']:<15}{tgt:>6}  {c['cv_rms_with']:>11.4g}  {100 * c['gain']:>6.1f}%  "
-                     f"{c['p']:>8.1e}  {'yes' if c['meaningful'] else ('no (explained by ' + str(c['explained_by']) + ')' if c.get('explained_by') else 'no (within noise)')}")
+        verdict = ("yes" if c["meaningful"] else
+                   f"no (explained by {_names(c['explained_by'])})" if c.get("explained_by") else
+                   "no (refused: see below)" if c.get("refused") else "no (within noise)")
+        lines.append(f"{k:>2}  {c['effect']:<15}{target_text(c):>7}  {c['cv_rms_with']:>11.4g}  {100 * c['gain']:>6.1f}%"
+                     + (f"  {100 * c.get('gain_region', 0.0):>7.1f}%" if region else "")
+                     + f"  {c['p']:>8.1e}  {verdict}")
     best = [c for c in result["candidates"] if c["meaningful"]]
     lines.append("")
     if best:
-        for c in best[:3]:
-            tgt = "" if c["target"] is None else f" (target {c['target']})"
-            lines += [f"* {c['effect']}{tgt}: held-out RMS {result['baseline']['cv_rms']:.4g} -> {c['cv_rms_with']:.4g} {unit}",
+        lines.append(f"Add every meaningful candidate to the spec ({len(best)}; they were re-tested together), "
+                     "then diagnose again:")
+        for c in best:
+            lines += [f"* {label(c)}: held-out RMS {result['baseline']['cv_rms']:.4g} -> {c['cv_rms_with']:.4g} {unit}",
                       f"  evidence:    {c['evidence']}", f"  explanation: {c['explanation']}", "  add to the spec:"]
             lines += ["    " + ln for ln in c["spec_line"].splitlines()]
             lines.append("")
     else:
-        lines.append("No candidate lowers the held-out error beyond noise: nothing to add.")
+        lines.append("No candidate lowers the held-out error beyond noise in a way that carries over: nothing to add.")
+    refused = [c for c in result["candidates"] if c.get("refused")]
+    if refused:
+        lines.append("")
+        lines.append("Refused although they lower the error on neighbouring poses:")
+        for c in refused:
+            lines.append(f"- {label(c)}: {c['refused']}")
     for u in result.get("not_revealable", []):
         tgt = "" if u["target"] is None else f" {u['target']}"
         lines.append(f"not revealable by these data: {u['effect']}{tgt}: {u['reason']}")
     return "\n".join(lines)
+
+
+def _names(x) -> str:
+    return ", ".join(x) if isinstance(x, list) else str(x)
 
 
 def waterfall(adapter, spec, data, progress=None) -> list[dict]:

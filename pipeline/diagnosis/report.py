@@ -30,7 +30,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ..core.plotting import pdf_pages, plt, save, text_page
-from .engine import waterfall
+from .engine import label, target_text, waterfall
 
 A4 = (8.27, 11.69)
 MAX_ORDER = 17
@@ -50,12 +50,9 @@ def _fmt_target(target) -> str:
 
 
 def _label(c) -> str:
-    """``direction``, ``harmonic order 13``, ``backlash joint 2`` (contract: target is the
-    order of a harmonic, else the 1-based joint)."""
-    if c["target"] is None:
-        return c["effect"]
-    what = "order" if "harmonic" in c["effect"] and c["effect"] != "joint_harmonic" else "joint"
-    return f"{c['effect']} {what} {c['target']}"
+    """``direction``, ``harmonic order 13``, ``backlash joint 2``, ``joint_harmonic joint 3 order 8``
+    (contract: target is the order of a harmonic, else the 1-based joint)."""
+    return label(c)
 
 
 def _effect_label(e) -> str:
@@ -159,18 +156,19 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     head = f"{'#':>3}  {'effect':<16}{'target':>7}  {'cv_rms_with':>12}  {'gain':>7}  {'p':>8}  meaningful"
     lines += [head, "-" * len(head)]
     for k, c in enumerate(result["candidates"], 1):
-        lines.append(f"{k:>3}  {c['effect']:<16}{_fmt_target(c['target']):>7}  {c['cv_rms_with']:>8.4g} {unit:<3}  "
-                     f"{100 * c['gain']:>6.1f}%  {c['p']:>8.1e}  {'YES' if c['meaningful'] else 'no'}")
+        lines.append(f"{k:>3}  {c['effect']:<16}{target_text(c):>7}  {c['cv_rms_with']:>8.4g} {unit:<3}  "
+                     f"{100 * c['gain']:>6.1f}%  {c['p']:>8.1e}  "
+                     + ("YES" if c["meaningful"] else "no, refused" if c.get("refused") else "no"))
     if not result["candidates"]:
         lines.append("   (no candidate could be tried)")
     lines.append("")
     best = [c for c in result["candidates"] if c["meaningful"]]
     if best:
-        lines.append("Meaningful candidates (add to the spec):")
+        lines.append("Meaningful candidates: add every one to the spec, then diagnose again.")
         if len(best) > 1:
-            lines += wrap("Each candidate is tested alone against the baseline: candidates whose signatures are "
-                          "correlated in this campaign can all look meaningful. Add the first, run diagnose "
-                          "again; the waterfall page shows the next ones added after it.", "   ")
+            lines += wrap("Each was re-tested on top of the ones before it (best first): one that only mimicked "
+                          "another is marked 'explained by' instead. The waterfall page shows them added in turn.",
+                          "   ")
         for c in best:
             lines.append("")
             lines.append(f"* {_label(c)}: held-out RMS {b['cv_rms']:.4g} -> {c['cv_rms_with']:.4g} {unit} "
@@ -184,6 +182,11 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     else:
         lines += wrap("No candidate lowers the held-out error beyond noise: the model explains these "
                       "data down to their noise; nothing to add.", "")
+    refused = [c for c in result["candidates"] if c.get("refused")]
+    if refused:
+        lines += ["", "Refused although they lower the error on neighbouring poses (why):"]
+        for c in refused:
+            lines += wrap(f"- {_label(c)}: {c['refused']}", "   ")
     nr = result.get("not_revealable", [])
     if nr:
         lines += ["", "Not revealable by these data (not ranked):"]
@@ -412,10 +415,11 @@ def suggested_steps(result, adapter, spec, data, base_effects, max_n=MAX_SUGGEST
     steps = [{"label": _label(best[0]), "cv_rms": best[0]["cv_rms_with"]}]
     if len(best) == 1:
         return steps
-    objs = {(o.name, o.target()): o for o in adapter.candidates(spec, data, base_effects)}
+    # keyed by the whole [[effect]] table: harmonics of one joint differ by their order only
+    objs = {o.spec_lines(): o for o in adapter.candidates(spec, data, base_effects)}
     effects = list(base_effects)
     for k, c in enumerate(best):
-        obj = objs.get((c["effect"], c["target"]))
+        obj = objs.get(c["spec_line"])
         if obj is None:
             break
         effects = adapter.add(effects, obj)

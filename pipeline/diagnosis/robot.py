@@ -7,17 +7,22 @@ so a candidate's held-out gain is tested with a paired t test over poses.
 
 from __future__ import annotations
 
+from dataclasses import replace as _replace
+
 import numpy as np
 
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..robot.calibrate import Design
-from ..robot.evaluate import N_FOLDS, cross_validate, fold_description
+from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
+from ..robot.kinematics import gravity_torques
+from ..robot.lm import describe_implausible, implausible_parameters
+from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
 
 JH_MAX_ORDER = 16
 REDUNDANT = 0.02
-PER_JOINT = ("backlash", "compliance", "joint_harmonic", "chebyshev")
+PER_JOINT = ("backlash", "compliance", "joint_map", "joint_harmonic", "chebyshev")
 WHOLE = ("geometry", "base", "tool", "thermal")
 
 
@@ -36,15 +41,38 @@ def jh_orders(q_deg, top=16):
     return sorted({1} | set(range(min(first, top + 1), top + 1)))
 
 
+_EVAL = None
+
+
+def _evaluate_one(k):
+    """One candidate in a forked worker (the adapter and its shared fit come with the fork)."""
+    adapter, base_effects, cands, data = _EVAL
+    return adapter._evaluate(cands[k], data, base_effects)
+
+
+def _effect_label(e) -> str:
+    """An effect with its parameters as the user wrote them, e.g. ``joint_map joints=[1]``."""
+    params = {k: v for k, v in (getattr(e, "params", {}) or {}).items() if k != "range_deg"}
+    return f"{e.name} {' '.join(f'{k}={v}' for k, v in sorted(params.items()))}".rstrip()
+
+
 class RobotAdapter:
-    """How diagnosis fits, cross-validates and explains a robot model."""
+    """How diagnosis fits, cross-validates and explains a robot model.
+
+    The baseline is fitted once on every sample pose; candidates are linear corrections to it
+    (:mod:`pipeline.robot_linear`), cross-validated by pose (random folds) and by region of joint
+    space (region folds), and looked at for plausibility before they are recommended.
+    """
 
     unit = "mm"
-    parallel = True  # each candidate is 5 L-M fits: worth a process each
+    parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
-    def __init__(self, robot, n_folds: int = N_FOLDS):
+    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1):
         self.robot = robot
         self.n_folds = n_folds
+        self.workers = workers
+        self._lin = None
+        self._blocks = {}
 
     # ------------------------------------------------------------------ model assembly
     def baseline_effects(self, spec, data):
@@ -84,48 +112,236 @@ class RobotAdapter:
         * a joint read by a grating enters the model at its true angle: its angle errors
           never reach the residuals (and the closed loop removes them);
         * a candidate whose signature lies (almost) in the span of the baseline's - an SMR
-          offset on the flange against the last link's MDH parameters - cannot be told
-          apart from what the model already has: less than ``REDUNDANT`` of the norm of each
-          of its Jacobian columns is outside the baseline's column space.
+          offset on the flange against the last link's MDH parameters, a periodic error of a
+          joint whose angle-error map is in the model - cannot be told apart from what the
+          model already has: less than ``REDUNDANT`` of the norm of each of its Jacobian
+          columns is outside the baseline's column space.
         """
         gj = getattr(data, "grating_joints", ())
-        if cand.name in ("backlash", "compliance", "joint_harmonic") and cand.target() in gj:
+        if cand.name in ("backlash", "compliance", "joint_harmonic", "joint_map") and cand.target() in gj:
             return (f"joint {cand.target()} is read by its grating: the model takes its true angle, so its "
                     "angle errors never reach the residuals (and the closed loop removes them)")
         if base_effects:
-            Jc, _, _ = self._signature(cand, data)
-            Jb = self._jacobian(base_effects, data)
-            Xc = Jc.reshape(-1, Jc.shape[-1])
-            U, sv, _ = np.linalg.svd(Jb / np.maximum(np.linalg.norm(Jb, axis=0), 1e-300), full_matrices=False)
-            U = U[:, sv > 1e-9 * sv[0]]
+            lin = self.linear(base_effects, data)
+            Xc = self.block(cand, data, base_effects).J
+            if Xc.shape[1] == 0:
+                return "it has no parameter these poses move"
+            U = self._base_span(lin)
             outside = Xc - U @ (U.T @ Xc)
             frac = np.linalg.norm(outside, axis=0) / np.maximum(np.linalg.norm(Xc, axis=0), 1e-300)
             if np.all(frac < REDUNDANT):
-                return (f"on these poses its signature is that of {' + '.join(e.name for e in base_effects)} already "
+                who = self._closest(lin, Xc, base_effects)
+                return (f"on these poses its signature is that of {who} already "
                         f"(at most {100 * frac.max():.1f} % of it lies outside): it cannot be told apart")
         return ""
 
+    def _base_span(self, lin):
+        if getattr(lin, "_U", None) is None:
+            Jb = lin.base.J
+            if Jb.shape[1] == 0:
+                lin._U = np.zeros((Jb.shape[0], 0))
+            else:
+                U, sv, _ = np.linalg.svd(Jb / np.maximum(np.linalg.norm(Jb, axis=0), 1e-300), full_matrices=False)
+                lin._U = U[:, sv > 1e-9 * sv[0]]
+        return lin._U
+
+    def _closest(self, lin, Xc, base_effects) -> str:
+        """The baseline effect(s) whose columns explain most of the candidate's signature (for the reason)."""
+        names = lin.base.names
+        if getattr(lin, "_Q", None) is None:
+            lin._Q = []
+            for e in lin.model.effects_ if lin.model is not None else []:
+                own = set(e.parameter_names(self.robot))
+                cols = [k for k, n in enumerate(names) if n in own]
+                if cols:
+                    lin._Q.append((_effect_label(e), np.linalg.qr(lin.base.J[:, cols])[0]))
+        best, score = [], []
+        for lab, Q in lin._Q:
+            score.append(np.linalg.norm(Q.T @ Xc) / max(np.linalg.norm(Xc), 1e-300))
+            best.append(lab)
+        if not best:
+            return " + ".join(e.name for e in base_effects)
+        k = int(np.argmax(score))
+        return best[k] if score[k] > 0.9 else " + ".join(best)
+
     def _jacobian(self, effects, data):
-        d = Design(self.robot, list(effects), data)
+        d = Design(self.robot, [e.prepared(self.robot, data) for e in effects], data)
         _, J = d.predict_and_jacobian(np.zeros(d.p))
         return J.reshape(-1, d.p)
 
+    # ------------------------------------------------------------------ shared baseline
+    def linear(self, base_effects, data):
+        """The baseline fitted once on every sample pose (cached for this list of effects)."""
+        key = (id(data), tuple(id(e) for e in base_effects))
+        if self._lin is None or self._lin[0] != key:
+            folds = {"random": fold_ids(data.n, self.n_folds), "region": region_folds(data.q_deg, self.n_folds)}
+            self._lin = (key, LinearProblem(self.robot, list(base_effects), data, folds))
+            self._blocks = {}
+        return self._lin[1]
+
+    def block(self, cand, data, base_effects):
+        lin = self.linear(base_effects, data)
+        if id(cand) not in self._blocks:
+            self._blocks[id(cand)] = (cand, lin.block(cand))
+        return self._blocks[id(cand)][1]
+
+    def _linear_extra(self, effects, data):
+        """The blocks of ``effects`` beyond the cached baseline, or None when not that baseline."""
+        if self._lin is None:
+            return None
+        key, lin = self._lin
+        n_base = len(key[1])
+        if key[0] != id(data) or tuple(id(e) for e in effects[:n_base]) != key[1]:
+            return None
+        return lin, [self.block(e, data, effects[:n_base]) for e in effects[n_base:]]
+
     # ------------------------------------------------------------------ cross-validation
     def fold_description(self, data):
-        return fold_description(data, self.n_folds)
+        return (f"{fold_description(data, self.n_folds)}; {self.n_folds} regions of joint space held out in turn "
+                "to check that a gain carries over")
 
-    def cross_validate(self, effects, data) -> CVResult:
-        """k-fold by pose (:func:`pipeline.robot.evaluate.cross_validate`, as ``jointcal fit``)."""
-        return cross_validate(self.robot, effects, data, self.n_folds)
+    def cross_validate(self, effects, data, folds: str = "random") -> CVResult:
+        """Held-out residuals of the model ``effects``: linear corrections to the shared baseline
+        when ``effects`` extends it, else the model refitted on every fold (random folds:
+        :func:`pipeline.robot.evaluate.cross_validate`, as ``jointcal fit``)."""
+        lin_extra = self._linear_extra(list(effects), data)
+        if lin_extra is not None:
+            lin, blocks = lin_extra
+            return CVResult(lin.cv(blocks, folds), np.arange(data.n))
+        if folds == "random":
+            return cross_validate(self.robot, effects, data, self.n_folds)
+        ids = region_folds(data.q_deg, self.n_folds)
+        res = np.empty((data.n, 3))
+        for f in np.unique(ids):
+            test = ids == f
+            held = data.subset(test)
+            pred = (fit_effects(self.robot, effects, data.subset(~test)).predict(held) if effects
+                    else Design(self.robot, [], held).predict(np.zeros(0)))
+            res[test] = data.measured_mm[test] - pred
+        return CVResult(res, np.arange(data.n))
 
     def significance(self, cand, base: CVResult, with_cv: CVResult, data) -> dict:
         """Paired one-sided t test of the drop in squared held-out residual, pose by pose."""
         return paired_test(base, with_cv)
 
+    def evaluate(self, base_effects, cands, data, say=None) -> list[dict]:
+        """Every candidate added to the shared baseline: held-out residuals under the random and the
+        region folds, and why it is implausible ('' when it is not). Progress with the time left."""
+        import time
+
+        say = say or (lambda s: None)
+        lin = self.linear(base_effects, data)
+        out, t0, last = [], time.perf_counter(), 0.0
+        if self.workers > 1 and len(cands) > 1:
+            import multiprocessing as mp
+
+            global _EVAL
+            _EVAL = (self, base_effects, cands, data)
+            try:
+                with mp.get_context("fork").Pool(self.workers) as pool:
+                    for k, res in enumerate(pool.imap(_evaluate_one, range(len(cands)), chunksize=4)):
+                        out.append({"with": CVResult(res[0], np.arange(data.n)),
+                                    "region": CVResult(res[1], np.arange(data.n)), "refused": res[2]})
+                        now = time.perf_counter() - t0
+                        if now - last > 2.0 or k + 1 == len(cands):
+                            last = now
+                            say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about "
+                                f"{now / (k + 1) * (len(cands) - k - 1):.0f} s left)")
+            finally:
+                _EVAL = None
+            return out
+        for k, cand in enumerate(cands):
+            r1, r2, why = self._evaluate(cand, data, base_effects)
+            out.append({"with": CVResult(r1, np.arange(data.n)), "region": CVResult(r2, np.arange(data.n)),
+                        "refused": why})
+            now = time.perf_counter() - t0
+            if now - last > 2.0 or k + 1 == len(cands):
+                last = now
+                left = now / (k + 1) * (len(cands) - k - 1)
+                say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about {left:.0f} s left)")
+        return out
+
+    def _evaluate(self, cand, data, base_effects):
+        lin = self.linear(base_effects, data)
+        blk = self.block(cand, data, base_effects)
+        return lin.cv([blk], "random"), lin.cv([blk], "region"), self.implausible(cand, data, base_effects, [blk])
+
+    def implausible(self, cand, data, base_effects, blocks) -> str:
+        """Why the model with the candidate is not physically plausible ('' when it is).
+
+        * its parameters beyond a real robot's bounds (:data:`pipeline.lm.PLAUSIBLE_BOUNDS`; for
+          curves and polynomials, what they produce over the sampled joint range);
+        * a joint angle error beyond the robot's own error budget anywhere in the sampled joint box:
+          the largest error measured on these poses (nominal model) divided by the joint's lever arm
+          to the SMR - a term of 1,000 arcsec on joint 2, cancelled by its neighbour on the sampled
+          poses, is refused here;
+        * a change of the predicted position beyond twice the measured error scale anywhere in the
+          sampled joint box: a term that is wild between or beside the poses it was fitted on.
+        """
+        lin = self.linear(base_effects, data)
+        parts, _ = lin.fit_all(blocks)
+        blk, dc = blocks[-1], parts[-1]
+        e = cand.prepared(self.robot, data)
+        params = [{"name": n, "value": float(v * f), "unit": u} for n, v, (u, f) in zip(blk.names, dc, blk.units)]
+        bad = implausible_parameters(e.checked_values(self.robot, params, data.q_deg))
+        if bad:
+            return f"parameters no real robot has: {describe_implausible(bad)}"
+        scale, worst, dq, budget, lever = self._box_change(lin, base_effects, data, e, parts)
+        over = np.flatnonzero(dq > budget)
+        if over.size:
+            j = int(over[np.argmax(dq[over] / budget[over])])
+            return (f"it makes joint {j + 1}'s angle error vary by up to {np.degrees(dq[j]) * 3600:.0f} arcsec in the sampled "
+                    f"joint box, beyond the robot's own error budget there ({np.degrees(budget[j]) * 3600:.0f} arcsec: "
+                    f"the largest error measured, {scale:.3g} mm, at joint {j + 1}'s lever arm of {lever[j]:.0f} mm)")
+        _, contrib = lin.fit_all(blocks)
+        own = float(np.max(np.linalg.norm(sum(contrib), axis=1)))
+        if worst > BOX_FACTOR * max(scale, own):
+            return (f"it would predict {worst:.3g} mm of change somewhere in the sampled joint box, beyond "
+                    f"{BOX_FACTOR:g} x the largest error measured ({scale:.3g} mm) and its largest change on the "
+                    f"poses it was fitted on ({own:.3g} mm): wild between or beside those poses")
+        return ""
+
+    def _box_change(self, lin, base_effects, data, cand_prepared, parts):
+        """Largest change (mm) the refit predicts at random configurations in the sampled joint box,
+        and the measured error scale (largest error of the nominal model on the sample poses)."""
+        if getattr(lin, "_box", None) is None:
+            qb = box_configurations(data.q_deg)
+            n = len(qb)
+            rng = np.random.default_rng(1)
+            payload = np.full(n, float(np.median(data.payload_kg)))
+            box = _replace(data, q_deg=qb, dir=rng.choice([-1, 1], size=(n, 6)), payload_kg=payload,
+                           temperature_c=np.full(n, float(np.median(data.temperature_c))),
+                           torque_nm=gravity_torques(self.robot, qb, payload), measured_mm=None,
+                           point_id=np.array([], dtype=object))
+            effects = lin.model.effects_ if lin.model is not None else []
+            d = Design(self.robot, effects, box, lin.idx_model)
+            Jext = channel_jacobian(d, lin.coef)
+            Jb = np.einsum("nke,ep->nkp", Jext[:, :, d.c_idx] * d.V[:, None, :], d.S, optimize=True).reshape(-1, d.p) \
+                if d.p else np.zeros((3 * n, 0))
+            if lin.model is not None:
+                Jb = Jb[:, ~np.isin(d.names, lin.model.fixed_)]
+            nominal = Design(self.robot, [], data).predict(np.zeros(0))
+            scale = float(np.max(np.linalg.norm(np.asarray(data.measured_mm) - nominal, axis=1)))
+            # lever arm of each joint to the SMR (mm per rad of its angle), median over the sample poses
+            lever = np.median(np.linalg.norm(lin.Jext[:, :, lin.idx_model[1].joints], axis=1), axis=0)
+            lin._box = (box, Jext, Jb, scale, lever)
+        box, Jext, Jb, scale, lever = lin._box
+        Jc, _, _ = effect_columns(self.robot, cand_prepared, box, Jext, lin.idx_model)
+        change = (Jb @ parts[0] if Jb.shape[1] else 0.0) + (Jc @ parts[-1] if Jc.shape[1] else 0.0)
+        change = np.asarray(change).reshape(-1, 3)
+        # the candidate's own joint angle errors (rad) at the box configurations
+        dc = Design(self.robot, [cand_prepared], box, lin.idx_model)
+        dQ = dc.configurations(parts[-1]) - dc.Q0 if dc.p else np.zeros_like(dc.Q0)
+        # about its mean: a constant angle error is the joint's offset, which geometry carries
+        dqj = dQ[:, dc.idx.joints]
+        dq = np.abs(dqj - dqj.mean(axis=0)).max(axis=0)
+        budget = scale / np.maximum(lever, 1e-9)
+        return scale, (float(np.max(np.linalg.norm(change, axis=1))) if change.size else 0.0), dq, budget, lever
+
     # ------------------------------------------------------------------ evidence
     def _signature(self, cand, data):
         """Jacobian of the SMR position w.r.t. the candidate's parameters at nominal: (n, 3, k)."""
-        d = Design(self.robot, [cand], data)
+        d = Design(self.robot, [cand.prepared(self.robot, data)], data)
         _, J = d.predict_and_jacobian(np.zeros(d.p))
         return J, d.names, d.units
 
@@ -133,6 +349,15 @@ class RobotAdapter:
         J, names, units = self._signature(cand, data)
         r = base.residuals.reshape(-1)
         X = J.reshape(-1, J.shape[-1])
+        pen = cand.prepared(self.robot, data).penalty(self.robot, data.n)
+        if pen is not None:
+            # a smooth curve: fitted with its own smoothness penalty, reported as a whole
+            coef = np.linalg.lstsq(np.vstack([X, pen]), np.concatenate([r, np.zeros(pen.shape[0])]), rcond=None)[0]
+            share = 1.0 - float(np.sum((r - X @ coef) ** 2) / max(np.sum(r ** 2), 1e-300))
+            unit, factor = units[0]
+            amp = float(np.ptp(coef) / 2 * factor)
+            return (f"the held-out residuals follow this effect's signature: a smooth curve of +-{amp:.3g} {unit} "
+                    f"({len(names)} grid values) explains {100 * share:.1f} % of the residual variance")
         coef, *_ = np.linalg.lstsq(X, r, rcond=None)
         fit = X @ coef
         dof = max(1, r.size - X.shape[1])

@@ -110,7 +110,7 @@ class Design:
 
 
 def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, priority=None,
-                    weak_tol: float | None = None, units=None) -> dict:
+                    weak_tol: float | None = None, units=None, penalised=None) -> dict:
     """Rank, condition number and identifiable parameters of a Jacobian.
 
     Parameters
@@ -129,6 +129,30 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
     to the identifiable parameters), ``condition_number_all``, ``singular_values`` (scaled),
     ``keep`` (bool mask) and ``not_identifiable`` (names fixed at 0).
     """
+    if penalised is not None and np.any(penalised):
+        # parameters kept smooth and unique by their effect's penalty (a joint map's hundreds of
+        # grid values) are not ranked here; only the rotations the SMR barely feels are left out
+        pen = np.asarray(penalised, bool)
+        rest = identifiability(J[:, ~pen], [n for n, q in zip(names, pen) if not q], tol,
+                               None if priority is None else [int(np.sum(~pen[:c])) for c in priority if not pen[c]],
+                               weak_tol, None if units is None else [u for u, q in zip(units, pen) if not q])
+        norms = np.linalg.norm(J, axis=0)
+        angle = np.array([u[0] == "arcsec" for u in units], bool) if units is not None else np.zeros(len(names), bool)
+        ref = norms[angle & ~pen & (norms > 0)]
+        short = pen & (norms < SHORT_LEVER * (np.median(ref) if ref.size else norms.max(initial=0.0)))
+        keep = np.zeros(J.shape[1], bool)
+        keep[~pen] = rest["keep"]
+        keep[pen] = ~short[pen]
+        zero = np.zeros(J.shape[1], bool)
+        zero[~pen] = rest["zero"]
+        zero |= short
+        reasons = dict(rest["fixed_reasons"])
+        for c in np.flatnonzero(short):
+            reasons[names[c]] = {"relative_determination": 0.0,
+                                 "reason": "moves the measured point less than 1/100 as much as a typical parameter "
+                                           "(an axis the SMR sits on or near): not identifiable"}
+        return {**rest, "n_params": int(J.shape[1]), "keep": keep, "zero": zero, "fixed_reasons": reasons,
+                "not_identifiable": [n for n, k in zip(names, keep) if not k], "penalised": int(pen.sum())}
     norms = np.linalg.norm(J, axis=0)
     zero = norms <= 1e-12 * max(norms.max(initial=0.0), 1e-300)
     # a parameter that moves the measured point a hundred times less than a typical one (a rotation
@@ -265,18 +289,34 @@ class RobotErrorModel:
         return sorted(range(len(names)), key=key)
 
     def design(self, data: RobotData) -> Design:
-        return Design(self.robot, list(self.effects), data, getattr(self, "_model_and_index", None))
+        return Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
+                      getattr(self, "_model_and_index", None))
 
     def fit(self, data: RobotData) -> "RobotErrorModel":
         t0 = time.perf_counter()
+        self.effects_ = [e.prepared(self.robot, data) for e in self.effects]
         d = self.design(data)
         self._model_and_index = (d.model, d.idx)
         meas = np.asarray(data.measured_mm, float)
         x = np.zeros(d.p)
         P, J = d.predict_and_jacobian(x)
         J2 = J.reshape(-1, d.p)
+        # penalty rows of the effects that have one (smooth many-parameter effects), (m, p)
+        blocks, penalised = [], np.zeros(d.p, bool)
+        k = 0
+        for e in self.effects_:
+            n_e = len(e.parameter_names(self.robot))
+            pen = e.penalty(self.robot, data.n)
+            if pen is not None:
+                row = np.zeros((pen.shape[0], d.p))
+                row[:, k:k + n_e] = pen
+                blocks.append(row)
+                penalised[k:k + n_e] = True
+            k += n_e
+        Pen = np.vstack(blocks) if blocks else np.zeros((0, d.p))
         ident = identifiability(J2, d.names, tol=self.rank_tol, priority=self._priority(d.names), units=d.units,
-                                weak_tol=self.weak_tol if self.identifiability and self.reduction == "fix" else None)
+                                weak_tol=self.weak_tol if self.identifiability and self.reduction == "fix" else None,
+                                penalised=penalised)
         ident["rank_exact"] = int(np.sum(np.asarray(ident["singular_values"]) > 1e-10 * ident["singular_values"][0]))
         norms = np.linalg.norm(J2, axis=0)
         norms = np.where(norms > 0, norms, 1.0)
@@ -297,12 +337,14 @@ class RobotErrorModel:
         def full(z):
             return B @ z
 
+        PB = Pen @ B
+
         def fun(z):
-            return (d.predict(full(z)) - meas).ravel()
+            return np.concatenate([(d.predict(full(z)) - meas).ravel(), PB @ z])
 
         def fun_and_jac(z):
             P_, J_ = d.predict_and_jacobian(full(z))
-            return (P_ - meas).ravel(), J_.reshape(-1, d.p) @ B
+            return np.concatenate([(P_ - meas).ravel(), PB @ z]), np.vstack([J_.reshape(-1, d.p) @ B, PB])
 
         free = np.arange(B.shape[1])
         result = None
@@ -316,7 +358,7 @@ class RobotErrorModel:
             # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
             GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
             xf = np.zeros(free.size)
-            F, Jf = (P - meas).ravel(), J2 @ B
+            F, Jf = np.concatenate([(P - meas).ravel(), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             cost = 0.5 * float(F @ F)
             scale = np.zeros(free.size)
             lam, moved, converged, it = 0.0, False, False, 0
@@ -379,7 +421,7 @@ class RobotErrorModel:
         # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
         # whether a real robot can have the fitted parameters (pipeline.robot.lm.PLAUSIBLE_BOUNDS)
         params, checked, k = self.parameters(), [], 0
-        for e in self.effects:
+        for e in self.effects_:
             n = len(e.parameter_names(self.robot))
             checked += e.checked_values(self.robot, params[k:k + n], data.q_deg)
             k += n
@@ -407,6 +449,7 @@ class RobotErrorModel:
     def from_parameters(cls, robot, effects, parameters: list[dict]) -> "RobotErrorModel":
         """Rebuild a fitted model from :meth:`parameters` (e.g. read from JSON)."""
         m = cls(robot, effects)
+        m.effects_ = list(effects)       # as fitted (their spec lines carry any fit-time state)
         d = m.design(_empty_data(robot))
         by = {p["name"]: p for p in parameters}
         m.names_, m.units_ = d.names, d.units

@@ -91,7 +91,7 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
         params.append(entry)
     return {"version": DOCUMENT_VERSION,
             "robot_toml": robot.to_toml(),
-            "spec_effects": [e.spec_lines() for e in effects],
+            "spec_effects": [e.spec_lines() for e in getattr(model, "effects_", effects)],
             "parameters": params,
             "sampled_range": sampled_range(sample_q_deg),
             "frame": frame or {"frame": "base", "tracker_to_base": np.eye(4).tolist()},

@@ -23,7 +23,8 @@ from ..core.files import read_json_input
 from ..core.plotting import pdf_pages, plt, save, text_page
 
 SPECS = {"kinematic": "geometry + base + tool (specs/robot_kinematic.toml)",
-         "paper": "the second paper's spec (specs/robot_paper.toml)"}
+         "paper": "the second paper's spec (specs/robot_paper.toml)",
+         "diagnosed": "what the diagnosis loop ended with (results/real/<series>_diagnosed.toml)"}
 
 
 def _stats(d: dict) -> dict:
@@ -61,6 +62,9 @@ def transfer_table(results: dict) -> dict:
             for other, pred in sorted(r["on"].get(spec, {}).items()):
                 row[f"{spec}_on_{other}"] = {**_stats(pred), "n": pred["n"],
                                              "outside_sampled_range": pred["outside_sampled_range"]}
+        if "loop" in r:
+            row["loop"] = [{"round": x["round"], "own": x["own"], "other": x["other"], "cv_rms_mm": x["cv_rms_mm"],
+                            "added": [a["label"] for a in x["recommended"]]} for x in r["loop"]["rounds"]]
         out[s] = row
     return out
 
@@ -104,6 +108,8 @@ def load_results(results_dir, series) -> dict:
             r["self"][spec] = read_json_input(d / f"{s}_{spec}_self.json")
             r["on"][spec] = {o: read_json_input(d / f"{s}_{spec}_on_{o}.json") for o in others
                              if (d / f"{s}_{spec}_on_{o}.json").exists()}
+        if (d / f"{s}_loop.json").exists():
+            r["loop"] = read_json_input(d / f"{s}_loop.json")
         out[s] = r
     return out
 
@@ -155,6 +161,40 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                   "held-out poses (the data set's README); tests/test_real_reference.py checks jointcal's",
                   "against one written independently with scipy (within 5 %)."]
         text_page(pdf, "Real robot: own held-out poses and the other series", lines)
+
+        # the diagnosis loop: what was added each round, and the error it left (own, other series)
+        for s in series:
+            loop = results[s].get("loop")
+            if not loop:
+                continue
+            o = [x for x in series if x != s]
+            lines = [f"Starting from geometry + base + tool, `jointcal robot diagnose-loop` diagnoses series {s}'s "
+                     "sample poses,", "adds every recommended effect and diagnoses again, until nothing is recommended.",
+                     f"Each round's model is judged on {s}'s held-out target poses and on series "
+                     f"{', '.join(o)} (tracker re-registered).", "",
+                     f"{'round':>5}  {'CV RMS':>8}  {'own RMS / max':>15}  {'other RMS / max':>17}  added after this round"]
+            for x in loop["rounds"]:
+                own, far = x["own"], x["other"]
+                added = ", ".join(a["label"] for a in x["recommended"]) or "nothing: the loop ends"
+                lines.append(f"{x['round']:>5}  {x['cv_rms_mm']:>8.3f}  {own['rms_mm']:>6.3f} / {own['max_mm']:>6.3f}  "
+                             f"{(far or {}).get('rms_mm', float('nan')):>7.3f} / {(far or {}).get('max_mm', float('nan')):>6.3f}"
+                             f"  {added}")
+            last = loop["rounds"][-1]
+            refused = last.get("refused", []) + [r for x in loop["rounds"][:-1] for r in x.get("refused", [])]
+            if refused:
+                lines += ["", "Refused along the way although they lowered the error on neighbouring poses (first 12):"]
+                seen = set()
+                for r in refused:
+                    if r["label"] in seen:
+                        continue
+                    seen.add(r["label"])
+                    lines.append(f"  {r['label']}: {r['reason']}")
+                    if len(seen) >= 12:
+                        break
+            lines += ["", "All errors in mm. 'CV RMS': the diagnosis' cross-validated RMS over the sample poses.",
+                      "joint_map: each joint's angle error against its own angle, a smooth curve on a 2 deg grid over",
+                      "the sampled range, fading to zero beyond it (the first paper's subject, joint by joint)."]
+            text_page(pdf, f"Series {s}: diagnose, add, diagnose again", lines)
 
         # bars: own held-out vs other series, per series and model
         fig, axes = plt.subplots(1, len(series), figsize=(8.27, 4.2), squeeze=False)

@@ -1,0 +1,268 @@
+"""Robot diagnosis around one shared baseline fit: every candidate is a linear correction to it.
+
+The spec's model is fitted once on every sample pose (Gauss-Newton, :mod:`pipeline.calibrate`).
+At that solution the residuals ``r`` (n, 3) mm and the Jacobian of the SMR positions with respect
+to every parameter of the baseline and of every candidate are computed once (pinocchio frame
+Jacobians of the error model, chained with each effect's channel basis). A model "baseline +
+candidate" refitted on the training poses of a fold is then one linear least-squares step from
+the shared solution - exact to first order in the (small) parameter changes - so a candidate
+costs a few small normal-equation solves per fold instead of five nonlinear fits.
+
+Two sets of folds:
+
+* **random** folds by pose (the held-out poses are neighbours of the fitted ones): the gain and
+  the paired test of the drop in squared held-out residual, pose by pose;
+* **region** folds: the sample poses cut into blocks of joint space (k-means on the joint angles
+  scaled to their sampled ranges), each held out in turn: a term that only interpolates between
+  neighbouring poses does not lower the error there.
+
+And a look at the candidate's fit on every sample pose: its largest predicted change anywhere in
+the sampled joint box (random configurations), its parameters against a real robot's bounds, and
+whether its contribution is cancelled by the model's other terms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..robot.calibrate import WEAK_TOL, Design
+from ..robot.evaluate import fit_effects
+from ..robot.kinematics import positions_and_jacobians
+
+#: Region folds: number of blocks of joint space and k-means iterations.
+N_REGIONS = 5
+KMEANS_ITER = 30
+#: Configurations drawn in the sampled joint box to look for wild predictions.
+N_BOX = 400
+#: A refit may not change the predicted position anywhere in the sampled joint box by more than this
+#: many times the larger of the largest error measured (nominal model) and its own largest change on
+#: the sample poses: random configurations there reach further and turn the wrist more than the
+#: sampled poses (a real tool offset: 3x), while a pair of harmonics cancelling each other on the
+#: sampled poses sent a home pose 18.9 mm off against a measured 2.2 mm (8.6x).
+BOX_FACTOR = 5.0
+#: Directions of a fold's normal equations weaker than this (eigenvalue relative to the largest, of
+#: the column-scaled Gram matrix) are left out: the identifiability limit of the full fit
+#: (WEAK_TOL on singular values) applied to the smaller training set of a fold. Without it, a
+#: region held out from 80 poses of a small box saw 48 mm of extrapolation from a base error.
+EIG_TOL = WEAK_TOL ** 2
+
+
+def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
+    """Block of joint space of each pose: k-means (k-means++ start, seeded) on the joint angles
+    scaled to [0, 1] over their sampled ranges.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, 6), deg
+
+    Returns
+    -------
+    ndarray of int, shape (n,): 0..k-1 (empty blocks are dropped and renumbered)
+    """
+    q = np.asarray(q_deg, float)
+    span = np.ptp(q, axis=0)
+    X = (q[:, span > 1e-9] - q[:, span > 1e-9].min(axis=0)) / span[span > 1e-9]
+    n = len(X)
+    k = max(1, min(k, n))
+    rng = np.random.default_rng(seed)
+    centres = [X[rng.integers(n)]]
+    for _ in range(1, k):
+        d2 = np.min(((X[:, None, :] - np.array(centres)[None]) ** 2).sum(-1), axis=1)
+        centres.append(X[rng.choice(n, p=d2 / d2.sum())] if d2.sum() > 0 else X[rng.integers(n)])
+    C = np.array(centres)
+    lab = np.zeros(n, int)
+    for _ in range(KMEANS_ITER):
+        lab = np.argmin(((X[:, None, :] - C[None]) ** 2).sum(-1), axis=1)
+        newC = np.array([X[lab == c].mean(axis=0) if np.any(lab == c) else C[c] for c in range(k)])
+        if np.allclose(newC, C):
+            break
+        C = newC
+    _, lab = np.unique(lab, return_inverse=True)
+    return lab
+
+
+def box_configurations(q_deg, n: int = N_BOX, seed: int = 0) -> np.ndarray:
+    """Random joint configurations, uniform in each joint's sampled range, shape (n, 6) deg."""
+    q = np.asarray(q_deg, float)
+    rng = np.random.default_rng(seed)
+    return q.min(axis=0) + rng.random((n, q.shape[1])) * np.ptp(q, axis=0)
+
+
+def channel_jacobian(design: Design, x) -> np.ndarray:
+    """Positions' Jacobian (n, 3, nv) with respect to every channel of the error model at ``x``."""
+    _, Jext = positions_and_jacobians(design.model, design.configurations(x))
+    return Jext
+
+
+def effect_columns(robot, effect, data, Jext, idx_model) -> tuple[np.ndarray, list, list]:
+    """Jacobian (3n, k) of the SMR positions with respect to ``effect``'s parameters (internal units),
+    chained from the channel Jacobian ``Jext`` (n, 3, nv); and its names and units."""
+    d = Design(robot, [effect], data, idx_model)
+    if d.p == 0:
+        return np.zeros((3 * data.n, 0)), [], []
+    J = np.einsum("nke,ep->nkp", Jext[:, :, d.c_idx] * d.V[:, None, :], d.S, optimize=True)
+    return J.reshape(-1, d.p), d.names, d.units
+
+
+class Block:
+    """Columns of one effect in the linear problem: Jacobian (3n, k), penalty rows (m, k) or None."""
+
+    def __init__(self, J, pen=None, names=(), units=()):
+        self.J = J
+        self.pen = pen if pen is not None and pen.size else None
+        self.names, self.units = list(names), list(units)
+
+    @property
+    def k(self) -> int:
+        return self.J.shape[1]
+
+
+class LinearProblem:
+    """The baseline fitted once; models with extra blocks solved linearly, fold by fold.
+
+    Parameters
+    ----------
+    robot : Robot
+    base_effects : list of RobotEffect
+    data : RobotData (sample poses, measured_mm set)
+    folds : dict name -> ndarray of int, shape (n,) (e.g. ``{"random": ..., "region": ...}``)
+    """
+
+    def __init__(self, robot, base_effects, data, folds: dict):
+        self.robot, self.data, self.folds = robot, data, folds
+        n = data.n
+        if base_effects:
+            self.model = fit_effects(robot, base_effects, data)
+            d = self.model.design(data)
+            self.idx_model = (d.model, d.idx)
+            self.coef = self.model.coef_
+            pred, Jall = d.predict_and_jacobian(self.coef)
+            keep = ~np.isin(d.names, self.model.fixed_)
+            J = Jall.reshape(-1, d.p)[:, keep]
+            pen = _penalty(robot, self.model.effects_, n, d.p)
+            self.base = Block(J, pen[:, keep] if pen is not None else None,
+                              [m for m, k in zip(d.names, keep) if k], [u for u, k in zip(d.units, keep) if k])
+            self.base_design = d
+        else:
+            self.model = None
+            d = Design(robot, [], data)
+            self.idx_model = (d.model, d.idx)
+            self.coef = np.zeros(0)
+            pred = d.predict(self.coef)
+            self.base = Block(np.zeros((3 * n, 0)))
+            self.base_design = d
+        self.r = (np.asarray(data.measured_mm, float) - pred).ravel()
+        self.Jext = channel_jacobian(self.base_design, self.coef)
+        self._gram = {}
+
+    # ------------------------------------------------------------------ columns
+    def block(self, effect) -> Block:
+        """The candidate's columns at the shared solution (effect made ready on the sample poses)."""
+        e = effect.prepared(self.robot, self.data)
+        J, names, units = effect_columns(self.robot, e, self.data, self.Jext, self.idx_model)
+        pen = e.penalty(self.robot, self.data.n)
+        return Block(J, pen, names, units)
+
+    # ------------------------------------------------------------------ solves
+    def _rows(self, mask):
+        return np.repeat(mask, 3)
+
+    def _solve(self, blocks, rows):
+        """Least squares of r on the blocks' columns over ``rows`` (+ penalties); coefficients."""
+        X = np.hstack([b.J[rows] for b in blocks]) if blocks else np.zeros((int(rows.sum()), 0))
+        if X.shape[1] == 0:
+            return np.zeros(0)
+        G = X.T @ X
+        g = X.T @ self.r[rows]
+        off = 0
+        for b in blocks:
+            if b.pen is not None:
+                G[off:off + b.k, off:off + b.k] += b.pen.T @ b.pen
+            off += b.k
+        s = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        Gs = G / s[:, None] / s[None, :]
+        # minimum-norm solution of the scaled normal equations (redundant columns stay at 0)
+        w, V = np.linalg.eigh(Gs)
+        keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
+        z = V[:, keep] @ ((V[:, keep].T @ (g / s)) / w[keep])
+        return z / s
+
+    def _base_fold(self, folds, f):
+        """The baseline's normal equations on the training rows of fold ``f``, solved once:
+        (training rows, pseudo-inverse of the scaled Gram matrix, scale, J^T r)."""
+        key = (folds, int(f))
+        if key not in self._gram:
+            train = ~self._rows(self.folds[folds] == f)
+            Jb = self.base.J[train]
+            G = Jb.T @ Jb
+            if self.base.pen is not None:
+                G += self.base.pen.T @ self.base.pen
+            s = np.sqrt(np.maximum(np.diag(G), 1e-300))
+            w, V = np.linalg.eigh(G / s[:, None] / s[None, :])
+            keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
+            Ginv = (V[:, keep] / w[keep]) @ V[:, keep].T / s[:, None] / s[None, :]
+            self._gram[key] = (train, Ginv, Jb.T @ self.r[train])
+        return self._gram[key]
+
+    def cv(self, blocks, folds: str):
+        """Held-out residuals (n, 3) of the model "baseline + blocks" under the fold set ``folds``.
+
+        With one extra block the baseline's part is eliminated (Schur complement on the baseline's
+        normal equations, solved once per fold), so a candidate costs products with its own columns.
+        """
+        ids = self.folds[folds]
+        out = np.empty_like(self.r)
+        if len(blocks) == 1 and self.base.k:
+            c = blocks[0]
+            for f in np.unique(ids):
+                train, Ginv, gb = self._base_fold(folds, f)
+                test = ~train
+                Jb, Jc = self.base.J[train], c.J[train]
+                Gbc = Jb.T @ Jc
+                S = Jc.T @ Jc - Gbc.T @ Ginv @ Gbc
+                if c.pen is not None:
+                    S += c.pen.T @ c.pen
+                rhs = Jc.T @ self.r[train] - Gbc.T @ (Ginv @ gb)
+                # scaled by the candidate's own column norms: a direction of it that the baseline
+                # nearly explains (outside fraction below sqrt(EIG_TOL)) is left out, as in a full fit
+                own = np.sum(Jc ** 2, axis=0) + (np.sum(c.pen ** 2, axis=0) if c.pen is not None else 0.0)
+                sc = np.sqrt(np.maximum(own, 1e-300))
+                w, V = np.linalg.eigh(S / sc[:, None] / sc[None, :])
+                keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
+                dc = (V[:, keep] @ ((V[:, keep].T @ (rhs / sc)) / w[keep])) / sc
+                db = Ginv @ (gb - Gbc @ dc)
+                out[test] = self.r[test] - self.base.J[test] @ db - c.J[test] @ dc
+            return out.reshape(-1, 3)
+        blocks = [self.base, *blocks]
+        for f in np.unique(ids):
+            test = self._rows(ids == f)
+            delta = self._solve(blocks, ~test)
+            X = np.hstack([b.J[test] for b in blocks])
+            out[test] = self.r[test] - (X @ delta if X.shape[1] else 0.0)
+        return out.reshape(-1, 3)
+
+    def fit_all(self, blocks):
+        """Coefficients of every block (base first) fitted on all sample poses, and the change
+        of the predicted positions (n, 3) each block makes."""
+        blocks = [self.base, *blocks]
+        rows = np.ones(self.r.size, bool)
+        delta = self._solve(blocks, rows)
+        parts, off = [], 0
+        for b in blocks:
+            parts.append(delta[off:off + b.k])
+            off += b.k
+        contrib = [(b.J @ p).reshape(-1, 3) for b, p in zip(blocks, parts)]
+        return parts, contrib
+
+
+def _penalty(robot, effects, n_poses, p):
+    rows, off = [], 0
+    for e in effects:
+        k = len(e.parameter_names(robot))
+        pen = e.penalty(robot, n_poses)
+        if pen is not None:
+            row = np.zeros((pen.shape[0], p))
+            row[:, off:off + k] = pen
+            rows.append(row)
+        off += k
+    return np.vstack(rows) if rows else None

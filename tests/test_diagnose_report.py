@@ -68,12 +68,10 @@ def test_hidden_direction_report(invoke, tmp_path):
     diagnosis_report(result, adapter, spec, data, out)
     assert n_pages(out) == expected_pages(result, adapter, data)
     best = [c for c in result["candidates"] if c["meaningful"]]
+    assert best and best[0]["effect"] == "direction", [(c["effect"], c["target"], c["gain"]) for c in result["candidates"][:3]]
     steps = suggested_steps(result, adapter, spec, data, adapter.baseline_effects(spec, data))
-    if best:
-        assert steps[0]["cv_rms"] == best[0]["cv_rms_with"]
-        assert all(s["cv_rms"] > 0 for s in steps)
-    else:
-        assert steps == []
+    assert steps and steps[0]["cv_rms"] == best[0]["cv_rms_with"]
+    assert all(s["cv_rms"] > 0 for s in steps)
 
 
 def test_spectrum_finds_the_order():

@@ -16,6 +16,17 @@ from ..core.errors import InputError
 from .common import fail_spec, load_spec, read_interim, read_json
 
 
+class HiddenOption(click.Option):
+    """``--hidden``: its help lists the effects the simulator can hide, from the registry
+    (looked up only when help is shown, so that start-up stays free of the library)."""
+
+    def get_help_record(self, ctx):
+        from ..encoder.simulate import hidden_effects_help
+
+        self.help = self.help.replace("{choices}", hidden_effects_help())
+        return super().get_help_record(ctx)
+
+
 @click.command("encoder")
 @click.option("--out", "out_dir", default="raw/encoder", show_default=True, type=click.Path(file_okay=False),
               help="Folder that receives one campaign folder per module.")
@@ -26,10 +37,11 @@ from .common import fail_spec, load_spec, read_interim, read_json
 @click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
 @click.option("--runs", type=int, default=6, show_default=True, help="Runs per module.")
 @click.option("--two-way", is_flag=True, help="Go round the polygon and come back (73 readings a run).")
-@click.option("--hidden", default=None, metavar="EFFECT[:TARGET]",
-              help="Hide one effect the paper's spec lacks: direction, drift, temperature or harmonic:ORDER.")
+@click.option("--hidden", cls=HiddenOption, default=None, metavar="EFFECT[:TARGET]",
+              help="Hide one effect the paper's spec lacks: {choices}.")
 def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidden):
     """Simulate encoder campaigns in the contract's format (default: the shipped fixture)."""
+    from ..encoder.effects import effect_class
     from ..encoder.simulate import ENCODER_FIXTURE, hidden_encoder_effect, simulate_encoder, write_encoder_campaign
 
     for module in modules:
@@ -37,7 +49,7 @@ def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidde
         if seed is not None:
             config["seed"] = seed
         hid = hidden_encoder_effect(hidden, config["seed"]) if hidden else None
-        if hid and hid["effect"] == "direction":
+        if hid and effect_class(hid["effect"]).simulate_two_way:
             two_way = True
         frame, truth = simulate_encoder(module, config, runs=runs, two_way=two_way, hidden=hid)
         folder = write_encoder_campaign(out_dir, module, frame, truth, truth_dir)

@@ -7,7 +7,13 @@ Each :class:`Effect` knows
   regressor it adds to the model (``columns`` for the linear encoder model, joint-angle
   offsets / link twists for the robot model),
 * its **explanation**: the physical effect in plain words, for reports and diagnosis,
-* whether a campaign **can reveal** it at all (one direction only, no timestamps, ...).
+* whether a campaign **can reveal** it at all (one direction only, no timestamps, ...),
+* optional hooks with defaults, so that diagnosis, compensation and the command line loop
+  over the registry instead of naming effects: :attr:`Effect.acts_on`,
+  :attr:`Effect.compensable` / :attr:`Effect.compensation`, :meth:`Effect.candidates`
+  (the candidate targets diagnosis tries) and :meth:`Effect.evidence` (what in the
+  residuals shows it). A domain may add hooks of its own (the encoder's simulator
+  injection: :class:`pipeline.encoder.effects.EncoderEffect`).
 
 The effects of a domain live in its package (:mod:`pipeline.encoder.effects`,
 :mod:`pipeline.robot.effects`). Each domain registers its own in one place, its package's
@@ -37,6 +43,12 @@ class Effect:
     explanation: ClassVar[str] = ""
     signature: ClassVar[str] = ""
     allowed_params: ClassVar[tuple[str, ...]] = ()
+    #: what the effect is a function of (e.g. "joint angle", "time within run", "polygon face")
+    acts_on: ClassVar[str] = ""
+    #: whether a compensation (of the joint, in its controller) can remove it ...
+    compensable: ClassVar[bool] = False
+    #: ... and how, or why not, in plain words
+    compensation: ClassVar[str] = ""
 
     def __init__(self, **params):
         self.params = dict(params)
@@ -64,6 +76,18 @@ class Effect:
     def target(self):
         """Contract ``target`` of this effect in a diagnosis (order, joint or None)."""
         return None
+
+    @classmethod
+    def candidates(cls, data, present) -> list["Effect"]:
+        """The instances of this effect diagnosis should try on ``data`` given the effects
+        ``present`` in the model: by default one, with default parameters, unless the model
+        already has this effect."""
+        return [] if any(e.name == cls.name for e in present) else [cls()]
+
+    def evidence(self, residual, data) -> str:
+        """What in the held-out ``residual`` of a model without this effect shows it (one
+        sentence for the diagnosis JSON); empty: the domain's adapter says it generically."""
+        return ""
 
 
 def toml_value(value) -> str:

@@ -1,5 +1,10 @@
 """The encoder side of diagnosis: folds by run, candidates from the encoder vocabulary.
 
+Every effect-specific piece (candidate targets, evidence, residual signatures, what to plot
+against) is a hook of the effect's class in :mod:`pipeline.encoder.effects`; this adapter
+loops over :data:`~pipeline.encoder.effects.EFFECTS` and names none of them (but the harmonic
+orders a spec leaves to the paper's selection rule).
+
 Diagnosis fits the effects jointly over runs (``pooled``: one unknown constant per run,
 every other coefficient shared). The paper's per-run averaging cannot separate effects
 that are collinear within a run but not across runs (a temperature that rises with time
@@ -14,10 +19,9 @@ from scipy import stats
 
 from ..core.crossval import CVResult
 from ..encoder.aliasing import max_full_order
-from ..encoder.effects import Direction, Drift, EncoderData, Harmonic, Temperature
+from ..encoder.effects import EFFECTS, EncoderData, Harmonic
 from ..encoder.evaluate import cross_validate
-from ..encoder.harmonic import amplitude_phase, analyse_runs, lsq_coefficients
-from ..encoder.model import circular_range_deg
+from ..encoder.harmonic import analyse_runs
 from ..encoder.ingest import ingest_encoder
 from ..encoder.selection import paper_rule
 from .engine import paired_test
@@ -53,27 +57,17 @@ class EncoderAdapter:
         return effects
 
     def candidates(self, spec, data, base_effects):
-        have = {e.name for e in base_effects}
-        out = [cls() for cls in (Direction, Drift, Temperature) if cls.name not in have]
-        kept = set()
-        for e in base_effects:
-            if isinstance(e, Harmonic):
-                kept |= set(e.orders())
-        out += [Harmonic(orders=[i]) for i in range(1, self._n_max(data) + 1) if i not in kept]
-        return out
+        n_max = self._n_max(data)
+        return [c for cls in EFFECTS for c in cls.candidates(data, base_effects, n_max=n_max)]
 
     @staticmethod
     def add(base_effects, cand):
-        if isinstance(cand, Harmonic):
-            merged, done = [], False
-            for e in base_effects:
-                if isinstance(e, Harmonic) and not done:
-                    merged.append(Harmonic(orders=sorted(set(e.orders()) | set(cand.orders()))))
-                    done = True
-                else:
-                    merged.append(e)
-            return merged if done else [*base_effects, cand]
-        return [*base_effects, cand]
+        merged, done = [], False
+        for e in base_effects:
+            m = None if done else e.merge(cand)
+            merged.append(e if m is None else m)
+            done = done or m is not None
+        return merged if done else [*base_effects, cand]
 
     # ------------------------------------------------------------------ cross-validation
     def fold_description(self, data):
@@ -134,8 +128,10 @@ class EncoderAdapter:
         p_het = float(stats.chi2.sf(Q, k * (R - 1))) if R > 1 else 1.0
         if p_het >= 0.05 or R <= k:
             chi = float(bf @ Wsum @ bf)
+            why = (f"runs agree: heterogeneity p = {p_het:.2g}" if p_het >= 0.05 else
+                   f"{k} coefficients, too few runs to test over runs: heterogeneity p = {p_het:.2g}")
             return {"stat": float(np.sqrt(chi)), "p": float(stats.chi2.sf(chi, k)),
-                    "method": f"fixed effects over {R} runs (runs agree: heterogeneity p = {p_het:.2g})"}
+                    "method": f"fixed effects over {R} runs ({why})"}
         mean = bs.mean(axis=0)
         S = np.cov(bs.T, ddof=1).reshape(k, k)
         T2 = float(R * mean @ np.linalg.solve(S, mean))
@@ -145,87 +141,29 @@ class EncoderAdapter:
 
     # ------------------------------------------------------------------ evidence
     def evidence(self, cand, base: CVResult, data) -> str:
-        r = base.residuals[:, 0]
-        if isinstance(cand, Harmonic):
-            i = cand.orders()[0]
-            amps, phases = [], []
-            for run in data.runs:
-                m = data.run == run
-                A, B = lsq_coefficients(data.theta_deg[m], r[m], [0, i])
-                c, p = amplitude_phase(A[1], B[1])
-                amps.append(c)
-                phases.append(p)
-            labels, X = cand.columns(data)
-            coef, t = _regress(r, X, data.run)
-            c, p = amplitude_phase(coef[0], coef[1])
-            return (f"order {i} in the held-out residuals: {c:.2f} arcsec at phase {p:.0f} deg (t = {max(abs(t)):.1f}); "
-                    f"per run {min(amps):.2f}-{max(amps):.2f} arcsec, phases within {circular_range_deg(phases):.0f} deg")
-        labels, X = cand.columns(data)
-        coef, t = _regress(r, X, data.run)
-        if isinstance(cand, Direction):
-            fwd, bwd = r[data.direction > 0], r[data.direction < 0]
-            return (f"held-out residual approaching forwards minus backwards = {fwd.mean() - bwd.mean():+.2f} arcsec "
-                    f"(fitted half-hysteresis {coef[0]:+.2f} arcsec, t = {t[0]:.1f})")
-        if isinstance(cand, Drift):
-            return (f"held-out residual grows {coef[0]:+.2f} arcsec per hour within runs (t = {t[0]:.1f}); "
-                    f"runs last {np.ptp(data.time_s) / 60:.0f} min at most")
-        if isinstance(cand, Temperature):
-            return (f"held-out residual changes {coef[0]:+.2f} arcsec per K of temperature (t = {t[0]:.1f}); "
-                    f"temperature spans {np.nanmin(data.temperature_c):.1f}-{np.nanmax(data.temperature_c):.1f} degC")
-        return f"regression of residuals on the effect's signature: t = {np.max(np.abs(t)):.1f}"
+        """The candidate's own evidence (:meth:`pipeline.core.effect.Effect.evidence`)."""
+        return cand.evidence(base.residuals[:, 0], data)
 
     def signature_variables(self, data) -> dict:
         """What to plot the held-out residuals against: name -> (values (n,), unit, kind).
 
         kind is "continuous" or "categorical"; "angle" variables also get a spectrum.
+        One per effect that declares one (:meth:`EncoderEffect.signature_variable`), and the run.
         """
-        out = {"joint angle": (data.theta_deg, "deg", "angle")}
-        if data.time_s is not None:
-            out["time within run"] = (data.time_s / 60.0, "min", "continuous")
-        if data.temperature_c is not None:
-            out["temperature"] = (data.temperature_c, "degC", "continuous")
-        out["direction of approach"] = (data.direction.astype(float), "+1/-1", "categorical")
+        out = {}
+        for cls in sorted(EFFECTS, key=lambda c: c.signature_rank):
+            var = cls.signature_variable(data)
+            if var is not None:
+                out[var[0]] = var[1]
         out["run"] = (data.run.astype(float), "", "categorical")
         return out
 
     def residual_view(self, base: CVResult, data) -> list[dict]:
         """Residual against every signature an encoder effect would leave (for the JSON and report)."""
         r = base.residuals[:, 0]
-        out = []
-        A, B = lsq_coefficients(data.theta_deg, r, range(self._n_max(data) + 1))
-        C, _ = amplitude_phase(A, B)
-        top = np.argsort(C[1:])[::-1][:3] + 1
-        out.append({"signature": "joint angle (spectrum)", "statistic": ", ".join(f"order {i}: {C[i]:.2f} arcsec" for i in top)})
-        if data.time_s is not None:
-            coef, t = _regress(r, (data.time_s / 3600.0)[:, None], data.run)
-            out.append({"signature": "time within run", "statistic": f"{coef[0]:+.2f} arcsec/h (t = {t[0]:.1f})"})
-        if data.temperature_c is not None:
-            coef, t = _regress(r, (data.temperature_c - 20.0)[:, None], data.run)
-            out.append({"signature": "temperature", "statistic": f"{coef[0]:+.2f} arcsec/K (t = {t[0]:.1f})"})
-        if np.unique(data.direction).size > 1:
-            d = r[data.direction > 0].mean() - r[data.direction < 0].mean()
-            out.append({"signature": "direction of approach", "statistic": f"forward - backward {d:+.2f} arcsec"})
-        return out
-
-
-def _regress(r, X, run):
-    """Coefficients and t values of r on X with one constant per run removed (arcsec units)."""
-    X = np.asarray(X, float)
-    Xc = X.copy()
-    rc = np.asarray(r, float).copy()
-    for g in np.unique(run):
-        m = run == g
-        Xc[m] -= Xc[m].mean(axis=0)
-        rc[m] -= rc[m].mean()
-    coef, *_ = np.linalg.lstsq(Xc, rc, rcond=None)
-    dof = max(1, rc.size - Xc.shape[1] - np.unique(run).size)
-    s2 = float(np.sum((rc - Xc @ coef) ** 2) / dof)
-    try:
-        cov = s2 * np.linalg.inv(Xc.T @ Xc)
-        se = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    except np.linalg.LinAlgError:
-        se = np.full(coef.size, np.inf)
-    return coef, coef / se
+        n_max = self._n_max(data)
+        views = (cls.residual_signature(r, data, n_max) for cls in sorted(EFFECTS, key=lambda c: c.signature_rank))
+        return [v for v in views if v is not None]
 
 
 def encoder_data_from_campaign(folder) -> EncoderData:

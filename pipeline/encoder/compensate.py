@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from .effects import ARCSEC_PER_DEG
+
 
 def compensation_table(model, step_deg: float = 0.1) -> pd.DataFrame:
     """Error and correction on a grid of joint angles.
@@ -39,5 +41,5 @@ def correct_readings(model, reading_deg) -> tuple[np.ndarray, np.ndarray]:
     reading = np.asarray(reading_deg, float)
     theta = np.mod(reading, 360.0)
     err = model.predict_theta(theta)
-    err = model.predict_theta(np.mod(reading - err / 3600.0, 360.0))  # one fixed-point step
-    return reading - err / 3600.0, -err
+    err = model.predict_theta(np.mod(reading - err / ARCSEC_PER_DEG, 360.0))  # one fixed-point step
+    return reading - err / ARCSEC_PER_DEG, -err

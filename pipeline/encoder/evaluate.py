@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core.crossval import CVResult
 from .effects import EncoderData, Harmonic
-from .model import EncoderModel, peak_to_peak, residual_without_constant
+from .model import EncoderModel, leave_one_run_out, peak_to_peak, residual_without_constant
 from .selection import select_orders, split_runs
 
 
@@ -91,11 +91,8 @@ def cross_validate(effects, data: EncoderData) -> CVResult:
     """
     res = np.empty(data.theta_deg.size)
     models = {}
-    for r in data.runs:
-        test = data.run == r
-        model = EncoderModel(effects, fit_method="pooled").fit(data.subset(~test))
-        d = data.subset(test)
-        res[test] = residual_without_constant(d.error_arcsec, model.predict(d), d.run)
+    for r, test, model, residual in leave_one_run_out(data, lambda: EncoderModel(effects, fit_method="pooled")):
+        res[test] = residual
         models[int(r)] = model
     return CVResult(res[:, None], data.run.copy(), {"models": models})
 

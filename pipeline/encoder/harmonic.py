@@ -16,6 +16,31 @@ import pandas as pd
 from .aliasing import check_orders
 
 
+def harmonic_columns(theta_deg, orders) -> tuple[list[str], np.ndarray]:
+    """cos/sin regressors of ``orders`` (order 0 excluded: it is the run constant).
+
+    Parameters
+    ----------
+    theta_deg : ndarray, shape (n,), deg
+    orders : sequence of int
+
+    Returns
+    -------
+    labels : list of str, ``A<i>``, ``B<i>`` for each order i >= 1
+    X : ndarray, shape (n, 2 * k)
+        Columns cos(i theta), sin(i theta), so that A_i cos + B_i sin = C_i sin(i theta + phi_i).
+    """
+    th = np.deg2rad(np.asarray(theta_deg, dtype=float))
+    labels, cols = [], []
+    for i in orders:
+        if i == 0:
+            continue
+        labels += [f"A{i}", f"B{i}"]
+        cols += [np.cos(i * th), np.sin(i * th)]
+    X = np.column_stack(cols) if cols else np.empty((th.size, 0))
+    return labels, X
+
+
 def lsq_coefficients(theta_deg, y, orders) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares A_i, B_i for the given orders (always with a constant).
 
@@ -34,12 +59,9 @@ def lsq_coefficients(theta_deg, y, orders) -> tuple[np.ndarray, np.ndarray]:
         ``B`` of order 0 is 0.
     """
     orders = list(orders)
-    th = np.deg2rad(np.asarray(theta_deg, float))
-    cols = [np.ones_like(th)]
     pos = [i for i in orders if i != 0]
-    for i in pos:
-        cols += [np.cos(i * th), np.sin(i * th)]
-    X = np.column_stack(cols)
+    _, H = harmonic_columns(theta_deg, pos)
+    X = np.column_stack([np.ones(H.shape[0]), H])
     coef, *_ = np.linalg.lstsq(X, np.asarray(y, float), rcond=None)
     shape = (len(orders),) + coef.shape[1:]
     A, B = np.zeros(shape), np.zeros(shape)
@@ -61,8 +83,8 @@ def fft_coefficients(y_even, n_max: int, theta0_deg: float = 0.0) -> tuple[np.nd
         Readings at theta0 + k * 360 / N, k = 0..N-1 (no closing reading).
     n_max : int
         Highest order; at most N // 2 (the Nyquist order has no sine term).
-    theta0_deg : float, deg
-        Angle of the first reading.
+    theta0_deg : float or ndarray, shape (m,), deg
+        Angle of the first reading (of each signal).
 
     Returns
     -------
@@ -88,6 +110,21 @@ def fft_coefficients(y_even, n_max: int, theta0_deg: float = 0.0) -> tuple[np.nd
 def amplitude_phase(A, B) -> tuple[np.ndarray, np.ndarray]:
     """C_i = hypot(A_i, B_i) (arcsec), phi_i = atan2(A_i, B_i) in degrees, in [0, 360)."""
     return np.hypot(A, B), np.mod(np.rad2deg(np.arctan2(A, B)), 360.0)
+
+
+def circular_mean_deg(phi_deg, axis=0):
+    """Mean direction of angles in degrees, in [0, 360)."""
+    ph = np.deg2rad(np.asarray(phi_deg, float))
+    return np.mod(np.rad2deg(np.arctan2(np.sin(ph).mean(axis), np.cos(ph).mean(axis))), 360.0)
+
+
+def circular_range_deg(phi_deg) -> float:
+    """Smallest arc (deg) containing all the angles."""
+    ph = np.sort(np.mod(np.asarray(phi_deg, float), 360.0))
+    if ph.size < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([ph, [ph[0] + 360.0]]))
+    return float(360.0 - gaps.max())
 
 
 def _design(theta_rad, orders):
@@ -263,14 +300,8 @@ def _analyse_block(runs, th, y, one_way, n_max, tol):
         rr = rel[rows][keep].reshape(rows.size, N)
         order_idx = np.argsort(rr, axis=1)
         yy = np.take_along_axis(yy, order_idx, axis=1)
-        theta0 = th[rows, 0]
-        F = np.fft.rfft(yy, axis=1)[:, : nm + 1] / N
-        F = F * np.exp(-1j * np.arange(nm + 1)[None, :] * np.deg2rad(theta0)[:, None])  # to absolute angle
-        a, b = 2 * F.real, -2 * F.imag
-        a[:, 0], b[:, 0] = F[:, 0].real, 0.0
-        if N % 2 == 0 and nm == N // 2:
-            a[:, -1], b[:, -1] = F[:, -1].real, 0.0
-        Af[rows], Bf[rows] = a, b
+        a, b = fft_coefficients(yy.T, nm, th[rows, 0])
+        Af[rows], Bf[rows] = a.T, b.T
     closure = np.where(back.any(axis=1), np.where(back, y, np.nan)[np.arange(R), m - 1 - np.argmax(back[:, ::-1], axis=1)] - y[:, 0], np.nan)
     n_ord = len(orders)
     return pd.DataFrame({

@@ -19,6 +19,7 @@ import pandas as pd
 from ..core.errors import InputError, parse_toml
 from ..core.files import read_text_input
 from ..core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
+from .effects import ARCSEC_PER_DEG
 
 ENCODER_REQUIRED = {"module": STR, "run": INT, "step": INT, "nominal_deg": FLOAT,
                     "encoder_deg": FLOAT, "autocollimator_arcsec": FLOAT}
@@ -198,7 +199,7 @@ def derive_encoder(frame: pd.DataFrame, campaign: dict) -> pd.DataFrame:
         k = np.mod(np.round(nom * nfaces / 360.0).astype(np.int64) + out["setting"].to_numpy()[idx], nfaces)
         fe = face_err[k] if face_err.size == nfaces[0] else np.zeros(idx.size)
         face[idx] = k
-        error[idx] = (enc - enc[0]) * 3600.0 - (nom * 3600.0 + out["autocollimator_arcsec"].to_numpy()[idx] + fe)
+        error[idx] = (enc - enc[0]) * ARCSEC_PER_DEG - (nom * ARCSEC_PER_DEG + out["autocollimator_arcsec"].to_numpy()[idx] + fe)
         if has_time:
             t = frame["timestamp"].iloc[idx]
             time_s[idx] = (t - t.iloc[0]).dt.total_seconds().to_numpy()

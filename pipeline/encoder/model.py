@@ -19,23 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from .aliasing import check_orders, max_full_order
-from .effects import EncoderData, Harmonic, harmonic_columns
-from .harmonic import amplitude_phase
-
-
-def circular_mean_deg(phi_deg, axis=0):
-    """Mean direction of angles in degrees, in [0, 360)."""
-    ph = np.deg2rad(np.asarray(phi_deg, float))
-    return np.mod(np.rad2deg(np.arctan2(np.sin(ph).mean(axis), np.cos(ph).mean(axis))), 360.0)
-
-
-def circular_range_deg(phi_deg) -> float:
-    """Smallest arc (deg) containing all the angles."""
-    ph = np.sort(np.mod(np.asarray(phi_deg, float), 360.0))
-    if ph.size < 2:
-        return 0.0
-    gaps = np.diff(np.concatenate([ph, [ph[0] + 360.0]]))
-    return float(360.0 - gaps.max())
+from .effects import EncoderData, Harmonic
+from .harmonic import harmonic_columns
+from .harmonic import amplitude_phase, circular_mean_deg, circular_range_deg  # noqa: F401 (re-exported)
 
 
 class EncoderModel:
@@ -152,11 +138,17 @@ class EncoderModel:
         return self.C0_ + X @ self.coef_
 
     def predict_theta(self, theta_deg) -> np.ndarray:
-        """Modelled error (arcsec) at joint angles alone: harmonic terms and constant only."""
+        """Modelled error (arcsec) at joint angles alone: the constant and the terms of the
+        ``compensable`` effects (their :meth:`~pipeline.encoder.effects.EncoderEffect.compensation_columns`)."""
         theta_deg = np.asarray(theta_deg, float)
-        _, H = harmonic_columns(theta_deg, self.orders_)
-        n = H.shape[1]
-        return self.C0_ + H @ self.coef_[:n]
+        terms = []
+        for e in self.effects:
+            if e.compensable:
+                labels, X = e.compensation_columns(theta_deg, self)
+                terms.append(X @ self.coef_[[self.labels_.index(lab) for lab in labels]])
+        if not terms:
+            return self.C0_ + np.zeros(theta_deg.shape)
+        return self.C0_ + (terms[0] if len(terms) == 1 else np.sum(terms, axis=0))
 
     def terms(self) -> list[dict]:
         """Kept harmonic terms: order, C (arcsec), phi (deg); order 0 as the signed constant."""
@@ -187,3 +179,17 @@ def residual_without_constant(y, yhat, run) -> np.ndarray:
 def peak_to_peak(values) -> float:
     values = np.asarray(values, float)
     return float(values.max() - values.min())
+
+
+def leave_one_run_out(data: EncoderData, make_model):
+    """The leave-one-run-out folds of ``data``: yield ``(run, held_out_mask, model, residual)``.
+
+    ``model = make_model().fit(other runs)``; ``residual`` (arcsec) is the held-out run's,
+    its own unknown start constant removed (one nuisance parameter), never anything else.
+    The one implementation behind ``jointcal fit``'s CV RMS, ``select``'s CV path and diagnosis.
+    """
+    for r in data.runs:
+        test = data.run == r
+        model = make_model().fit(data.subset(~test))
+        d = data.subset(test)
+        yield r, test, model, residual_without_constant(d.error_arcsec, model.predict(d), d.run)

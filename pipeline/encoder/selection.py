@@ -18,7 +18,7 @@ import pandas as pd
 
 from .effects import EncoderData, Harmonic
 from .harmonic import analyse_runs
-from .model import EncoderModel, circular_range_deg, residual_without_constant
+from .model import EncoderModel, circular_range_deg, leave_one_run_out
 
 PAPER_DEFAULTS = {"amplitude_strong_arcsec": 10.0, "amplitude_min_arcsec": 4.0, "phase_range_max_deg": 30.0}
 
@@ -88,10 +88,8 @@ def loro_cv_rms(data: EncoderData, effects, orders=None, fit_method="pooled", n_
     if runs.size < 2:
         raise ValueError("cross-validation needs at least two runs")
     sq, n = 0.0, 0
-    for r in runs:
-        train, test = data.subset(data.run != r), data.subset(data.run == r)
-        model = EncoderModel(effects, orders=orders, fit_method=fit_method, n_max=n_max).fit(train)
-        res = residual_without_constant(test.error_arcsec, model.predict(test), test.run)
+    make = lambda: EncoderModel(effects, orders=orders, fit_method=fit_method, n_max=n_max)  # noqa: E731
+    for _, _, _, res in leave_one_run_out(data, make):
         sq += float(res @ res)
         n += res.size
     return float(np.sqrt(sq / n))

@@ -26,6 +26,31 @@ import numpy as np
 import pandas as pd
 
 from ..core.files import write_json, write_text
+from .effects import ARCSEC_PER_DEG, EFFECTS, REFERENCE_TEMPERATURE_C, effect_class
+
+
+class SimulatedRun:
+    """One simulated run while the hidden effect is injected into it (all angles deg, errors arcsec).
+
+    An effect's :meth:`~pipeline.encoder.effects.EncoderEffect.inject` may append terms
+    ``(order, C_arcsec, phi_deg)`` to ``components`` (errors of the joint over its angle),
+    append arrays of shape (n,) to ``error_terms`` (added to the reading's error), replace
+    ``temperature_c`` or ``true_deg``, and set ``setting`` (the polygon face the run starts
+    on; then written as the ``setting`` column) and ``face`` (face of each reading).
+    """
+
+    def __init__(self, number, seed, faces, steps, nominal_deg, direction, time_s, temperature_c, true_deg, components):
+        self.number, self.seed, self.faces = number, seed, faces
+        self.steps, self.nominal_deg, self.direction = steps, nominal_deg, direction
+        self.time_s, self.temperature_c, self.true_deg = time_s, temperature_c, true_deg
+        self.components = components
+        self.error_terms: list[np.ndarray] = []
+        self.setting: int | None = None
+        self.face: np.ndarray | None = None
+
+    def lab_temperature(self, swing_k: float) -> np.ndarray:
+        """The run's lab temperature with another swing (see :func:`lab_temperature`)."""
+        return lab_temperature(self.seed, self.number, self.time_s, swing_k=swing_k)
 
 # Published models (paper 1, Eqs. 7 and 8): order -> (C arcsec, phi deg)
 PAPER_MODELS = {
@@ -75,9 +100,9 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
     two_way : bool
         Go round and come back (2 * faces + 1 readings, direction -1 on the way back).
     hidden : dict, optional
-        Extra effect: ``{"effect": "direction", "arcsec": h}`` (half hysteresis),
-        ``{"effect": "drift", "arcsec_per_h": d}``, ``{"effect": "temperature", "arcsec_per_K": k}``
-        or ``{"effect": "harmonic", "order": i, "arcsec": c}``.
+        Extra effect, ``{"effect": NAME, ...}`` as :func:`hidden_encoder_effect` draws it (e.g.
+        ``{"effect": "direction", "arcsec": h}``); the effect's class injects it
+        (:meth:`pipeline.encoder.effects.EncoderEffect.inject` on a :class:`SimulatedRun`).
 
     Returns
     -------
@@ -89,6 +114,7 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
     published = config["published"]
     rows, truth_runs = [], []
     hidden = hidden or {}
+    hidden_cls = effect_class(hidden["effect"]) if hidden else None
     for r in range(1, runs + 1):
         comp = []
         for i, (C, phi) in sorted(published.items()):
@@ -98,8 +124,24 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
             comp.append((j, c * (1 + rng.normal(0, 0.1)), rng.uniform(0, 360)))
         for j, (c, psi) in sorted(config["weak_stable"].items()):
             comp.append((j, c, psi + rng.normal(0, 3.0)))
-        if hidden.get("effect") == "harmonic":
-            comp.append((int(hidden["order"]), float(hidden["arcsec"]), float(hidden.get("phase_deg", 0.0))))
+
+        k = np.arange(faces + 1)
+        steps = np.concatenate([k, k[-2::-1]]) if two_way else k
+        direction = np.concatenate([np.ones(faces + 1), -np.ones(faces)]) if two_way else np.ones(faces + 1)
+        n = steps.size
+        nominal = steps * pitch
+        ac = np.round(rng.uniform(-config["nulling_arcsec"], config["nulling_arcsec"], n), 2)
+        true_deg = nominal + ac / ARCSEC_PER_DEG
+        t_start = start + dt.timedelta(days=3 * (r - 1), minutes=float(rng.uniform(0, 120)))
+        t_s = np.cumsum(np.concatenate([[0.0], rng.uniform(50, 70, n - 1)]))
+        rng.normal(0, 0.1)  # kept so the main random stream (and the fixture) is unchanged
+        temp = lab_temperature(config["seed"], r, t_s)
+        noise = rng.normal(0, config["noise_arcsec"], n)
+        run = SimulatedRun(number=r, seed=config["seed"], faces=faces, steps=steps, nominal_deg=nominal,
+                           direction=direction, time_s=t_s, temperature_c=temp, true_deg=true_deg, components=comp)
+        if hidden_cls is not None:
+            hidden_cls.inject(hidden, run)
+        temp, true_deg = run.temperature_c, run.true_deg
         orders = np.array([c[0] for c in comp], float)
         amps = np.array([c[1] for c in comp])
         phases = np.deg2rad([c[2] for c in comp])
@@ -108,40 +150,27 @@ def simulate_encoder(module: str, config: dict, runs: int = 6, faces: int = 36, 
             th = np.deg2rad(np.asarray(theta_deg, float))[:, None]
             return (amps * np.sin(orders * th + phases)).sum(axis=1)
 
-        k = np.arange(faces + 1)
-        steps = np.concatenate([k, k[-2::-1]]) if two_way else k
-        direction = np.concatenate([np.ones(faces + 1), -np.ones(faces)]) if two_way else np.ones(faces + 1)
-        n = steps.size
-        nominal = steps * pitch
-        ac = np.round(rng.uniform(-config["nulling_arcsec"], config["nulling_arcsec"], n), 2)
-        true_deg = nominal + ac / 3600.0
-        t_start = start + dt.timedelta(days=3 * (r - 1), minutes=float(rng.uniform(0, 120)))
-        t_s = np.cumsum(np.concatenate([[0.0], rng.uniform(50, 70, n - 1)]))
-        rng.normal(0, 0.1)  # kept so the main random stream (and the fixture) is unchanged
-        temp = lab_temperature(config["seed"], r, t_s)
-        e = err(true_deg) + rng.normal(0, config["noise_arcsec"], n)
-        if hidden.get("effect") == "direction":
-            e = e + float(hidden["arcsec"]) * direction
-        if hidden.get("effect") == "drift":
-            e = e + float(hidden["arcsec_per_h"]) * t_s / 3600.0
-        if hidden.get("effect") == "temperature":
-            temp = lab_temperature(config["seed"], r, t_s, swing_k=3.0)
-            e = e + float(hidden["arcsec_per_K"]) * (temp - 20.0)
+        e = err(true_deg) + noise
+        for term in run.error_terms:
+            e = e + term
         if config.get("error_of") == "reading":
             # error as a function of the joint's own reading (the contract's theta): solve
             # reading = true + e(reading) by fixed-point iteration (|de/dtheta| << 1)
             other = e - err(true_deg)  # noise and any hidden non-harmonic effect
-            reading = true_deg + e / 3600.0
+            reading = true_deg + e / ARCSEC_PER_DEG
             for _ in range(4):
-                reading = true_deg + (err(reading) + other) / 3600.0
-            e = (reading - true_deg) * 3600.0
-        encoder = true_deg + e / 3600.0
+                reading = true_deg + (err(reading) + other) / ARCSEC_PER_DEG
+            e = (reading - true_deg) * ARCSEC_PER_DEG
+        encoder = true_deg + e / ARCSEC_PER_DEG
         stamps = [(t_start + dt.timedelta(seconds=float(s))).strftime("%Y-%m-%dT%H:%M:%SZ") for s in t_s]
         for s in range(n):
-            rows.append({"module": module, "run": r, "step": s, "nominal_deg": nominal[s],
-                         "encoder_deg": np.mod(encoder[s], 360.0), "autocollimator_arcsec": ac[s],
-                         "direction": int(direction[s]), "timestamp": stamps[s],
-                         "temperature_c": round(float(temp[s]), 2)})
+            row = {"module": module, "run": r, "step": s, "nominal_deg": nominal[s],
+                   "encoder_deg": np.mod(encoder[s], 360.0), "autocollimator_arcsec": ac[s],
+                   "direction": int(direction[s]), "timestamp": stamps[s],
+                   "temperature_c": round(float(temp[s]), 2)}
+            if run.setting is not None:
+                row["setting"] = run.setting
+            rows.append(row)
         truth_runs.append({"run": r, "components": [{"order": int(o), "C_arcsec": float(a), "phi_deg": float(np.rad2deg(p) % 360)}
                                                    for o, a, p in zip(orders, amps, phases)]})
     frame = pd.DataFrame(rows)
@@ -161,7 +190,7 @@ def lab_temperature(seed: int, run: int, t_s, swing_k: float = 0.4):
     g = np.random.default_rng([seed, run, 11])
     u = np.asarray(t_s, float) / max(float(t_s[-1]), 1.0)
     wander = sum(g.normal(0, swing_k / 3) * np.sin(np.pi * (k + 1) * u + g.uniform(0, 2 * np.pi)) for k in range(3))
-    return 20.0 + g.normal(0, 0.5) + g.uniform(-swing_k, swing_k) * u + wander
+    return REFERENCE_TEMPERATURE_C + g.normal(0, 0.5) + g.uniform(-swing_k, swing_k) * u + wander
 
 
 def _plain(obj):
@@ -197,23 +226,26 @@ def write_encoder_campaign(out_dir, module: str, frame: pd.DataFrame, truth: dic
 def hidden_encoder_effect(text: str, seed: int) -> dict:
     """Parse ``EFFECT[:TARGET]`` and draw a realistic size for it (seeded).
 
-    Sizes are drawn between "barely above the reading noise" and "large":
-    direction 1-8 arcsec half-hysteresis, drift 2-15 arcsec/h, temperature 1-6 arcsec/K,
-    harmonic 2-10 arcsec at a random phase.
+    Sizes are drawn by the effect's class (:meth:`~pipeline.encoder.effects.EncoderEffect.hidden`)
+    between "barely above the reading noise" and "large": direction 1-8 arcsec half-hysteresis,
+    drift 2-15 arcsec/h, temperature 1-6 arcsec/K, harmonic 2-10 arcsec at a random phase,
+    polygon face errors of 1-4 arcsec RMS with runs at several settings.
     """
     rng = np.random.default_rng([seed, 7])
     name, _, target = text.partition(":")
-    if name == "direction":
-        return {"effect": "direction", "arcsec": float(rng.uniform(1, 8))}
-    if name == "drift":
-        return {"effect": "drift", "arcsec_per_h": float(rng.choice([-1, 1]) * rng.uniform(2, 15))}
-    if name == "temperature":
-        return {"effect": "temperature", "arcsec_per_K": float(rng.choice([-1, 1]) * rng.uniform(1, 6))}
-    if name == "harmonic":
-        order = int(target) if target else int(rng.choice([2, 3, 5, 6, 9, 10, 11, 13]))
-        return {"effect": "harmonic", "order": order, "arcsec": float(rng.uniform(2, 10)),
-                "phase_deg": float(rng.uniform(0, 360))}
-    raise ValueError(f"unknown hidden encoder effect {name!r}; use direction, drift, temperature or harmonic:ORDER")
+    try:
+        cls = effect_class(name)
+    except KeyError:
+        cls = None
+    if cls is None or not cls.hidden_syntax:
+        raise ValueError(f"unknown hidden encoder effect {name!r}; use {hidden_effects_help()}")
+    return cls.hidden(rng, target)
+
+
+def hidden_effects_help() -> str:
+    """The ``--hidden`` choices, from the effects that can be simulated."""
+    names = [cls.hidden_syntax for cls in EFFECTS if cls.hidden_syntax]
+    return ", ".join(names[:-1]) + " or " + names[-1]
 
 
 def clean_encoder_config(module: str = "a", seed: int = 0, noise_arcsec: float = 0.9) -> dict:

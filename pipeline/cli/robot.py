@@ -180,6 +180,17 @@ def _common(f):
     return f
 
 
+def _refuse(where, message: str, out) -> None:
+    """A result that must not be used: one line, exit status 1 (not bad input), no output file
+    (a previous one at ``out`` is removed, so no stale model reaches the next stage)."""
+    stale = Path(out).exists()
+    if stale:
+        Path(out).unlink()
+    click.echo(f"jointcal: error: {where}: {message}; nothing written{f' (removed the previous {out})' if stale else ''}",
+               err=True)
+    sys.exit(1)
+
+
 @robot_group.command("calibrate")
 @_common
 @click.option("--spec", "spec_path", default=DEFAULT_SPEC, show_default=True, type=click.Path(),
@@ -208,12 +219,7 @@ def calibrate_cmd(interim, robot_path, spec_path, out):
                   implausible=model.implausible_)
     problems = fit_problems(report)
     if problems:
-        stale = Path(out).exists()
-        if stale:
-            Path(out).unlink()
-        click.echo(f"jointcal: error: {interim}: MDH calibration unusable: {'; '.join(problems)}; nothing written"
-                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
-        sys.exit(1)
+        _refuse(interim, f"MDH calibration unusable: {'; '.join(problems)}", out)
     write_json(out, report)
     click.echo(f"{out}: rank {report['rank']}/{report['n_params']}, condition {report['condition_number']:.0f}, "
                f"fixed {', '.join(report['not_identifiable']) or 'none'}; RMS {report['rms_before_mm']:.3f} -> "
@@ -265,12 +271,7 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
     seconds = {"lm": lm.pop("seconds"), "scipy": sp.pop("seconds")}  # wall time is not a result (same bytes)
     problems = cross_check_problems(result)
     if problems:
-        stale = Path(out).exists()
-        if stale:
-            Path(out).unlink()
-        click.echo(f"jointcal: error: {interim}: Chebyshev identification unusable: {'; '.join(problems)}; "
-                   f"nothing written{f' (removed the previous {out})' if stale else ''}", err=True)
-        sys.exit(1)
+        _refuse(interim, f"Chebyshev identification unusable: {'; '.join(problems)}", out)
     write_json(out, result)
     click.echo(f"{out}: {result['n_params']} coefficients, rank {result['rank']}; improved L-M cost {lm['cost_mm2']:.5f} "
                f"({lm['iterations']} it, {seconds['lm']:.2f} s), scipy {sp['cost_mm2']:.5f} ({sp['iterations']} ev, "
@@ -339,17 +340,10 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     size = np.where(np.isfinite(dth), np.abs(dth), np.inf)
     beyond = size > max_correction_deg
     if beyond.any():
-    
         k, c = np.unravel_index(int(np.argmax(size)), size.shape)
-        stale = Path(out).exists()
-        if stale:
-            Path(out).unlink()
-        click.echo(f"jointcal: error: {model_path}: target {tg['point_id'].iloc[k]} needs joint {joints[c]} corrected "
-                   f"by {dth[k, c]:.4g} deg, beyond --max-correction-deg {max_correction_deg:g} "
-                   f"({int(beyond.any(axis=1).sum())} of {len(tg)} targets beyond; the model, or the mapping near a "
-                   f"singular pose, is not plausible there); nothing written"
-                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
-        sys.exit(1)
+        _refuse(model_path, f"target {tg['point_id'].iloc[k]} needs joint {joints[c]} corrected by {dth[k, c]:.4g} deg, "
+                f"beyond --max-correction-deg {max_correction_deg:g} ({int(beyond.any(axis=1).sum())} of {len(tg)} "
+                "targets beyond; the model, or the mapping near a singular pose, is not plausible there)", out)
     table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
     for j in range(6):
         table[f"q{j + 1}"] = data.q_deg[:, j]
@@ -657,12 +651,7 @@ def fit_robot(campaign, spec, spec_path, out):
     result["provenance"] = provenance(files, spec_path)
     problems = fit_problems(result)
     if problems:
-        stale = Path(out).exists()
-        if stale:
-            Path(out).unlink()
-        click.echo(f"jointcal: error: {campaign}: {'; '.join(problems)}; nothing written"
-                   f"{f' (removed the previous {out})' if stale else ''}", err=True)
-        sys.exit(1)
+        _refuse(campaign, '; '.join(problems), out)
     write_json(out, result)
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "

@@ -151,7 +151,10 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     if th:
         lines += wrap(f"A candidate is meaningful when its gain >= {100 * th['min_gain']:.3g} % and "
                       f"p <= alpha / N = {th['alpha']:g} / {len(result['candidates'])} = {th['p_max']:.2g} "
-                      "(Bonferroni: with nothing missing, any false alarm has chance < alpha).", "")
+                      "(Bonferroni: with nothing missing, any false alarm has chance < alpha)"
+                      + ("; and when it also lowers the error on regions of joint space held out in turn "
+                         f"(baseline {b['cv_rms_region']:.4g} {unit}) and is physically plausible - otherwise it is "
+                         "refused, with the reason below." if "cv_rms_region" in b else "."), "")
         lines.append("")
     head = f"{'#':>3}  {'effect':<16}{'target':>7}  {'cv_rms_with':>12}  {'gain':>7}  {'p':>8}  meaningful"
     lines += [head, "-" * len(head)]

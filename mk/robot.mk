@@ -11,7 +11,7 @@ ROBOT_ARGS := --interim $(ROBOT_INTERIM) --robot $(ROBOT_TOML)
 ROBOT_ENV := OPENBLAS_NUM_THREADS=1
 
 ALL_TARGETS += robot
-SUMMARY_DEPS += $(ROBOT_RES)/table2.json $(ROBOT_RES)/beyond/table2.json
+SUMMARY_DEPS += $(ROBOT_RES)/table2.json $(ROBOT_RES)/beyond/table2.json $(ROBOT_SPEC) specs/robot_beyond.toml
 
 .PHONY: robot fixtures-robot
 

@@ -124,15 +124,25 @@ def validate_robot(campaign, problems):
 
 
 # ------------------------------------------------------------------------------ simulate
+class HiddenOption(click.Option):
+    """``--hidden``: its help lists the robot effects the simulator can hide, from the registry
+    (looked up only when help is shown, so that start-up stays free of the library)."""
+
+    def get_help_record(self, ctx):
+        from ..robot.simulate import hidden_effects_help
+
+        self.help = self.help.replace("{choices}", hidden_effects_help())
+        return super().get_help_record(ctx)
+
+
 @click.command("robot")
 @click.option("--campaign", default="raw/robot/kr210", show_default=True, type=click.Path(file_okay=False),
               help="Campaign folder holding robot.toml; receives poses.csv and tracker.csv.")
 @click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
               type=click.Path(dir_okay=False), help="Where the generator's truth goes (never read by the pipeline).")
 @click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
-@click.option("--hidden", default=None, metavar="EFFECT[:JOINT]",
-              help="Add one effect the paper's spec lacks, at a random realistic size: thermal, tool, base, "
-                   "joint_harmonic:J, backlash:J or compliance:J.")
+@click.option("--hidden", cls=HiddenOption, default=None, metavar="EFFECT[:JOINT]",
+              help="Add one effect the paper's spec lacks, at a random realistic size: {choices}.")
 def simulate_robot_cmd(campaign, truth_path, seed, hidden):
     """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
 
@@ -386,7 +396,7 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     import numpy as np
 
     from ..core.files import write_json
-    from ..robot.closedloop import CYCLE_S, KD, KP, pd_poles
+    from ..robot.closedloop import CYCLE_S, KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG, pd_poles
     from ..robot.simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
 
     _edge()
@@ -403,7 +413,7 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     k = int(np.argsort(cycles[:, 1])[len(cycles) // 2])       # a typical target (median cycles of joint 2)
     stop = int(cycles[k].max()) + 25
     poles = pd_poles()
-    out_json = {"cycle_s": CYCLE_S, "kP": KP, "kD": KD, "rough_step_deg": 0.002, "rough_limit_deg": 0.007,
+    out_json = {"cycle_s": CYCLE_S, "kP": KP, "kD": KD, "rough_step_deg": ROUGH_STEP_DEG, "rough_limit_deg": ROUGH_LIMIT_DEG,
                 "poles": [float(p) for p in poles], "stable": bool(np.all(np.abs(poles) < 1)),
                 "cycles_median": float(np.median(cycles)), "cycles_max": int(cycles.max()),
                 "seconds_max": float(cycles.max() * CYCLE_S),

@@ -1,7 +1,8 @@
 """``jointcal summary``: ``results/summary.json`` (contract section 5) from the stages' results.
 
 It gathers the results of both chains (encoder models, the robot's Table 2, the real robot's
-transfer table), so it sits above them both, with the command line; it reads only JSON.
+transfer table), so it sits above them both, with the command line; it reads JSON, and the two
+robot specs' effect tables (what "beyond the paper" adds).
 """
 
 from __future__ import annotations
@@ -10,7 +11,36 @@ from pathlib import Path
 
 import click
 
+from ..core.errors import parse_toml
 from .common import read_json
+
+#: the paper's robot spec and the one that goes beyond it (what diagnosis found missing)
+PAPER_SPEC = "specs/robot_paper.toml"
+BEYOND_SPEC = "specs/robot_beyond.toml"
+
+
+def _joints_text(joints) -> str:
+    j = sorted(int(x) for x in joints)
+    if len(j) > 2 and j == list(range(j[0], j[-1] + 1)):
+        return f"joints {j[0]}-{j[-1]}"
+    return ("joint " if len(j) == 1 else "joints ") + ", ".join(map(str, j))
+
+
+def added_effects(paper_spec=PAPER_SPEC, beyond_spec=BEYOND_SPEC) -> str:
+    """What ``beyond_spec`` adds to ``paper_spec``, in words: its ``[[effect]]`` tables that the
+    paper's spec lacks, e.g. "backlash of joints 4-6" (read as TOML: the effect vocabulary is
+    not needed to compare two tables)."""
+    def tables(path):
+        return parse_toml(Path(path).read_text(encoding="utf-8"), path).get("effect", [])
+
+    paper = tables(paper_spec)
+    parts = []
+    for t in tables(beyond_spec):
+        if t in paper:
+            continue
+        joints = t.get("joints")
+        parts.append(f"{t['name']} of {_joints_text(joints)}" if joints else t["name"])
+    return ", ".join(parts)
 
 
 def build_summary(encoder_models: dict, robot: dict | None, real: dict | None = None) -> dict:
@@ -61,7 +91,7 @@ def summary(encoder_results, robot_results, real_results, out):
     beyond_path = Path(robot_results) / "beyond" / "table2.json"
     if robot is not None and beyond_path.exists():
         b = read_json(beyond_path)
-        robot["beyond_paper"] = {"spec": "specs/robot_beyond.toml", "added": "backlash of joints 4-6",
+        robot["beyond_paper"] = {"spec": BEYOND_SPEC, "added": added_effects(PAPER_SPEC, BEYOND_SPEC),
                                  "feedback": b["feedback"], "max_reduction_pct": b["max_reduction_pct"]}
     real_path = Path(real_results) / "transfer.json"
     real = read_json(real_path) if real_path.exists() else None

@@ -14,31 +14,14 @@ import numpy as np
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..robot.calibrate import Design
+from ..robot.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.kinematics import gravity_torques
 from ..robot.lm import describe_implausible, implausible_parameters
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
 
-JH_MAX_ORDER = 16
 REDUNDANT = 0.02
-PER_JOINT = ("backlash", "compliance", "joint_map", "joint_harmonic", "chebyshev")
-WHOLE = ("geometry", "base", "tool", "thermal")
-
-
-def jh_orders(q_deg, top=16):
-    """Orders of a periodic joint error worth a candidate on these poses.
-
-    Over a joint range of R degrees, order k completes k R / 360 cycles. Below half a cycle
-    every order looks alike (an offset, a slope and a gentle curve, mostly taken up by the
-    joint's MDH offset), so order 1 stands for all of them; every order that completes half a
-    cycle or more, up to ``top``, is a candidate of its own.
-    """
-    R = float(np.ptp(q_deg))
-    if R <= 0:
-        return []
-    first = max(1, int(np.ceil(180.0 / R)))
-    return sorted({1} | set(range(min(first, top + 1), top + 1)))
 
 
 _EVAL = None
@@ -65,6 +48,8 @@ class RobotAdapter:
     """
 
     unit = "mm"
+    #: the effects diagnosis tries (a test may give a registry of its own)
+    registry = REGISTRY
     parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
     def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1):
@@ -79,28 +64,10 @@ class RobotAdapter:
         return list(spec.effects)
 
     def candidates(self, spec, data, base_effects):
-        present = {}
-        for e in base_effects:
-            joints = e.joints() if hasattr(e, "joints") and "joints" in e.allowed_params else None
-            present.setdefault(e.name, set()).update(joints or range(1, 7))
-        out = []
-        for name in WHOLE:
-            if name not in present:
-                out.append(REGISTRY.make("robot", name))
-        for name in PER_JOINT:
-            if name == "joint_harmonic":
-                continue
-            for j in range(1, 7):
-                if j not in present.get(name, set()):
-                    out.append(REGISTRY.make("robot", name, joints=[j]))
-        # a periodic joint error, one candidate per joint and order (1..16 cycles per turn,
-        # the orders of the first paper's joint modules), as for an encoder
-        have_jh = {(j, k) for e in base_effects if e.name == "joint_harmonic" for j in e.joints() for k in e.orders()}
-        for j in range(1, 7):
-            for k in jh_orders(data.q_deg[:, j - 1]):
-                if (j, k) not in have_jh:
-                    out.append(REGISTRY.make("robot", "joint_harmonic", joints=[j], orders=[k]))
-        return out
+        """Every robot effect's candidates (:meth:`pipeline.robot.effects.RobotEffect.candidates`), in
+        diagnosis order: the whole-robot effects, then the per-joint ones joint by joint, then the
+        periodic joint errors per joint and order."""
+        return [c for cls in effect_classes(self.registry) for c in cls.candidates(data, list(base_effects))]
 
     @staticmethod
     def add(base_effects, cand):
@@ -118,7 +85,7 @@ class RobotAdapter:
           columns is outside the baseline's column space.
         """
         gj = getattr(data, "grating_joints", ())
-        if cand.name in ("backlash", "compliance", "joint_harmonic", "joint_map") and cand.target() in gj:
+        if getattr(cand, "on_joint_angle", False) and cand.target() in gj:
             return (f"joint {cand.target()} is read by its grating: the model takes its true angle, so its "
                     "angle errors never reach the residuals (and the closed loop removes them)")
         if base_effects:

@@ -28,7 +28,7 @@ import numpy as np
 import scipy.linalg
 
 from . import lm  # the solvers as lm.improved_lm: looked up at call time (tests wrap them)
-from .effects import Base, Geometry, RobotData, RobotEffect
+from .effects import REFERENCE_TEMPERATURE_C, Base, Geometry, RobotData, RobotEffect
 from .kinematics import Robot, build_error_model, positions_and_jacobians, positions
 from .lm import GAIN_REL_CONVERGED, implausible_parameters
 
@@ -460,7 +460,7 @@ class RobotErrorModel:
 
 def _empty_data(robot):
     z = np.zeros((1, 6))
-    return RobotData(z + (robot.lower_deg + robot.upper_deg) / 2, np.ones((1, 6), int), np.zeros(1), np.full(1, 20.0),
+    return RobotData(z + (robot.lower_deg + robot.upper_deg) / 2, np.ones((1, 6), int), np.zeros(1), np.full(1, REFERENCE_TEMPERATURE_C),
                      z, robot.lower_deg, robot.upper_deg)
 
 

@@ -21,13 +21,20 @@ Jacobian columns are of order 1 mm per unit) and reported in the contract's unit
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
+import pinocchio as pin
 
-from ..core.effect import Effect
+from ..core.effect import REGISTRY, Effect
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
 MRAD_ARCSEC = 206.264806  # arcsec per mrad
+#: degC, the reference temperature of the ``thermal`` effect (lengths are nominal at it), of a
+#: campaign without temperatures, and of the simulated lab
+REFERENCE_TEMPERATURE_C = 20.0
+#: Joint numbers of a six-axis robot
+ALL_JOINTS = (1, 2, 3, 4, 5, 6)
 #: A compliance is revealable only when the joint's gravity torque varies by at least this much
 #: between poses (N m); the UR10's wrist joints carry under 1 N m in any pose.
 MIN_TORQUE_SPREAD_NM = 50.0
@@ -81,8 +88,73 @@ def _joints(params, default=(1, 2, 3, 4, 5, 6)):
 
 
 class RobotEffect(Effect):
+    """A robot effect: channels of the error model (:meth:`basis`), and everything else about it.
+
+    Hooks beside those of :class:`pipeline.core.effect.Effect`:
+
+    ``diagnosis_order``, ``per_joint``
+        where the effect's candidates come in diagnosis's list (results depend on the order),
+        and whether it is tried joint by joint (one candidate per joint not yet in the model)
+        or once for the whole robot.
+    ``on_joint_angle``
+        it is an error of a joint's angle: a joint read by a grating hides it.
+    ``hidden_syntax``, ``hidden(rng, target, joint)`` (classmethod)
+        ``jointcal simulate robot --hidden`` syntax, and a realistic size drawn for it.
+    ``inject_truth``, ``inject_joint_error``, ``inject_conditions``, ``inject_measurement``
+        (classmethods) how the simulator puts the hidden effect into its virtual cell
+        (:mod:`pipeline.robot.simulate`); each does nothing by default.
+    """
+
     domain = "robot"
     allowed_params = ("joints",)
+    #: position of the effect's candidates in diagnosis's list (keep: results depend on it)
+    diagnosis_order: ClassVar[int] = 100
+    #: diagnosis tries it joint by joint (else once for the whole robot)
+    per_joint: ClassVar[bool] = True
+    #: an error of a joint's angle: a joint read by a grating never shows it
+    on_joint_angle: ClassVar[bool] = False
+    #: ``jointcal simulate robot --hidden`` syntax (empty: cannot be simulated)
+    hidden_syntax: ClassVar[str] = ""
+
+    @classmethod
+    def candidates(cls, data, present):
+        """One candidate per joint the model ``present`` lacks it on (per-joint effects), or one
+        for the whole robot unless the model has it."""
+        if not cls.per_joint:
+            return [] if any(e.name == cls.name for e in present) else [cls()]
+        covered = set()
+        for e in present:
+            if e.name == cls.name:
+                joints = e.joints() if hasattr(e, "joints") and "joints" in e.allowed_params else None
+                covered.update(joints or ALL_JOINTS)
+        return [cls(joints=[j]) for j in ALL_JOINTS if j not in covered]
+
+    # --- the simulator's interface (a hidden effect, ``{"effect": name, ...}``)
+    @classmethod
+    def hidden(cls, rng, target: str, joint: int) -> dict:
+        """A realistic size for ``--hidden NAME[:TARGET]`` drawn from ``rng``; ``joint`` is the
+        target joint (drawn when ``target`` is empty)."""
+        raise ValueError(f"effect '{cls.name}' cannot be hidden in a simulated campaign")
+
+    @classmethod
+    def inject_truth(cls, hidden, true_robot, compliance_deg_per_nm, backlash_deg):
+        """The true robot of the cell with the effect (arrays may be changed in place)."""
+        return true_robot
+
+    @classmethod
+    def inject_joint_error(cls, hidden, q_rad, error_deg) -> None:
+        """Add the effect's repeatable joint angle error (deg) at ``q_rad`` (n, 6) to ``error_deg``."""
+
+    @classmethod
+    def inject_conditions(cls, hidden, payload_kg, temperature_c, t_s, draw):
+        """Payload and temperature of the campaign's poses that show the effect; ``draw(k)`` is
+        the simulator's generator number ``k`` for conditions."""
+        return payload_kg, temperature_c
+
+    @classmethod
+    def inject_measurement(cls, hidden, xyz_mm, temperature_c):
+        """The tracker positions (n, 3) mm with the effect."""
+        return xyz_mm
 
     def joints(self):
         return _joints(self.params)
@@ -137,6 +209,11 @@ class RobotEffect(Effect):
 # ------------------------------------------------------------------------------- effects
 class Geometry(RobotEffect):
     name = "geometry"
+    diagnosis_order = 0
+    per_joint = False
+    acts_on = "link frame"
+    compensable = True
+    compensation = "the calibrated MDH parameters in the controller's kinematic model"
     explanation = ("Kinematic (MDH) parameter errors: the real link lengths, offsets and axis directions differ "
                    "from the nominal ones by manufacturing and assembly tolerances (the paper's Eqs. 3-6).")
     signature = ("a smooth position error that follows the arm's geometry: constant joint offsets and link "
@@ -169,6 +246,12 @@ class Geometry(RobotEffect):
 class Base(RobotEffect):
     name = "base"
     allowed_params = ()
+    diagnosis_order = 1
+    per_joint = False
+    acts_on = "base frame"
+    compensable = True
+    compensation = "the measured base frame in the controller (a frame registration)"
+    hidden_syntax = "base"
     explanation = "The robot base frame measured by the tracker is offset and rotated from where it was set up."
     signature = "a constant offset plus a rotation of all positions about the base origin"
 
@@ -181,10 +264,28 @@ class Base(RobotEffect):
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.base]
 
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """0.3-0.8 mm and 20-60 arcsec."""
+        v = rng.normal(size=3)
+        return {"effect": "base", "shift_mm": (v / np.linalg.norm(v) * rng.uniform(0.3, 0.8)).tolist(),
+                "rot_arcsec": rng.uniform(-60, 60, 3).tolist()}
+
+    @classmethod
+    def inject_measurement(cls, hidden, xyz_mm, temperature_c):
+        R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(hidden["rot_arcsec"]) / 3600))
+        return xyz_mm @ R.T + np.asarray(hidden["shift_mm"])
+
 
 class Tool(RobotEffect):
     name = "tool"
     allowed_params = ()
+    diagnosis_order = 2
+    per_joint = False
+    acts_on = "tool"
+    compensable = True
+    compensation = "the calibrated tool (SMR) offset in the controller's tool frame"
+    hidden_syntax = "tool"
     explanation = "The SMR sits elsewhere on the end effector than robot.toml says (tool offset error)."
     signature = "an error that rotates with the flange: depends on the wrist orientation, not on position"
 
@@ -196,6 +297,17 @@ class Tool(RobotEffect):
 
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.tool]
+
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """0.3-0.8 mm SMR offset."""
+        v = rng.normal(size=3)
+        return {"effect": "tool", "shift_mm": (v / np.linalg.norm(v) * rng.uniform(0.3, 0.8)).tolist()}
+
+    @classmethod
+    def inject_truth(cls, hidden, true_robot, compliance_deg_per_nm, backlash_deg):
+        return Robot(true_robot.name, true_robot.joints, tuple(np.add(true_robot.tool_xyz_mm, hidden["shift_mm"])),
+                     true_robot.path)
 
 
 def chebyshev_variable(q_deg, lower_deg, upper_deg):
@@ -215,6 +327,11 @@ def chebyshev_polys(x, order):
 class Chebyshev(RobotEffect):
     name = "chebyshev"
     allowed_params = ("order", "joints")
+    diagnosis_order = 7
+    acts_on = "link frame"
+    compensable = True
+    compensation = ("the error transfer matrices in the controller's model (a joint-angle dependent "
+                    "correction of every link frame)")
     explanation = ("Error transfer matrices (the second paper's Eqs. 7-13): every link frame carries a small "
                    "translation and rotation that varies smoothly with its joint angle, written as Chebyshev "
                    "polynomials; order 0 is geometry, higher orders are friction, transmission error and "
@@ -269,6 +386,12 @@ class Chebyshev(RobotEffect):
 
 class Compliance(RobotEffect):
     name = "compliance"
+    diagnosis_order = 5
+    on_joint_angle = True
+    acts_on = "joint angle"
+    compensable = True
+    compensation = "the controller adds compliance times the gravity torque of the pose and payload to the joint command"
+    hidden_syntax = "compliance:J"
     explanation = ("The joints give way under load: each joint deflects by its compliance times the gravity "
                    "torque it carries (arm weight and payload), so the arm sags more when stretched out or loaded.")
     signature = "error that grows with the gravity torque of a joint (pose- and payload-dependent droop)"
@@ -295,9 +418,29 @@ class Compliance(RobotEffect):
                            f"{spread.max():.2g} N m between these poses (same posture and payload)")
         return True, ""
 
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """+20-60 arcsec/kNm on joint J (joint 2 when none is named), with a payload that varies 0-150 kg."""
+        return {"effect": "compliance", "joint": joint if target else 2, "arcsec_per_knm": float(rng.uniform(20, 60))}
+
+    @classmethod
+    def inject_truth(cls, hidden, true_robot, compliance_deg_per_nm, backlash_deg):
+        compliance_deg_per_nm[hidden["joint"] - 1] += hidden["arcsec_per_knm"] / 3600 / 1000
+        return true_robot
+
+    @classmethod
+    def inject_conditions(cls, hidden, payload_kg, temperature_c, t_s, draw):
+        return np.round(draw(7).uniform(0.0, 150.0, len(payload_kg)), 1), temperature_c
+
 
 class Backlash(RobotEffect):
     name = "backlash"
+    diagnosis_order = 4
+    on_joint_angle = True
+    acts_on = "joint angle"
+    compensable = True
+    compensation = "the controller adds half the play to the command, by the direction the joint last moved"
+    hidden_syntax = "backlash:J"
     explanation = ("Play in the gears: a joint stops short by half its backlash on one side or the other, "
                    "depending on the direction it last moved.")
     signature = "residuals of poses reached with a joint turning forwards and backwards differ by a constant"
@@ -317,10 +460,26 @@ class Backlash(RobotEffect):
             return False, "every joint reached its poses turning one way only; both directions are needed"
         return True, ""
 
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """40-120 arcsec more play on joint J."""
+        return {"effect": "backlash", "joint": joint, "arcsec": float(rng.uniform(40, 120))}
+
+    @classmethod
+    def inject_truth(cls, hidden, true_robot, compliance_deg_per_nm, backlash_deg):
+        backlash_deg[hidden["joint"] - 1] += hidden["arcsec"] / 3600
+        return true_robot
+
 
 class Thermal(RobotEffect):
     name = "thermal"
     allowed_params = ()
+    diagnosis_order = 3
+    per_joint = False
+    acts_on = "link lengths (temperature)"
+    compensable = True
+    compensation = "the controller scales the link lengths by the expansion at the measured temperature"
+    hidden_syntax = "thermal"
     explanation = "The links grow with temperature (steel/aluminium expansion): all lengths scale by alpha * (T - 20 degC)."
     signature = "error proportional to the distance from the base, growing with temperature"
 
@@ -331,7 +490,7 @@ class Thermal(RobotEffect):
         return [("ppm/K", 1.0)]
 
     def basis(self, robot, idx, data):
-        dT = data.temperature_c - 20.0
+        dT = data.temperature_c - REFERENCE_TEMPERATURE_C
         ch = []
         for i, j in enumerate(robot.joints):
             RL = link_placement(j).rotation
@@ -349,10 +508,51 @@ class Thermal(RobotEffect):
             return False, "the temperature hardly changes between poses (less than 1 K)"
         return True, ""
 
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """8-14 ppm/K, with an 8 K temperature rise over the campaign."""
+        return {"effect": "thermal", "ppm_per_K": float(rng.uniform(8, 14))}
+
+    @classmethod
+    def inject_conditions(cls, hidden, payload_kg, temperature_c, t_s, draw):
+        return payload_kg, 18.0 + 8.0 * t_s / t_s[-1] + draw(8).normal(0, 0.2, len(t_s))
+
+    @classmethod
+    def inject_measurement(cls, hidden, xyz_mm, temperature_c):
+        if temperature_c is None:
+            return xyz_mm
+        return xyz_mm * (1.0 + hidden["ppm_per_K"] * 1e-6 * (np.asarray(temperature_c)[:, None] - REFERENCE_TEMPERATURE_C))
+
+
+#: the highest order of a periodic joint error diagnosis tries (cycles per joint turn, as the
+#: first paper's joint modules)
+JH_MAX_ORDER = 16
+
+
+def jh_orders(q_deg, top=JH_MAX_ORDER):
+    """Orders of a periodic joint error worth a candidate on these poses.
+
+    Over a joint range of R degrees, order k completes k R / 360 cycles. Below half a cycle
+    every order looks alike (an offset, a slope and a gentle curve, mostly taken up by the
+    joint's MDH offset), so order 1 stands for all of them; every order that completes half a
+    cycle or more, up to ``top``, is a candidate of its own.
+    """
+    R = float(np.ptp(q_deg))
+    if R <= 0:
+        return []
+    first = max(1, int(np.ceil(180.0 / R)))
+    return sorted({1} | set(range(min(first, top + 1), top + 1)))
+
 
 class JointHarmonic(RobotEffect):
     name = "joint_harmonic"
     allowed_params = ("joints", "orders")
+    diagnosis_order = 8
+    on_joint_angle = True
+    acts_on = "joint angle"
+    compensable = True
+    compensation = "a table of the joint's angle error over its angle, subtracted from the command"
+    hidden_syntax = "joint_harmonic:J"
     explanation = ("Periodic joint angle error of encoder and reducer (the first paper): each joint's angle is "
                    "off by a sum of sinusoids in the joint angle.")
     signature = "residual that oscillates with one joint's angle"
@@ -378,6 +578,25 @@ class JointHarmonic(RobotEffect):
     def target(self):
         j = self.params.get("joints")
         return int(j[0]) if isinstance(j, list) and len(j) == 1 else None
+
+    @classmethod
+    def candidates(cls, data, present):
+        """One candidate per joint and order (:func:`jh_orders` of the joint's sampled range), as for
+        an encoder, unless the model has that joint and order."""
+        have = {(j, k) for e in present if e.name == cls.name for j in e.joints() for k in e.orders()}
+        return [cls(joints=[j], orders=[k]) for j in ALL_JOINTS for k in jh_orders(data.q_deg[:, j - 1])
+                if (j, k) not in have]
+
+    @classmethod
+    def hidden(cls, rng, target, joint):
+        """Order 4-8 per turn, 15-40 arcsec on joint J."""
+        return {"effect": "joint_harmonic", "joint": joint, "order": int(rng.integers(4, 9)),
+                "arcsec": float(rng.uniform(15, 40)), "phase_deg": float(rng.uniform(0, 360))}
+
+    @classmethod
+    def inject_joint_error(cls, hidden, q_rad, error_deg):
+        j = hidden["joint"] - 1
+        error_deg[:, j] += hidden["arcsec"] / 3600 * np.sin(hidden["order"] * q_rad[:, j] + np.deg2rad(hidden["phase_deg"]))
 
 
 #: Beyond the sampled range of its joint a joint map fades to zero over this many degrees: the model
@@ -425,6 +644,11 @@ def joint_map_basis(q_deg, knots, fade_deg=JOINT_MAP_FADE_DEG):
 class JointMap(RobotEffect):
     name = "joint_map"
     allowed_params = ("joints", "step_deg", "smoothing", "range_deg")
+    diagnosis_order = 6
+    on_joint_angle = True
+    acts_on = "joint angle"
+    compensable = True
+    compensation = "a table of the joint's angle error over its angle, subtracted from the command"
     explanation = ("Angle-dependent joint error: each joint's angle is off by an amount that varies with its own "
                    "angle - the transmission and encoder errors of the first paper, of every order, joint by joint. "
                    "Learned as a smooth curve on a grid over the joint range the poses sampled; it fades to zero "
@@ -516,3 +740,14 @@ class JointMap(RobotEffect):
 
 #: the robot vocabulary, registered by pipeline.robot
 EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic, JointMap)
+
+
+def effect_classes(registry=REGISTRY) -> list[type[RobotEffect]]:
+    """The robot effect classes of ``registry``, in diagnosis order (its candidates come in this order)."""
+    classes = [type(registry.make("robot", name)) for name in registry.names("robot")]
+    return sorted(classes, key=lambda cls: (cls.diagnosis_order, cls.name))
+
+
+def effect_class(name: str, registry=REGISTRY) -> type[RobotEffect]:
+    """The robot effect class of ``name`` (KeyError when there is none)."""
+    return type(registry.make("robot", name))

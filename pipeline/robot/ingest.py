@@ -41,7 +41,7 @@ from ..core.errors import InputError, parse_toml
 from ..core.files import read_text_input
 from ..core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
 from . import frame as rf
-from .effects import RobotData
+from .effects import REFERENCE_TEMPERATURE_C, RobotData
 from .kinematics import Robot, build_model, gravity_torques, load_robot, positions
 from .simulate import directions_from_sequence
 
@@ -375,7 +375,8 @@ def derive_robot(robot: Robot, poses: pd.DataFrame, tracker: pd.DataFrame) -> pd
         given = poses[col].to_numpy(float) if col in poses else np.full(n, np.nan)
         out[col] = np.where(np.isfinite(given), given, derived[:, j]).astype(np.int64)
     out["payload_kg"] = poses["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in poses else 0.0
-    out["temperature_c"] = poses["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in poses else 20.0
+    out["temperature_c"] = poses["temperature_c"].fillna(REFERENCE_TEMPERATURE_C).to_numpy(float) if "temperature_c" in poses \
+        else REFERENCE_TEMPERATURE_C
     out["pose"] = poses["pose"].astype(str).to_numpy() if "pose" in poses else ""
     out["approach"] = poses["approach"].astype(str).to_numpy() if "approach" in poses else ""
     out["cycle"] = poses["cycle"].fillna(0).astype(np.int64).to_numpy() if "cycle" in poses else 0

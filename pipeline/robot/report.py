@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 
 from ..core.plotting import pdf_pages, plt, save, text_page
+from .closedloop import KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG
 
 PAPER_VAP_NOTE = ("paper Fig. 6: without the loop vAP is more than 3x the repeatability (+-0.06 mm); "
                   "with the loop it drops at every pose")
@@ -54,7 +55,8 @@ def robot_report(inputs: dict, out) -> None:
                   f"  scipy least_squares:        cost {ch['scipy']['cost_mm2']:.5f} mm^2, {ch['scipy']['iterations']} "
                   "evaluations",
                   f"  grating angles of joints 1-3 used: {ch.get('uses_gratings')}", "",
-                  "Closed loop (Eq. 26): 12 ms cycle, rough 0.002 deg/cycle until |e| < 0.007 deg, PD kP 0.05 kD 0.65",
+                  f"Closed loop (Eq. 26): 12 ms cycle, rough {ROUGH_STEP_DEG:g} deg/cycle until |e| < {ROUGH_LIMIT_DEG:g} deg, "
+                  f"PD kP {KP:g} kD {KD:g}",
                   f"  poles of e(n+1) = (1-kP-kD) e(n) + kD e(n-1): {', '.join(f'{p:.3f}' for p in cl['poles'])} "
                   f"-> {'stable' if cl['stable'] else 'UNSTABLE'}",
                   f"  cycles to converge: median {cl['cycles_median']:.0f}, max {cl['cycles_max']} "
@@ -123,8 +125,8 @@ def robot_report(inputs: dict, out) -> None:
         for j, e in cl["trace_error_deg"].items():
             e = np.asarray(e) * 3600
             ax.plot(np.arange(e.size) * cl["cycle_s"], e, lw=0.9, label=j.replace("joint", "joint "))
-        ax.axhline(0.007 * 3600, color="grey", ls=":", lw=0.8, label="rough/fine switch 0.007 deg")
-        ax.axhline(-0.007 * 3600, color="grey", ls=":", lw=0.8)
+        ax.axhline(ROUGH_LIMIT_DEG * 3600, color="grey", ls=":", lw=0.8, label=f"rough/fine switch {ROUGH_LIMIT_DEG:g} deg")
+        ax.axhline(-ROUGH_LIMIT_DEG * 3600, color="grey", ls=":", lw=0.8)
         ax.set_xlabel("time (s), 12 ms cycles")
         ax.set_ylabel("grating error target - reading (arcsec)")
         ax.set_title(f"Closed-loop convergence of joints 1-3 at target {cl['trace_point']} (Eq. 26)")

@@ -28,6 +28,7 @@ import pandas as pd
 import pinocchio as pin
 
 from .closedloop import JointPlant, run_loop
+from .effects import effect_class, effect_classes
 from .kinematics import Robot, build_model, gravity_torques, inverse_kinematics, placements, positions
 
 # streams of the generator
@@ -99,11 +100,14 @@ class VirtualCell:
         q = np.deg2rad(np.atleast_2d(q_deg))[:, :, None]
         k = np.arange(1, self.trans_amp_deg.shape[1] + 1)
         out = (self.trans_amp_deg * np.sin(k * q + self.trans_phase)).sum(axis=2)
-        h = self.hidden
-        if h.get("effect") == "joint_harmonic":
-            j = h["joint"] - 1
-            out[:, j] += h["arcsec"] / 3600 * np.sin(h["order"] * q[:, j, 0] + np.deg2rad(h["phase_deg"]))
+        if self.hidden_class is not None:
+            self.hidden_class.inject_joint_error(self.hidden, q[:, :, 0], out)
         return out
+
+    @property
+    def hidden_class(self):
+        """The class of the hidden effect (its ``inject_*`` hooks), or None."""
+        return effect_class(self.hidden["effect"]) if self.hidden else None
 
     def repeatable_offset_deg(self, q_cmd_deg, payload_kg):
         """Transmission error + gravity deflection, (n, 6) deg."""
@@ -120,12 +124,8 @@ class VirtualCell:
     def measure(self, q_true_deg, rng, temperature_c=None):
         """Tracker reading of the SMR (n, 3) mm in the base frame."""
         P = positions(self.model_true, np.deg2rad(q_true_deg)) @ self.frame_R.T + self.frame_t
-        h = self.hidden
-        if h.get("effect") == "thermal" and temperature_c is not None:
-            P = P * (1.0 + h["ppm_per_K"] * 1e-6 * (np.asarray(temperature_c)[:, None] - 20.0))
-        if h.get("effect") == "base":
-            R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(h["rot_arcsec"]) / 3600))
-            P = P @ R.T + np.asarray(h["shift_mm"])
+        if self.hidden_class is not None:
+            P = self.hidden_class.inject_measurement(self.hidden, P, temperature_c)
         return P + rng.normal(0.0, self.config["tracker_sigma_mm"], P.shape)
 
     def gratings(self, q_true_deg):
@@ -174,12 +174,8 @@ def make_cell(robot: Robot, config: dict | None = None, hidden: dict | None = No
     compliance = np.asarray(config["compliance_arcsec_per_knm"], float) * rng.uniform(0.8, 1.2, 6) / 3600 / 1000
     backlash = np.asarray(config["backlash_arcsec"], float) * rng.uniform(0.8, 1.2, 6) / 3600
     hidden = dict(hidden or {})
-    if hidden.get("effect") == "tool":
-        true = Robot(true.name, true.joints, tuple(np.add(true.tool_xyz_mm, hidden["shift_mm"])), true.path)
-    if hidden.get("effect") == "backlash":
-        backlash[hidden["joint"] - 1] += hidden["arcsec"] / 3600
-    if hidden.get("effect") == "compliance":
-        compliance[hidden["joint"] - 1] += hidden["arcsec_per_knm"] / 3600 / 1000
+    if hidden:
+        true = effect_class(hidden["effect"]).inject_truth(hidden, true, compliance, backlash)
     return VirtualCell(robot, true, config, amp, phase, compliance, backlash, hidden)
 
 
@@ -304,14 +300,12 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     dirs = dirs_all[keep]
     q_cmd = np.array([r["q"] for r in rows])
     n = len(rows)
-    h = cell.hidden
     payload = np.full(n, float(config["payload_kg"]))
-    if h.get("effect") == "compliance":
-        payload = np.round(rng_for(config["seed"], POSES, 7).uniform(0.0, 150.0, n), 1)
     t = np.arange(n) * 20.0
     temperature = 20.3 + 0.4 * t / t[-1]
-    if h.get("effect") == "thermal":
-        temperature = 18.0 + 8.0 * t / t[-1] + rng_for(config["seed"], POSES, 8).normal(0, 0.2, n)
+    if cell.hidden_class is not None:
+        payload, temperature = cell.hidden_class.inject_conditions(
+            cell.hidden, payload, temperature, t, lambda k: rng_for(config["seed"], POSES, k))
     temperature = np.round(temperature, 2)
     mrng = rng_for(config["seed"], MEASURE)
     q_true = cell.open_loop(q_cmd, dirs, payload, mrng)
@@ -362,6 +356,7 @@ def format_tracker_csv(tracker: pd.DataFrame) -> str:
 def hidden_robot_effect(text: str, seed: int) -> dict:
     """Parse ``EFFECT[:TARGET]`` and draw a realistic size (seeded) for a hidden effect.
 
+    Sizes are drawn by the effect's class (:meth:`~pipeline.robot.effects.RobotEffect.hidden`):
     thermal: 8-14 ppm/K with an 8 K temperature rise over the campaign; tool: 0.3-0.8 mm SMR
     offset; base: 0.3-0.8 mm and 20-60 arcsec; joint_harmonic:J: order 4-8 per turn, 15-40
     arcsec on joint J; backlash:J: 40-120 arcsec more play on joint J; compliance:J:
@@ -369,22 +364,17 @@ def hidden_robot_effect(text: str, seed: int) -> dict:
     """
     rng = np.random.default_rng([seed, 99])
     name, _, target = text.partition(":")
-    joint = int(target) if target else int(rng.integers(1, 7))
-    if name == "thermal":
-        return {"effect": "thermal", "ppm_per_K": float(rng.uniform(8, 14))}
-    if name == "tool":
-        v = rng.normal(size=3)
-        return {"effect": "tool", "shift_mm": (v / np.linalg.norm(v) * rng.uniform(0.3, 0.8)).tolist()}
-    if name == "base":
-        v = rng.normal(size=3)
-        return {"effect": "base", "shift_mm": (v / np.linalg.norm(v) * rng.uniform(0.3, 0.8)).tolist(),
-                "rot_arcsec": rng.uniform(-60, 60, 3).tolist()}
-    if name == "joint_harmonic":
-        return {"effect": "joint_harmonic", "joint": joint, "order": int(rng.integers(4, 9)),
-                "arcsec": float(rng.uniform(15, 40)), "phase_deg": float(rng.uniform(0, 360))}
-    if name == "backlash":
-        return {"effect": "backlash", "joint": joint, "arcsec": float(rng.uniform(40, 120))}
-    if name == "compliance":
-        return {"effect": "compliance", "joint": joint if target else 2, "arcsec_per_knm": float(rng.uniform(20, 60))}
-    raise ValueError(f"unknown hidden robot effect {name!r}; use thermal, tool, base, joint_harmonic:J, "
-                     "backlash:J or compliance:J")
+    joint = int(target) if target else int(rng.integers(1, 7))  # drawn first, whatever the effect
+    try:
+        cls = effect_class(name)
+    except KeyError:
+        cls = None
+    if cls is None or not cls.hidden_syntax:
+        raise ValueError(f"unknown hidden robot effect {name!r}; use {hidden_effects_help()}")
+    return cls.hidden(rng, target, joint)
+
+
+def hidden_effects_help() -> str:
+    """The ``--hidden`` choices, from the robot effects that can be simulated."""
+    names = [cls.hidden_syntax for cls in effect_classes() if cls.hidden_syntax]
+    return ", ".join(names[:-1]) + " or " + names[-1]

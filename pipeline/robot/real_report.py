@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
 from ..core.files import read_json_input
 from ..core.plotting import pdf_pages, plt, save, text_page
@@ -217,13 +217,14 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                     ax.text(xi + 0.2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=7)
             ax.set_xticks(x, labels)
             ax.set_yscale("log")
-            plain = FuncFormatter(lambda v, _: f"{v:g}")
-            ax.yaxis.set_major_formatter(plain)
-            ax.yaxis.set_minor_formatter(plain)
-            ax.tick_params(axis="y", which="minor", labelsize=6)
+            vals = [v for v in own + other if np.isfinite(v)]
+            ax.set_ylim(min(vals) / 1.5, max(vals) * 2.0)
+            ax.yaxis.set_major_locator(FixedLocator([0.05, 0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50]))
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.yaxis.set_minor_formatter(NullFormatter())
             ax.set_ylabel("RMS position error (mm, log)")
             ax.set_title(f"model fitted on series {s}")
-            ax.legend(loc="upper right")
+            ax.legend(loc="upper left")
         fig.tight_layout()
         save(pdf, fig)
 

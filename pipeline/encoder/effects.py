@@ -27,12 +27,10 @@ import numpy as np
 from ..core.effect import Effect
 from .harmonic import amplitude_phase, circular_range_deg, harmonic_columns, lsq_coefficients  # noqa: F401 (harmonic_columns re-exported)
 
-#: degC, the reference temperature of the ``temperature`` effect (and of the simulated lab)
-REFERENCE_TEMPERATURE_C = 20.0
+from ..core.units import ARCSEC_PER_DEG, REFERENCE_TEMPERATURE_C  # noqa: F401 (named once, for both domains)
+
 #: s per h: drift is stated in arcsec per hour of time within the run
 SECONDS_PER_HOUR = 3600.0
-#: arcsec per deg: angles are degrees in files, angle errors arcseconds (contract)
-ARCSEC_PER_DEG = 3600.0
 
 
 @dataclass(frozen=True)

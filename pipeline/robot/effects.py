@@ -27,12 +27,10 @@ import numpy as np
 import pinocchio as pin
 
 from ..core.effect import REGISTRY, Effect
+from ..core.units import REFERENCE_TEMPERATURE_C
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
 MRAD_ARCSEC = 206.264806  # arcsec per mrad
-#: degC, the reference temperature of the ``thermal`` effect (lengths are nominal at it), of a
-#: campaign without temperatures, and of the simulated lab
-REFERENCE_TEMPERATURE_C = 20.0
 #: Joint numbers of a six-axis robot
 ALL_JOINTS = (1, 2, 3, 4, 5, 6)
 #: A compliance is revealable only when the joint's gravity torque varies by at least this much

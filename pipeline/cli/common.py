@@ -11,7 +11,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import click
+
 from ..core.errors import InputError
+
+
+class HiddenOption(click.Option):
+    """``--hidden`` of a simulator: its help's ``{choices}`` lists the effects the simulator can hide,
+    from the registry, through ``choices_help`` (a function, called only when help is shown, so
+    that start-up stays free of the library)."""
+
+    def __init__(self, *args, choices_help=None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.choices_help = choices_help
+
+    def get_help_record(self, ctx):
+        if self.choices_help is not None and self.help:
+            self.help = self.help.replace("{choices}", self.choices_help())
+        return super().get_help_record(ctx)
 
 
 def fail_spec(spec_path, message, pattern=r"^\s*(orders|n_max)\s*="):

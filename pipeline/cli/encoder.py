@@ -13,18 +13,13 @@ from pathlib import Path
 import click
 
 from ..core.errors import InputError
-from .common import fail_spec, load_spec, read_interim, read_json
+from .common import HiddenOption, fail_spec, load_spec, read_interim, read_json
 
 
-class HiddenOption(click.Option):
-    """``--hidden``: its help lists the effects the simulator can hide, from the registry
-    (looked up only when help is shown, so that start-up stays free of the library)."""
+def _hidden_help() -> str:
+    from ..encoder.simulate import hidden_effects_help
 
-    def get_help_record(self, ctx):
-        from ..encoder.simulate import hidden_effects_help
-
-        self.help = self.help.replace("{choices}", hidden_effects_help())
-        return super().get_help_record(ctx)
+    return hidden_effects_help()
 
 
 @click.command("encoder")
@@ -37,7 +32,8 @@ class HiddenOption(click.Option):
 @click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
 @click.option("--runs", type=int, default=6, show_default=True, help="Runs per module.")
 @click.option("--two-way", is_flag=True, help="Go round the polygon and come back (73 readings a run).")
-@click.option("--hidden", cls=HiddenOption, default=None, metavar="EFFECT[:TARGET]",
+@click.option("--hidden", cls=HiddenOption, choices_help=_hidden_help, default=None,
+              metavar="EFFECT[:TARGET]",
               help="Hide one effect the paper's spec lacks: {choices}.")
 def simulate_encoder_cmd(out_dir, truth_dir, modules, seed, runs, two_way, hidden):
     """Simulate encoder campaigns in the contract's format (default: the shipped fixture)."""

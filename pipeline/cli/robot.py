@@ -17,7 +17,7 @@ from pathlib import Path
 import click
 
 from ..core.errors import InputError
-from .common import load_spec
+from .common import HiddenOption, load_spec
 
 DEFAULT_SPEC = "specs/robot_paper.toml"
 DEFAULT_ROBOT = "raw/robot/kr210/robot.toml"
@@ -46,27 +46,42 @@ def _interim(path):
     return frame
 
 
-def outside_calibrated_range(sample, targets) -> list[dict]:
+def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) -> list[dict]:
     """Per joint, the targets whose angle lies outside the range the sample poses covered.
+
+    Parameters
+    ----------
+    sample_q, target_q : ndarray, shape (n, 6), deg
+    target_ids : sequence of str, length n_targets
+    target_lines : sequence of int or None, optional
+        Line of each target in poses.csv.
 
     Returns a list of ``{joint, count, beyond_deg, low_deg, high_deg, point_id, line}`` (the
     worst target of each joint; ``line`` is its line in poses.csv when known).
     """
     import numpy as np
 
+    sample_q, target_q = np.asarray(sample_q, float), np.asarray(target_q, float)
+    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
     out = []
-    for j in range(1, 7):
-        lo, hi = sample[f"q{j}"].min(), sample[f"q{j}"].max()
-        q = targets[f"q{j}"].to_numpy(float)
-        beyond = np.maximum(lo - q, q - hi)
+    for j in range(sample_q.shape[1]):
+        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
         bad = beyond > 1e-9
         if bad.any():
             k = int(np.argmax(beyond))
-            row = targets.iloc[k]
-            line = int(row["visit"]) + 2 if "visit" in targets and np.isfinite(row["visit"]) else None
-            out.append({"joint": j, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo),
-                        "high_deg": float(hi), "point_id": str(row["point_id"]), "line": line})
+            out.append({"joint": j + 1, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo[j]),
+                        "high_deg": float(hi[j]), "point_id": str(target_ids[k]),
+                        "line": None if target_lines is None else target_lines[k]})
     return out
+
+
+def outside_message(outside, worst: bool = False) -> str:
+    """The warning about :func:`outside_calibrated_range`'s targets (with the worst target of each
+    joint named when ``worst``)."""
+    return ("targets outside the joint range the sample poses covered (the model extrapolates there): "
+            + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
+                        f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" + (f" (worst {o['point_id']})" if worst else "")
+                        for o in outside))
 
 
 def _robot(path):
@@ -124,15 +139,10 @@ def validate_robot(campaign, problems):
 
 
 # ------------------------------------------------------------------------------ simulate
-class HiddenOption(click.Option):
-    """``--hidden``: its help lists the robot effects the simulator can hide, from the registry
-    (looked up only when help is shown, so that start-up stays free of the library)."""
+def _hidden_help() -> str:
+    from ..robot.simulate import hidden_effects_help
 
-    def get_help_record(self, ctx):
-        from ..robot.simulate import hidden_effects_help
-
-        self.help = self.help.replace("{choices}", hidden_effects_help())
-        return super().get_help_record(ctx)
+    return hidden_effects_help()
 
 
 @click.command("robot")
@@ -141,7 +151,8 @@ class HiddenOption(click.Option):
 @click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
               type=click.Path(dir_okay=False), help="Where the generator's truth goes (never read by the pipeline).")
 @click.option("--seed", type=int, default=None, help="Override the fixture's seed.")
-@click.option("--hidden", cls=HiddenOption, default=None, metavar="EFFECT[:JOINT]",
+@click.option("--hidden", cls=HiddenOption, choices_help=_hidden_help, default=None,
+              metavar="EFFECT[:JOINT]",
               help="Add one effect the paper's spec lacks, at a random realistic size: {choices}.")
 def simulate_robot_cmd(campaign, truth_path, seed, hidden):
     """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
@@ -328,12 +339,13 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
 
     tg = frame[frame["set"] == "target"]
-    outside = outside_calibrated_range(frame[frame["set"] == "sample"], tg)
+    qcols = [f"q{j}" for j in range(1, 7)]
+    lines = [int(v) + 2 if np.isfinite(v) else None for v in tg["visit"]] if "visit" in tg else None
+    outside = outside_calibrated_range(frame.loc[frame["set"] == "sample", qcols], tg[qcols],
+                                       tg["point_id"].to_numpy(), lines)
     if outside:
         first = outside[0]
-        message = ("targets outside the joint range the sample poses covered (the model extrapolates there): "
-                   + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
-                               f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" for o in outside))
+        message = outside_message(outside)
         if strict:
             source = parquet_metadata(interim).get("campaign")
             where = (Path(source) / "poses.csv", first.get("line")) if source else (interim, None)
@@ -624,28 +636,8 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
                    + f"; recommended: {', '.join(x['label'] for x in r['recommended']) or 'nothing'}", err=True)
 
 
-def _warn_outside(sample_q, target_q, target_ids):
-    """Warn (as map-joints does) about targets outside the joint ranges of the sample poses."""
-    import numpy as np
-
-    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
-    parts = []
-    for j in range(sample_q.shape[1]):
-        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
-        bad = beyond > 1e-9
-        if bad.any():
-            k = int(np.argmax(beyond))
-            parts.append(f"joint {j + 1}: {int(bad.sum())} target(s), up to {beyond[k]:.2f} deg beyond "
-                         f"[{lo[j]:.2f}, {hi[j]:.2f}] (worst {target_ids[k]})")
-    if parts:
-        click.echo("jointcal: warning: targets outside the joint range the sample poses covered (the model "
-                   "extrapolates there): " + "; ".join(parts), err=True)
-
-
 def fit_robot(campaign, spec, spec_path, out):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
-    import numpy as np
-
     from ..core.files import provenance, write_json
     from ..robot.fit import fit_problems, robot_fit_result
     from ..robot.ingest import robot_data_sets
@@ -653,8 +645,9 @@ def fit_robot(campaign, spec, spec_path, out):
     _edge()
     spec.require_kind("robot", campaign)
     robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
-    if sample.n and target.n:
-        _warn_outside(sample.q_deg, target.q_deg, np.asarray(target.point_id))
+    outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if sample.n and target.n else []
+    if outside:
+        click.echo(f"jointcal: warning: {outside_message(outside, worst=True)}", err=True)
     result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info))
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
     files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]

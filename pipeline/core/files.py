@@ -70,6 +70,27 @@ def _jsonable(obj):
     return obj
 
 
+def to_resolution(obj, decimals: int):
+    """``obj`` with every float rounded to ``decimals`` decimal places (absolute, in its own unit).
+
+    For numbers a computation gives only up to rounding noise: a linear-algebra result (an SVD, a
+    Newton solve) differs in its last bits from one CPU or BLAS build to another, and a quantity
+    that is zero comes out as +-1e-14. Written with 12 *significant* digits such noise is written
+    too; rounded to a fixed absolute resolution far above the noise (and far below anything that
+    matters: 1e-9 deg is 4 micro-arcseconds, 1e-6 mm a nanometre) it is the same number everywhere.
+    Lists, tuples, dicts and arrays are followed; -0.0 becomes 0.0; other values are left alone.
+    """
+    if isinstance(obj, dict):
+        return {k: to_resolution(v, decimals) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_resolution(v, decimals) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_resolution(obj.tolist(), decimals)
+    if isinstance(obj, (float, np.floating)) and math.isfinite(float(obj)):
+        return round(float(obj), decimals) + 0.0
+    return obj
+
+
 def write_json(path, obj) -> None:
     write_text(path, json.dumps(_jsonable(obj), indent=2) + "\n")
 

@@ -197,6 +197,113 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
 
 
 # ------------------------------------------------------------------------------ export
+def _ur_paths(out):
+    out = Path(out)
+    if out.suffix in (".yaml", ".yml"):
+        return out.with_suffix(".conf"), out
+    if out.suffix == ".conf":
+        return out, out.with_suffix(".yaml")
+    return out / "calibration.conf", out / "kinematics.yaml"
+
+
 @click.command("export")
-def export_cmd():
-    """Write a fitted model in a form a robot or its drives take (contract section 8)."""
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="A fitted robot model (jointcal fit --campaign); for --format table also an encoder model.")
+@click.option("--format", "fmt", required=True, type=click.Choice(["urdf", "ur", "table"]),
+              help="urdf: the robot with geometry, base and tool in the joint origins; ur: calibration.conf "
+                   "[mounting] deltas (standard DH, rad and m) and the ROS driver's kinematics YAML; table: one "
+                   "compensation table per joint (CSV).")
+@click.option("--out", required=True, type=click.Path(),
+              help="File to write (ur: a .yaml or .conf path, the other file beside it, or a folder for both).")
+@click.option("--urdf", "urdf_path", default=None, type=click.Path(dir_okay=False),
+              help="urdf: rewrite this URDF of the robot instead, changing only <origin> elements (with --tip).")
+@click.option("--tip", default=None, help="urdf with --urdf: the link whose origin is the SMR (as for jointcal import).")
+@click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
+              help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
+def export_cmd(model_path, fmt, out, urdf_path, tip, step_deg):
+    """Write a fitted model in a form a robot or its drives take (contract section 8).
+
+    \b
+    Each format says here, and in the file as comments, which fitted effects it cannot carry and
+    what leaving them out costs: how far the model's prediction moves without them (RMS and max,
+    mm, over the joint ranges the model was fitted on). A URDF and UR's parameters carry the rigid
+    chain (geometry, base, tool); the joint tables carry joint maps, joint harmonics and backlash;
+    none carries compliance, thermal expansion or Chebyshev error transfer.
+      jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
+    """
+    from ..core.files import write_text
+
+    doc = read_json(model_path)
+    if not _is_robot_model(doc):
+        if fmt != "table":
+            raise InputError(model_path, f"--format {fmt} needs a fitted robot model (jointcal fit --campaign); "
+                             "an encoder model exports as --format table", 1, 1)
+        from ..encoder.evaluate import model_from_result
+        from ..export.table import encoder_table, table_csv
+
+        try:
+            model = model_from_result(doc)
+            table = encoder_table(model, step_deg, joint=doc.get("module", 1) if isinstance(doc, dict) else 1)
+        except (KeyError, TypeError) as exc:
+            raise InputError(model_path, f"neither a fitted robot model nor an encoder model ({exc})", 1, 1) from None
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--step-deg") from None
+        note = "harmonic terms of the joint module's encoder model; correction = -error, added to the reading"
+        write_text(out, table_csv(table, [note]))
+        click.echo(f"{out}: {len(table)} angles; {note}", err=True)
+        return
+    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, folded_chain, leftover_cost
+
+    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
+    cost = leftover_cost(robot, model, sampled, carried)
+    what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
+            "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
+            "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
+                     "backlash); with the chain in a URDF or UR's parameters"}[fmt]
+    if cost["left_out"]:
+        note = (f"{what}; it cannot carry {', '.join(cost['left_out'])}: leaving that out moves the model's "
+                f"prediction by {cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max ({cost['n']} poses: "
+                f"{cost['conditions']})")
+    else:
+        note = f"{what}; the model has nothing else: it is carried whole"
+    comments = [f"jointcal export, format {fmt}, of {model_path}", note]
+    if fmt == "urdf":
+        from ..export.urdf import chain_urdf, rewrite_urdf
+
+        chain = folded_chain(robot, model)
+        if urdf_path:
+            if not tip:
+                raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
+            _need_file(urdf_path, "the robot's URDF")
+            try:
+                text = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments)
+            except ValueError as exc:
+                raise InputError(urdf_path, str(exc), None, None) from None
+            except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)
+                raise InputError(urdf_path, f"not a readable URDF ({exc})", None, None) from None
+        else:
+            text = chain_urdf(robot.name + "_calibrated", chain, comments)
+        write_text(out, text)
+        written = [out]
+    elif fmt == "ur":
+        from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
+        from ..robot.calibrate import RobotErrorModel
+
+        chain = folded_chain(robot, model)
+        nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
+        nominal = standard_dh(folded_chain(robot, nominal_model))
+        fitted = standard_dh(chain, reference=nominal)
+        conf_path, yaml_path = _ur_paths(out)
+        write_text(conf_path, calibration_conf(fitted, nominal, chain["smr"], comments))
+        write_text(yaml_path, kinematics_yaml(chain, comments))
+        written = [conf_path, yaml_path]
+    else:
+        from ..export.table import robot_table, table_csv
+
+        table = robot_table(robot, model, sampled, step_deg)
+        if table.empty:
+            comments.append("the model has no effect of a joint's own angle: the table is empty")
+        write_text(out, table_csv(table, comments))
+        written = [out]
+    click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)

@@ -218,9 +218,12 @@ def _ur_paths(out):
 @click.option("--urdf", "urdf_path", default=None, type=click.Path(dir_okay=False),
               help="urdf: rewrite this URDF of the robot instead, changing only <origin> elements (with --tip).")
 @click.option("--tip", default=None, help="urdf with --urdf: the link whose origin is the SMR (as for jointcal import).")
+@click.option("--base", "base_link", default=None,
+              help="urdf with --urdf: the link whose frame is the model's base frame (as for jointcal import; "
+                   "default the URDF's root).")
 @click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
               help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
-def export_cmd(model_path, fmt, out, urdf_path, tip, step_deg):
+def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, step_deg):
     """Write a fitted model in a form a robot or its drives take (contract section 8).
 
     \b
@@ -277,7 +280,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, step_deg):
                 raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
             _need_file(urdf_path, "the robot's URDF")
             try:
-                text = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments)
+                text = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments, base_link)
             except ValueError as exc:
                 raise InputError(urdf_path, str(exc), None, None) from None
             except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)

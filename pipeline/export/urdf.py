@@ -86,7 +86,7 @@ def _chain_joints(root: ET.Element, tip: str) -> list[ET.Element]:
     return chain[::-1]
 
 
-def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str]) -> str:
+def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: str | None = None) -> str:
     """The user's URDF with only the ``<origin>`` elements of its root-to-``tip`` joints changed.
 
     The user's chain must have as many revolute/continuous joints as the model and its frames are
@@ -95,7 +95,9 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str]) -> str:
     are kept (folded into the next revolute joint's origin), and the fixed joints after the last
     revolute joint get the model's flange and SMR when the chain ends at the SMR (``tip`` = the SMR
     link; otherwise the model's flange goes into the last fixed joint, or the last revolute's child).
-    Axes other than z are handled by a rotation that takes z onto the user's axis.
+    Axes other than z are handled by a rotation that takes z onto the user's axis. ``base``: the link
+    whose frame is the model's base frame (as ``jointcal import --base``; default the URDF's root);
+    it must lie on the chain before the first revolute joint.
     """
     root = ET.fromstring(text)
     joints = _chain_joints(root, tip)
@@ -123,16 +125,22 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str]) -> str:
             R = pin.exp3(v / np.linalg.norm(v) * np.arctan2(np.linalg.norm(v), c))
         return pin.SE3(R, np.zeros(3))
 
-    def set_origin(j, M):
-        o = j.find("origin")
-        if o is None:
-            o = ET.SubElement(j, "origin")
-        xyz, rpy = origin_attrs(M)
-        o.set("xyz", xyz)
-        o.set("rpy", rpy)
+    new_origins = {}
 
-    # the model's joint frames in the base frame at zero command (axis z)
-    model_frames, M = [], pin.SE3.Identity()
+    def set_origin(j, M):
+        new_origins[j.get("name")] = origin_attrs(M)
+
+    # the model's base frame in the URDF root's frame (fixed joints from the root to ``base``)
+    oMb = pin.SE3.Identity()
+    if base is not None and base != joints[0].find("parent").get("link"):
+        for j in joints:
+            if j.get("type") in ("revolute", "continuous"):
+                raise ValueError(f"base link '{base}' is not on the chain before the first revolute joint")
+            oMb = oMb * placement(j)
+            if j.find("child").get("link") == base:
+                break
+    # the model's joint frames in the root frame at zero command (axis z)
+    model_frames, M = [], oMb
     for o in chain["origins"]:
         M = M * o
         model_frames.append(M)
@@ -167,6 +175,35 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str]) -> str:
         raise ValueError(f"'{tip}' is the last revolute joint's child: add a fixed joint to the SMR (or flange) "
                          "link and give it as --tip, so that the tool can be written")
     head = "".join(f"<!-- {c.replace('--', '-')} -->\n" for c in comments)
-    body = ET.tostring(root, encoding="unicode")
-    decl = re.match(r"\s*<\?xml[^>]*\?>\s*", text)
-    return (decl.group(0) if decl else '<?xml version="1.0"?>\n') + head + body + "\n"
+    return _insert_after_declaration(_replace_origins(text, new_origins), head)
+
+
+def _replace_origins(text: str, new: dict) -> str:
+    """The text with the ``<origin>`` of each named joint element (one with a ``type``) replaced; all
+    else byte for byte."""
+    for name, (xyz, rpy) in new.items():
+        start = None
+        for m in re.finditer(r"<joint\b[^>]*>", text):
+            tag = m.group(0)
+            if re.search(r'\bname\s*=\s*"' + re.escape(name) + '"', tag) and re.search(r"\btype\s*=", tag):
+                start = m
+                break
+        if start is None:
+            raise ValueError(f"joint '{name}' not found in the URDF text")
+        end = text.index("</joint>", start.end())
+        body = text[start.end():end]
+        element = f'<origin xyz="{xyz}" rpy="{rpy}"/>'
+        o = re.search(r"<origin\b[^>]*?(/>|>\s*</origin>)", body)
+        if o:
+            body = body[:o.start()] + element + body[o.end():]
+        else:
+            indent = re.search(r"\n([ \t]*)<", body)
+            body = f"\n{indent.group(1) if indent else '    '}{element}" + body
+        text = text[:start.end()] + body + text[end:]
+    return text
+
+
+def _insert_after_declaration(text: str, head: str) -> str:
+    decl = re.match(r"\s*<\?xml[^>]*\?>[ \t]*\n?", text)
+    k = decl.end() if decl else 0
+    return text[:k] + head + text[k:]

@@ -221,9 +221,14 @@ def _ur_paths(out):
 @click.option("--base", "base_link", default=None,
               help="urdf with --urdf: the link whose frame is the model's base frame (as for jointcal import; "
                    "default the URDF's root).")
+@click.option("--heldout", "heldout_campaign", default=None, type=click.Path(file_okay=False),
+              help="A campaign of the same robot (e.g. the fit's own): measure on its target poses the held-out RMS "
+                   "of the full model, of what a URDF / UR's parameters carry, and of that plus the joint tables.")
+@click.option("--json", "json_out", default=None, type=click.Path(dir_okay=False),
+              help="With --heldout: write those numbers (mm) and what each leaves out as JSON.")
 @click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
               help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
-def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, step_deg):
+def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg):
     """Write a fitted model in a form a robot or its drives take (contract section 8).
 
     \b
@@ -310,3 +315,25 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, step_deg):
         write_text(out, table_csv(table, comments))
         written = [out]
     click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)
+    if heldout_campaign:
+        from ..core.files import write_json
+        from ..export.chain import heldout_by_carrier
+        from ..robot.ingest import robot_data_sets
+        from ..robot.predict import same_robot_problem
+
+        other, (target,) = robot_data_sets(heldout_campaign, ("target",))
+        problem = same_robot_problem(robot, other)
+        if problem:
+            raise InputError(Path(heldout_campaign) / "robot.toml", problem, 1, 1)
+        if target.n == 0:
+            raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
+                             1, "set")
+        h = heldout_by_carrier(robot, model, target)
+        h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
+        click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
+                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (leaves out "
+                   f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
+                   f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
+                   err=True)
+        if json_out:
+            write_json(json_out, h)

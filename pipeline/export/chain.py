@@ -74,7 +74,7 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
     """How far the model's prediction moves when only ``keep`` is carried (mm), over the sampled box.
 
     Poses uniform in the joint ranges the model was fitted on, both approach directions at random,
-    payload uniform in 0-100 kg when the model has compliance (else 0), temperature uniform in
+    no payload (the arm's own weight bends it under compliance), temperature uniform in
     15-25 degC when it has thermal (else 20). Seeded: same model, same numbers.
 
     Returns
@@ -87,7 +87,7 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
     q = rng.uniform(lo, hi, (n, nj))
     dirs = rng.choice([-1, 1], (n, nj))
     names = {e.name for e, _ in effect_slices(robot, model)}
-    payload = rng.uniform(0.0, 100.0, n) if "compliance" in names else np.zeros(n)
+    payload = np.zeros(n)   # the fit does not record its payloads: the arm's own weight only
     temp = (REFERENCE_TEMPERATURE_C + rng.uniform(-5.0, 5.0, n)) if "thermal" in names else \
         np.full(n, REFERENCE_TEMPERATURE_C)
     data = model_data(robot, q, dirs, payload, temp)
@@ -96,8 +96,7 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
     e = np.linalg.norm(full - part, axis=1)
     return {"left_out": left_out(robot, model, keep), "rms_mm": float(np.sqrt(np.mean(e ** 2))),
             "max_mm": float(e.max()), "n": int(n),
-            "conditions": ("joint angles uniform in the sampled ranges, both approach directions"
-                           + (", payload 0-100 kg" if "compliance" in names else "")
+            "conditions": ("joint angles uniform in the sampled ranges, both approach directions, no payload"
                            + (", 15-25 degC" if "thermal" in names else ""))}
 
 
@@ -143,3 +142,28 @@ def chain_positions(chain: dict, q_deg) -> np.ndarray:
 def nominal_model(robot):
     """The plain pinocchio arm of the nominal robot."""
     return build_model(robot)
+
+
+def heldout_by_carrier(robot, model, data) -> dict:
+    """Held-out RMS (mm) on measured poses of the full model and of what each export carries.
+
+    Parameters
+    ----------
+    data : RobotData
+        Poses the model was not fitted on, with ``measured_mm`` (n, 3) in the model's base frame.
+
+    Returns
+    -------
+    dict ``{"n", "full_rms_mm", "chain_rms_mm" (URDF / UR), "chain_tables_rms_mm" (+ joint tables),
+    "nominal_rms_mm", "chain_left_out", "chain_tables_left_out"}``
+    """
+    meas = np.asarray(data.measured_mm, float)
+
+    def rms(keep):
+        e = np.linalg.norm(meas - predict_with(robot, model, data, keep), axis=1)
+        return float(np.sqrt(np.mean(e ** 2)))
+
+    return {"n": int(data.n), "full_rms_mm": rms(None), "chain_rms_mm": rms(CHAIN_EFFECTS),
+            "chain_tables_rms_mm": rms(CHAIN_EFFECTS + TABLE_EFFECTS), "nominal_rms_mm": rms(()),
+            "chain_left_out": left_out(robot, model, CHAIN_EFFECTS),
+            "chain_tables_left_out": left_out(robot, model, CHAIN_EFFECTS + TABLE_EFFECTS)}

@@ -57,7 +57,7 @@ def loop(tmp_path_factory):
     prog.to_csv(tmp / "measure.csv", index=False)
     robot_toml = ROOT / "raw/robot/kr210/robot.toml"
     r = run("simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "measure.csv",
-            "--campaign", tmp / "meas", "--robot", robot_toml)
+            "--campaign", tmp / "meas")      # the truth names its robot
     assert r.exit_code == 0, r.output
     (tmp / "spec.toml").write_text(SPEC)
     r = run("fit", "--campaign", tmp / "meas", "--spec", tmp / "spec.toml", "--out", tmp / "fit.json")
@@ -73,6 +73,25 @@ def loop(tmp_path_factory):
     fresh["payload_kg"] = 60.0
     fresh.to_csv(tmp / "fresh.csv", index=False)
     return {"tmp": tmp, "run": run, "fit": fit, "robot_toml": robot_toml, "fresh": fresh}
+
+
+def test_measure_is_the_simulators_cell(loop):
+    """The same poses, measured by `simulate measure`, agree with `simulate robot`'s campaign to its noise."""
+    tmp = loop["tmp"]
+    a = pd.read_csv(tmp / "cell" / "tracker.csv").set_index("point_id")
+    b = pd.read_csv(tmp / "meas" / "tracker.csv").set_index("point_id")
+    pa = pd.read_csv(tmp / "cell" / "poses.csv").set_index("point_id").loc[b.index]
+    pb = pd.read_csv(tmp / "meas" / "poses.csv").set_index("point_id")
+    cols = [f"dir{j}" for j in range(1, 7)]
+    same = (pa[cols].to_numpy() == pb[cols].to_numpy()).all(axis=1)
+    assert same.mean() > 0.9 and set(pb["set"]) == {"sample", "target"}
+    d = np.linalg.norm(a.loc[b.index[same], ["x_mm", "y_mm", "z_mm"]].to_numpy()
+                       - b.loc[same, ["x_mm", "y_mm", "z_mm"]].to_numpy(), axis=1)
+    assert np.sqrt(np.mean(d ** 2)) < 0.06        # two tracker readings (15 um per axis each) and jitter
+    from pipeline.robot.kinematics import build_model, load_robot, positions
+
+    nominal = positions(build_model(load_robot(loop["robot_toml"])), np.deg2rad(_q(pb)))
+    assert np.sqrt(np.mean(np.sum((b[["x_mm", "y_mm", "z_mm"]].to_numpy() - nominal) ** 2, axis=1))) > 0.2
 
 
 def test_corrected_program_lands_at_the_models_heldout_error(loop):

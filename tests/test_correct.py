@@ -185,3 +185,48 @@ def test_target_far_from_its_pose_refused(loop, tmp_path):
     r = loop["run"]("correct", "--model", loop["tmp"] / "fit.json", "--targets", tmp_path / "m.csv",
                     "--out", tmp_path / "o.csv")
     assert r.exit_code == 2 and ":2:x_mm:" in r.output and not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("n_joints", [4, 5, 6, 7])
+def test_step_reaches_the_point_for_any_joint_count(n_joints):
+    """The prioritised step on a random N-joint pinocchio arm: the position is reached exactly; with 7
+    joints the step is the smallest that keeps the orientation too (no joint count is assumed)."""
+    import pinocchio as pin
+
+    from pipeline.correct.robot import _prioritised_step
+
+    rng = np.random.default_rng(n_joints)
+    model = pin.Model()
+    parent = 0
+    for i in range(n_joints):
+        M = pin.SE3(pin.rpy.rpyToMatrix(*rng.uniform(-1.5, 1.5, 3)), rng.uniform(-0.3, 0.3, 3))
+        parent = model.addJoint(parent, pin.JointModelRZ(), M, f"j{i}")
+    fid = model.addFrame(pin.Frame("tip", parent, 0, pin.SE3(np.eye(3), np.array([0.1, 0.0, 0.2])),
+                                   pin.FrameType.OP_FRAME))
+    data = model.createData()
+
+    def pose(q):
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED).copy()
+        J[:3] *= 1000.0
+        return M.rotation.copy(), M.translation * 1000.0, J
+
+    q0 = rng.uniform(-1, 1, n_joints)
+    R0, p0, _ = pose(q0)
+    target = p0 + rng.normal(0, 0.5, 3)
+    q = q0.copy()
+    from scipy.spatial.transform import Rotation
+
+    for _ in range(10):
+        R, p, J = pose(q)
+        e_rot = Rotation.from_matrix(R0 @ R.T).as_rotvec()
+        q = q + _prioritised_step(J[None], (target - p)[None], e_rot[None], (q - q0)[None])[0]
+    R, p, J = pose(q)
+    assert np.linalg.norm(p - target) < 1e-6                       # mm
+    if n_joints >= 6:
+        assert np.linalg.norm(Rotation.from_matrix(R0 @ R.T).as_rotvec()) < 1e-6    # rad (0.2 arcsec)
+    if n_joints == 7:
+        # smallest: no motion of the self-motion direction (null space of the full 6-row Jacobian) is in it
+        null = np.linalg.svd(J)[2][-1]
+        assert abs(null @ (q - q0)) < 1e-6 * np.linalg.norm(q - q0) + 1e-9

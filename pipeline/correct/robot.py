@@ -38,6 +38,9 @@ from ..robot.predict import outside_range
 RESIDUAL_TOL_UM = 1.0
 #: A joint step below this (deg, 3.6e-5 arcsec) ends the iteration of a row.
 STEP_DONE_DEG = 1e-8
+#: Tikhonov weight (rad of flange rotation per rad of correction) of the orientation stage: joint
+#: motion directions that turn the flange less than this are not used to keep the orientation.
+ORIENTATION_DAMPING = 1e-3
 #: Newton iterations at most (typically 3-4 reach 1e-6 um).
 MAX_ITER = 20
 #: Default largest correction of any joint (deg), as ``robot map-joints``.
@@ -138,8 +141,14 @@ class ModelKinematics:
         return placements(self.plain_, np.deg2rad(np.asarray(q_deg, float)), "smr")
 
 
-def _prioritised_step(J, e_pos, e_rot):
-    """Minimum-norm joint step (rad): position first, orientation in what is left (batched).
+def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPING):
+    """Joint step (rad): position first (minimum norm), orientation in what is left (batched).
+
+    The orientation is kept by the joint motions that leave the position alone, in the least-squares
+    sense with a small Tikhonov term on the whole correction (``damping``, rad per rad): where the
+    wrist is near a singularity, turning the program's orientation back would take large opposite
+    motions of two joints for a few arcseconds of flange rotation, and the correction stays small
+    instead. Iterated, the steps converge to that compromise (a Gauss-Newton fixed point).
 
     Parameters
     ----------
@@ -147,16 +156,22 @@ def _prioritised_step(J, e_pos, e_rot):
         Linear (mm/rad) and angular (rad/rad) Jacobian rows.
     e_pos : ndarray, shape (n, 3), mm
     e_rot : ndarray, shape (n, 3), rad (world-aligned rotation vector)
+    dq_so_far : ndarray, shape (n, N), rad, optional
+        Correction already made (the Tikhonov term acts on the total).
     """
     Jp, Jr = J[:, :3], J[:, 3:]
     Jp_pinv = np.linalg.pinv(Jp, rcond=1e-10)
     dq1 = np.einsum("nij,nj->ni", Jp_pinv, e_pos)
-    N = J.shape[2]
+    n, _, N = J.shape
     Np = np.eye(N)[None] - Jp_pinv @ Jp
     A = Jr @ Np
-    A_pinv = np.linalg.pinv(A, rcond=1e-8)
     rest = e_rot - np.einsum("nij,nj->ni", Jr, dq1)
-    return dq1 + np.einsum("nij,nj->ni", Np @ A_pinv, rest)
+    total = dq1 if dq_so_far is None else dq_so_far + dq1
+    # [A; lambda Np] z = [rest; -lambda Np total], solved through the normal equations (batched)
+    M = np.transpose(A, (0, 2, 1)) @ A + damping ** 2 * Np
+    b = np.einsum("nji,nj->ni", A, rest) - damping ** 2 * np.einsum("nij,nj->ni", Np, total)
+    z = np.einsum("nij,nj->ni", np.linalg.pinv(M, rcond=1e-12, hermitian=True), b)
+    return dq1 + np.einsum("nij,nj->ni", Np, z)
 
 
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
@@ -219,7 +234,7 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         e_rot = Rotation.from_matrix(R_nom[idx] @ np.transpose(R, (0, 2, 1))).as_rotvec()
         if it == max_iter:
             break
-        step = np.rad2deg(_prioritised_step(J, e_pos, e_rot))
+        step = np.rad2deg(_prioritised_step(J, e_pos, e_rot, np.deg2rad(q[idx] - q0[idx])))
         bad = ~np.all(np.isfinite(step), axis=1) | (np.abs(step).max(axis=1) > 45.0)
         # a row is done when its position is a thousand times inside the tolerance and the next step
         # would move no joint by more than STEP_DONE_DEG (the orientation has converged as far as it can)

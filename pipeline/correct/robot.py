@@ -11,10 +11,11 @@ finds the commands ``q + dq`` at which the model's prediction is the point to re
   the model's joint configuration, taken with respect to the commanded joints; the effects' slow
   dependence on the commanded angle - a joint map's slope, a gravity torque's change - is left out
   of the Jacobian and caught by the next iteration, the prediction itself is always the full model);
-* the position is matched exactly (first priority); within the joint motions that leave it, the
-  flange keeps the program's orientation (the nominal orientation at ``q``) as far as the model
-  determines it (second priority); what is left (a redundant arm) is the smallest correction:
-  every step is the minimum-norm solution of the two prioritised least-squares problems;
+* the position is matched exactly (first priority, minimum-norm); within the joint motions that
+  leave it, the flange keeps the program's orientation (the nominal orientation at ``q``) as far as
+  the model determines it (second priority, least squares with a small Tikhonov term on the whole
+  correction, :data:`ORIENTATION_DAMPING`, so that near a wrist singularity the correction stays
+  small); what is left (a redundant arm's self-motion) is not used: the smallest correction;
 * a row outside the joint ranges the model was fitted on, whose correction exceeds the largest one
   allowed, or whose iteration does not reach the point is left as given and says why.
 

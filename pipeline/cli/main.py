@@ -11,7 +11,7 @@ import sys
 import click
 
 from ..core.errors import InputError
-from . import campaign, diagnose, encoder, fleet, importer, robot, summary
+from . import campaign, deploy, diagnose, encoder, fleet, importer, robot, summary
 
 
 class BadInput(click.ClickException):
@@ -56,15 +56,16 @@ def simulate():
 
 for _command in (
     campaign.ingest, campaign.validate, campaign.fit,                                       # either kind
-    encoder.harmonic, encoder.aliasing, encoder.select, encoder.compensate, encoder.correct, encoder.report,
+    encoder.harmonic, encoder.aliasing, encoder.select, encoder.compensate, deploy.correct, encoder.report,
     summary.summary,
     robot.robot_group, robot.predict_cmd,
     diagnose.diagnose, diagnose.diagnose_all,
     fleet.fleet,
     importer.import_cmd,
+    deploy.export_cmd,
 ):
     cli.add_command(_command)
-for _command in (encoder.simulate_encoder_cmd, robot.simulate_robot_cmd, fleet.simulate_fleet_cmd):
+for _command in (encoder.simulate_encoder_cmd, robot.simulate_robot_cmd, fleet.simulate_fleet_cmd, deploy.measure_cmd):
     simulate.add_command(_command)
 
 

@@ -175,6 +175,7 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden):
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--hidden") from None
     poses, tracker, truth = simulate_robot(robot, config, hid)
+    truth["robot_toml"] = robot.to_toml()   # the cell's nominal robot: `simulate measure` rebuilds the cell from it
     write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
     write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
     write_json(truth_path, truth)

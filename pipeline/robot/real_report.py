@@ -110,6 +110,8 @@ def load_results(results_dir, series) -> dict:
                              if (d / f"{s}_{spec}_on_{o}.json").exists()}
         if (d / f"{s}_loop.json").exists():
             r["loop"] = read_json_input(d / f"{s}_loop.json")
+        if (d / f"{s}_export.json").exists():   # jointcal export --heldout (issue #18)
+            r["export"] = read_json_input(d / f"{s}_export.json")
         out[s] = r
     return out
 
@@ -161,6 +163,25 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                   "held-out poses (the data set's README); tests/test_real_reference.py checks jointcal's",
                   "against one written independently with scipy (within 5 %)."]
         text_page(pdf, "Real robot: own held-out poses and the other series", lines)
+
+        exported = {s: results[s]["export"] for s in series if results[s].get("export")}
+        if exported:   # what reaches the robot (jointcal export --heldout): held-out RMS, mm
+            lines = ["The diagnosis loop's final model of each series, and what of it a robot takes, on the",
+                     "series' own held-out target poses (RMS, mm):", "",
+                     f"{'series':8s}{'nominal':>9s}{'kinematic':>11s}{'full model':>12s}{'URDF / UR':>11s}{'+ tables':>10s}"
+                     "  left out by tables"]
+            for s, h in exported.items():
+                kin = results[s]["self"].get("kinematic", {}).get("rms_mm", float("nan"))
+                lines.append(f"{s:8s}{h['nominal_rms_mm']:9.3f}{kin:11.3f}{h['full_rms_mm']:12.3f}{h['chain_rms_mm']:11.3f}"
+                             f"{h['chain_tables_rms_mm']:10.3f}  {', '.join(h['chain_tables_left_out']) or 'nothing'}")
+            lines += ["", "URDF / UR: the model's geometry, base and tool (jointcal export --format urdf or ur);",
+                      "+ tables: and the per-joint compensation tables (joint maps, backlash) in the drives",
+                      "(--format table). Only jointcal correct, which filters the program through the whole",
+                      "model, carries compliance: its commands land at the full model's error.",
+                      "kinematic: a geometry + base + tool fit on its own. The full model's chain alone is worse",
+                      "than that: its geometry was fitted together with the joint maps and compliance, which",
+                      "take part of the error; for a robot that takes only a URDF, export the kinematic fit."]
+            text_page(pdf, "What reaches the robot: exports judged on held-out poses", lines)
 
         # the diagnosis loop: what was added each round, and the error it left (own, other series)
         for s in series:

@@ -1,0 +1,13 @@
+# --------------------------------------------------- the model on the robot (issue #18)
+# Included by the Makefile. The real UR10 series' full models (the diagnosis loop's final spec)
+# exported as a URDF and judged on its series' held-out poses: the full model, what the URDF (or UR's
+# parameters) carries, and URDF + joint tables (`jointcal export --heldout`; the ur and table formats
+# are written the same way, see README).
+# (read before mk/real.mk: literal paths here)
+REAL_EXPORT := results/real/B_export.json results/real/C_export.json
+
+results/real/%_export.json: results/real/%_diagnosed.json interim/real/%/poses.csv $(CODE.deploy.export_cmd) | $(STAMP) ## held-out RMS of the full model, of what a URDF carries, and of URDF + joint tables (real series)
+	$(JC) export --model $< --format urdf --out results/real/$*_diagnosed.urdf --heldout interim/real/$* --json $@
+
+# the real report shows them
+results/real/transfer.json: $(REAL_EXPORT)

@@ -1,0 +1,339 @@
+"""Putting a fitted model on the robot (contract sections 8 and 10): ``jointcal correct`` (robot
+programs and encoder readings), ``jointcal export`` and ``jointcal simulate measure``. Thin commands.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from ..core.errors import InputError
+from . import encoder
+from .common import read_json
+
+
+def _need_file(path, what: str) -> None:
+    if not Path(path).is_file():
+        raise InputError(path, f"no such file ({what})", None, None)
+
+
+def _is_robot_model(doc) -> bool:
+    return isinstance(doc, dict) and "robot_toml" in doc and doc.get("kind", "robot") == "robot"
+
+
+def _load_robot_model(path, doc):
+    from ..robot.predict import load_model_document
+
+    return load_model_document(doc, path)
+
+
+@click.command("correct")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="A fitted model: a robot fit JSON (jointcal fit --campaign) or an encoder model (jointcal fit).")
+@click.option("--targets", "targets_path", type=click.Path(dir_okay=False),
+              help="Robot model: the program's points, one row per point in visiting order: point_id, q1 … qN (deg), "
+                   "optional x_mm, y_mm, z_mm (point to reach, base frame; default the nominal kinematics of q), "
+                   "payload_kg, dir1 … dirN (default from the visiting order), temperature_c (default 20).")
+@click.option("--out", "out_path", type=click.Path(dir_okay=False),
+              help="Robot model: the corrected program (CSV: point_id, q1 … qN deg, dq1_arcsec … dqN_arcsec, x_mm, "
+                   "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, status, reason).")
+@click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="Robot model: a row needing a larger correction of any joint is left as given (status "
+                   "correction_too_large).")
+@click.option("--input", "input_path", default="-", show_default=True, type=click.Path(),
+              help="Encoder model: CSV with a column of joint readings, or - for standard input.")
+@click.option("--column", default="encoder_deg", show_default=True, help="Encoder model: column of readings (deg).")
+@click.option("--output", "output_path", default="-", show_default=True, type=click.Path(),
+              help="Encoder model: where to write the CSV with corrected_deg and correction_arcsec added.")
+@click.pass_context
+def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_path, column, output_path):
+    """Correct with a fitted model: a robot program's commands, or an encoder's readings.
+
+    \b
+    Robot model (contract section 8): every effect of the model is used - geometry, base, tool,
+    joint maps and harmonics, compliance with the row's payload, backlash with the row's
+    approach direction, thermal with the row's temperature. Each row's commands are moved, by
+    Newton iterations on the model's own Jacobian, until the model puts the SMR on the point
+    (model_residual_um <= 1); the flange keeps the program's orientation as far as the model
+    determines it; the correction is the smallest that does both. Rows outside the joint ranges
+    the model was fitted on, beyond --max-correction-deg, or without a solution are left as
+    given, and the status and reason columns say why.
+      jointcal correct --model results/real/C_diagnosed.json --targets program.csv --out corrected.csv
+    \b
+    Encoder model: corrected = reading - error(reading) (see --input, --column, --output).
+      printf 'encoder_deg\\n10.0\\n95.5\\n' | jointcal correct --model results/encoder/a_model.json
+    """
+    doc = read_json(model_path)
+    if not _is_robot_model(doc):
+        if targets_path or out_path:
+            raise InputError(model_path, "--targets/--out correct a robot program, and this is not a fitted robot "
+                             "model (for an encoder model use --input, --column and --output)", 1, 1)
+        return ctx.invoke(encoder.correct, model_path=model_path, input_path=input_path, column=column,
+                          output_path=output_path)
+    if not targets_path or not out_path:
+        raise click.UsageError("a robot model needs --targets FILE and --out FILE.csv")
+    import time
+
+    from ..core.files import write_text
+    from ..correct.robot import ModelKinematics, correct_commands
+    from ..correct.targets import read_targets
+    from ..correct.write import corrected_csv
+
+    _need_file(targets_path, "the targets: point_id, q1 … qN, one row per point")
+    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    kin = ModelKinematics(robot, model)
+    t0 = time.perf_counter()
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1])
+    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
+                           max_correction_deg)
+    write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
+    c = res.counts()
+    ok = res.status == "ok"
+    worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
+    largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
+    click.echo(f"{out_path}: {len(res.status)} rows in {time.perf_counter() - t0:.1f} s: {c['ok']} corrected{largest}"
+               f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "
+               f"{c['correction_too_large']} beyond --max-correction-deg {max_correction_deg:g}, "
+               f"{c['no_solution']} without a solution", err=True)
+    if (~ok).any():
+        k = int(((~ok).nonzero())[0][0])
+        click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
+
+
+# ------------------------------------------------------------------------------ simulate measure
+def _measure_robot(truth_path, campaign, robot_path):
+    """The cell's nominal robot: --robot, else the truth's own (robot_toml), else the campaign folder's,
+    else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml)."""
+    from ..robot.kinematics import load_robot, parse_robot
+
+    if robot_path:
+        return load_robot(robot_path)
+    truth = read_json(truth_path)
+    if isinstance(truth, dict) and isinstance(truth.get("robot_toml"), str):
+        return parse_robot(truth["robot_toml"], f"{truth_path} (robot_toml)")
+    for cand in (Path(campaign) / "robot.toml",
+                 Path(truth_path).parent.parent.parent / "robot" / Path(truth_path).stem / "robot.toml"):
+        if cand.is_file():
+            return load_robot(cand)
+    raise InputError(truth_path, "the truth does not name its robot: give the cell's robot.toml with --robot", 1, 1)
+
+
+@click.command("measure")
+@click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
+              type=click.Path(dir_okay=False), help="Truth of the virtual cell, as `jointcal simulate robot` wrote it.")
+@click.option("--poses", "poses_path", required=True, type=click.Path(dir_okay=False),
+              help="Commanded poses in visiting order: point_id, q1 … qN (deg), optional payload_kg, dir1 … dirN "
+                   "(default from the visiting order), temperature_c (default 20), set (default target).")
+@click.option("--campaign", required=True, type=click.Path(file_okay=False),
+              help="Campaign folder to write (robot.toml, poses.csv, tracker.csv; contract section 2).")
+@click.option("--robot", "robot_path", default=None, type=click.Path(dir_okay=False),
+              help="The cell's nominal robot.toml (default: the truth's, the campaign folder's, or raw/robot/<name>).")
+@click.option("--seed", type=int, default=None, help="Seed of the jitter and tracker noise (default: the cell's).")
+def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
+    """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
+
+    The cell whose truth `jointcal simulate robot` wrote moves to each pose in the file's order -
+    true geometry and tool, transmission error, compliance under the row's payload, backlash by the
+    row's approach direction, jitter, any hidden effect - and its tracker (same noise) measures the
+    SMR in the robot base frame. Writes a campaign folder: every pose `target` unless `set` says.
+    A simulator: it reads the truth, which the pipeline never does.
+
+    \b
+      jointcal simulate measure --poses corrected.csv --campaign /tmp/check
+    """
+    import numpy as np
+
+    from ..core.files import write_text
+    from ..core.tables import FLOAT, SIGN, STR, read_table
+    from ..robot.measure import campaign_tables, cell_from_truth, measure_poses
+
+    _need_file(poses_path, "the commanded poses: point_id, q1 … qN")
+    robot = _measure_robot(truth_path, campaign, robot_path)
+    truth = read_json(truth_path)
+    try:
+        cell = cell_from_truth(robot, truth)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
+                         f"{exc}", 1, 1) from None
+    nj = len(robot.joints)
+    qcols = [f"q{j}" for j in range(1, nj + 1)]
+    frame = read_table(poses_path, {"point_id": STR, **{c: FLOAT for c in qcols}},
+                       {"payload_kg": FLOAT, "temperature_c": FLOAT, "set": STR,
+                        **{f"dir{j}": SIGN for j in range(1, nj + 1)}})
+    lines = frame["_line"].to_numpy(int)
+    dup = frame["point_id"].duplicated().to_numpy()
+    if dup.any():
+        k = int(np.argmax(dup))
+        raise InputError(poses_path, f"point_id '{frame['point_id'].iloc[k]}' appears twice", lines[k], "point_id")
+    sets = frame["set"].replace("", "target").to_numpy(str) if "set" in frame else np.full(len(frame), "target")
+    bad = ~np.isin(sets, ("sample", "target", "repeat"))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(poses_path, f"set '{sets[k]}' must be sample, target or repeat", lines[k], "set")
+    q = frame[qcols].to_numpy(float)
+    out = np.any((q < robot.lower_deg) | (q > robot.upper_deg), axis=1)
+    if out.any():
+        k = int(np.argmax(out))
+        j = int(np.argmax((q[k] < robot.lower_deg) | (q[k] > robot.upper_deg)))
+        raise InputError(poses_path, f"q{j + 1} = {q[k, j]:g} deg is beyond the robot's joint range "
+                         f"({robot.lower_deg[j]:g} to {robot.upper_deg[j]:g} deg): the cell cannot go there",
+                         lines[k], f"q{j + 1}")
+    dcols = [f"dir{j}" for j in range(1, nj + 1)]
+    dirs = None
+    if all(c in frame for c in dcols) and not frame[dcols].isna().any().any():
+        dirs = frame[dcols].to_numpy(int)
+    payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
+    temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
+    dirs, xyz = measure_poses(cell, q, dirs, payload, temp, seed)
+    poses_csv, tracker_csv = campaign_tables(frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, xyz,
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)))
+    write_text(Path(campaign) / "robot.toml", robot.to_toml())
+    write_text(Path(campaign) / "poses.csv", poses_csv)
+    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
+               f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target)", err=True)
+
+
+# ------------------------------------------------------------------------------ export
+def _ur_paths(out):
+    out = Path(out)
+    if out.suffix in (".yaml", ".yml"):
+        return out.with_suffix(".conf"), out
+    if out.suffix == ".conf":
+        return out, out.with_suffix(".yaml")
+    return out / "calibration.conf", out / "kinematics.yaml"
+
+
+@click.command("export")
+@click.option("--model", "model_path", required=True, type=click.Path(),
+              help="A fitted robot model (jointcal fit --campaign); for --format table also an encoder model.")
+@click.option("--format", "fmt", required=True, type=click.Choice(["urdf", "ur", "table"]),
+              help="urdf: the robot with geometry, base and tool in the joint origins; ur: calibration.conf "
+                   "[mounting] deltas (standard DH, rad and m) and the ROS driver's kinematics YAML; table: one "
+                   "compensation table per joint (CSV).")
+@click.option("--out", required=True, type=click.Path(),
+              help="File to write (ur: a .yaml or .conf path, the other file beside it, or a folder for both).")
+@click.option("--urdf", "urdf_path", default=None, type=click.Path(dir_okay=False),
+              help="urdf: rewrite this URDF of the robot instead, changing only <origin> elements (with --tip).")
+@click.option("--tip", default=None, help="urdf with --urdf: the link whose origin is the SMR (as for jointcal import).")
+@click.option("--base", "base_link", default=None,
+              help="urdf with --urdf: the link whose frame is the model's base frame (as for jointcal import; "
+                   "default the URDF's root).")
+@click.option("--heldout", "heldout_campaign", default=None, type=click.Path(file_okay=False),
+              help="A campaign of the same robot (e.g. the fit's own): measure on its target poses the held-out RMS "
+                   "of the full model, of what a URDF / UR's parameters carry, and of that plus the joint tables.")
+@click.option("--json", "json_out", default=None, type=click.Path(dir_okay=False),
+              help="With --heldout: write those numbers (mm) and what each leaves out as JSON.")
+@click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
+              help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
+def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg):
+    """Write a fitted model in a form a robot or its drives take (contract section 8).
+
+    \b
+    Each format says here, and in the file as comments, which fitted effects it cannot carry and
+    what leaving them out costs: how far the model's prediction moves without them (RMS and max,
+    mm, over the joint ranges the model was fitted on). A URDF and UR's parameters carry the rigid
+    chain (geometry, base, tool); the joint tables carry joint maps, joint harmonics and backlash;
+    none carries compliance, thermal expansion or Chebyshev error transfer.
+      jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
+    """
+    from ..core.files import write_text
+
+    doc = read_json(model_path)
+    if not _is_robot_model(doc):
+        if fmt != "table":
+            raise InputError(model_path, f"--format {fmt} needs a fitted robot model (jointcal fit --campaign); "
+                             "an encoder model exports as --format table", 1, 1)
+        from ..encoder.evaluate import model_from_result
+        from ..export.table import encoder_table, table_csv
+
+        try:
+            model = model_from_result(doc)
+            table = encoder_table(model, step_deg, joint=doc.get("module", 1) if isinstance(doc, dict) else 1)
+        except (KeyError, TypeError) as exc:
+            raise InputError(model_path, f"neither a fitted robot model nor an encoder model ({exc})", 1, 1) from None
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--step-deg") from None
+        note = "harmonic terms of the joint module's encoder model; correction = -error, added to the reading"
+        write_text(out, table_csv(table, [note]))
+        click.echo(f"{out}: {len(table)} angles; {note}", err=True)
+        return
+    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, folded_chain, leftover_cost
+
+    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
+    cost = leftover_cost(robot, model, sampled, carried)
+    what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
+            "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
+            "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
+                     "backlash); with the chain in a URDF or UR's parameters"}[fmt]
+    if cost["left_out"]:
+        note = (f"{what}; it cannot carry {', '.join(cost['left_out'])}: leaving that out moves the model's "
+                f"prediction by {cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max ({cost['n']} poses: "
+                f"{cost['conditions']})")
+    else:
+        note = f"{what}; the model has nothing else: it is carried whole"
+    comments = [f"jointcal export, format {fmt}, of {model_path}", note]
+    if fmt == "urdf":
+        from ..export.urdf import chain_urdf, rewrite_urdf
+
+        chain = folded_chain(robot, model)
+        if urdf_path:
+            if not tip:
+                raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
+            _need_file(urdf_path, "the robot's URDF")
+            try:
+                text = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments, base_link)
+            except ValueError as exc:
+                raise InputError(urdf_path, str(exc), None, None) from None
+            except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)
+                raise InputError(urdf_path, f"not a readable URDF ({exc})", None, None) from None
+        else:
+            text = chain_urdf(robot.name + "_calibrated", chain, comments)
+        write_text(out, text)
+        written = [out]
+    elif fmt == "ur":
+        from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
+        from ..robot.calibrate import RobotErrorModel
+
+        chain = folded_chain(robot, model)
+        nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
+        nominal = standard_dh(folded_chain(robot, nominal_model))
+        fitted = standard_dh(chain, reference=nominal)
+        conf_path, yaml_path = _ur_paths(out)
+        write_text(conf_path, calibration_conf(fitted, nominal, chain["smr"], comments))
+        write_text(yaml_path, kinematics_yaml(chain, comments))
+        written = [conf_path, yaml_path]
+    else:
+        from ..export.table import robot_table, table_csv
+
+        table = robot_table(robot, model, sampled, step_deg)
+        if table.empty:
+            comments.append("the model has no effect of a joint's own angle: the table is empty")
+        write_text(out, table_csv(table, comments))
+        written = [out]
+    click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)
+    if heldout_campaign:
+        from ..core.files import write_json
+        from ..export.chain import heldout_by_carrier
+        from ..robot.ingest import robot_data_sets
+        from ..robot.predict import same_robot_problem
+
+        other, (target,) = robot_data_sets(heldout_campaign, ("target",))
+        problem = same_robot_problem(robot, other)
+        if problem:
+            raise InputError(Path(heldout_campaign) / "robot.toml", problem, 1, 1)
+        if target.n == 0:
+            raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
+                             1, "set")
+        h = heldout_by_carrier(robot, model, target)
+        h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
+        click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
+                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (leaves out "
+                   f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
+                   f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
+                   err=True)
+        if json_out:
+            write_json(json_out, h)

@@ -1,0 +1,275 @@
+"""Corrected commands from a fitted robot model (contract section 8, ``jointcal correct``).
+
+A program gives, per point, the nominal joint values ``q`` (a taught or offline-programmed pose) and
+optionally the point the SMR / tool must reach (default: where the nominal kinematics put ``q``).
+The robot, commanded ``q``, lands where the fitted model predicts - with every effect of the model:
+geometry, base, tool, joint maps and harmonics, compliance under the row's payload, backlash with
+the row's approach direction, thermal expansion at the row's temperature. :func:`correct_commands`
+finds the commands ``q + dq`` at which the model's prediction is the point to reach:
+
+* Newton iterations on the model's own Jacobian (pinocchio's frame Jacobian of the error model at
+  the model's joint configuration, taken with respect to the commanded joints; the effects' slow
+  dependence on the commanded angle - a joint map's slope, a gravity torque's change - is left out
+  of the Jacobian and caught by the next iteration, the prediction itself is always the full model);
+* the position is matched exactly (first priority, minimum-norm); within the joint motions that
+  leave it, the flange keeps the program's orientation (the nominal orientation at ``q``) as far as
+  the model determines it (second priority, least squares with a small Tikhonov term on the whole
+  correction, :data:`ORIENTATION_DAMPING`, so that near a wrist singularity the correction stays
+  small); what is left (a redundant arm's self-motion) is not used: the smallest correction;
+* a row outside the joint ranges the model was fitted on, whose correction exceeds the largest one
+  allowed, or whose iteration does not reach the point is left as given and says why.
+
+Pure: arrays in, arrays out; the command (``pipeline.cli.deploy``) reads and writes the files.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..core.units import REFERENCE_TEMPERATURE_C
+from ..robot.calibrate import Design
+from ..robot.effects import RobotData
+from ..robot.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
+from ..robot.predict import outside_range
+
+#: A row is ``ok`` when the model's prediction at its corrected commands is within this of the point (um).
+RESIDUAL_TOL_UM = 1.0
+#: A joint step below this (deg, 3.6e-5 arcsec) ends the iteration of a row.
+STEP_DONE_DEG = 1e-8
+#: Tikhonov weight (rad of flange rotation per rad of correction) of the orientation stage: joint
+#: motion directions that turn the flange less than this are not used to keep the orientation.
+ORIENTATION_DAMPING = 1e-3
+#: Newton iterations at most (typically 3-4 reach 1e-6 um).
+MAX_ITER = 20
+#: Default largest correction of any joint (deg), as ``robot map-joints``.
+MAX_CORRECTION_DEG = 0.5
+
+OK, OUTSIDE, TOO_LARGE, NO_SOLUTION = "ok", "outside_sampled_range", "correction_too_large", "no_solution"
+
+
+@dataclass
+class Correction:
+    """Result of :func:`correct_commands` for n rows of an N-joint robot.
+
+    Attributes
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+        Corrected commands (the given ones where ``status != "ok"``).
+    dq_arcsec : ndarray, shape (n, N), arcsec
+        Corrected - given.
+    xyz_mm : ndarray, shape (n, 3), mm
+        Nominal kinematics of the corrected commands (the Cartesian target for a controller).
+    residual_um : ndarray, shape (n,), um
+        Distance between the model's prediction at ``q_deg`` and the point to reach.
+    orientation_arcsec : ndarray, shape (n,), arcsec
+        Angle between the model's flange orientation at ``q_deg`` and the program's.
+    iterations : ndarray, shape (n,), int
+    status : ndarray of str, shape (n,)
+        ``ok``, ``outside_sampled_range``, ``correction_too_large`` or ``no_solution``.
+    reason : ndarray of str, shape (n,)
+        Why a row was left as given ('' when ok).
+    dirs : ndarray, shape (n, N), int
+        Approach directions the correction assumed (given, or from the visiting order).
+    """
+
+    q_deg: np.ndarray
+    dq_arcsec: np.ndarray
+    xyz_mm: np.ndarray
+    residual_um: np.ndarray
+    orientation_arcsec: np.ndarray
+    iterations: np.ndarray
+    status: np.ndarray
+    reason: np.ndarray
+    dirs: np.ndarray = None
+
+    def counts(self) -> dict:
+        """Rows per status."""
+        return {s: int(np.sum(self.status == s)) for s in (OK, OUTSIDE, TOO_LARGE, NO_SOLUTION)}
+
+
+class ModelKinematics:
+    """The fitted model's prediction and Jacobian at commanded joint values (built once per model).
+
+    Parameters
+    ----------
+    robot : Robot
+    model : RobotErrorModel
+        Fitted (``coef_``, ``effects_``), e.g. from :func:`pipeline.robot.predict.load_model_document`.
+    """
+
+    def __init__(self, robot, model):
+        self.robot = robot
+        self.model = model
+
+    def _built(self):
+        if not hasattr(self, "error_model_"):
+            self.error_model_, self.index_ = build_error_model(self.robot)
+            self.plain_ = build_model(self.robot)
+        return self
+
+    def data(self, q_deg, dirs, payload_kg, temperature_c) -> RobotData:
+        """The model's view of commanded poses: gravity torques of the commanded pose and payload (N m)."""
+        self._built()
+        q = np.asarray(q_deg, float)
+        tau = gravity_torques(self.robot, q, payload_kg, self.plain_)
+        return RobotData(q, np.asarray(dirs, int), np.asarray(payload_kg, float), np.asarray(temperature_c, float),
+                         tau, self.robot.lower_deg, self.robot.upper_deg)
+
+    def configurations(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
+        """Error-model configurations (n, nq) of commanded poses: every effect applied."""
+        self._built()
+        d = Design(self.robot, list(getattr(self.model, "effects_", self.model.effects)),
+                   self.data(q_deg, dirs, payload_kg, temperature_c), (self.error_model_, self.index_))
+        return d.configurations(self.model.coef_)
+
+    def pose(self, q_deg, dirs, payload_kg, temperature_c):
+        """Model flange rotation (n, 3, 3), SMR position (n, 3) mm and the 6-row Jacobian of the SMR
+        with respect to the commanded joints (n, 6, N): linear mm/rad, angular rad/rad, world-aligned."""
+        Q = self.configurations(q_deg, dirs, payload_kg, temperature_c)
+        R, P, J = pose_jacobians(self.error_model_, Q, "smr")
+        return R, P, J[:, :, self.index_.joints]
+
+    def predict(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
+        """Model SMR positions (n, 3) mm."""
+        return self.pose(q_deg, dirs, payload_kg, temperature_c)[1]
+
+    def nominal(self, q_deg):
+        """Nominal flange rotation (n, 3, 3) and SMR position (n, 3) mm of commanded joints."""
+        self._built()
+        return placements(self.plain_, np.deg2rad(np.asarray(q_deg, float)), "smr")
+
+
+def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPING):
+    """Joint step (rad): position first (minimum norm), orientation in what is left (batched).
+
+    The orientation is kept by the joint motions that leave the position alone, in the least-squares
+    sense with a small Tikhonov term on the whole correction (``damping``, rad per rad): where the
+    wrist is near a singularity, turning the program's orientation back would take large opposite
+    motions of two joints for a few arcseconds of flange rotation, and the correction stays small
+    instead. Iterated, the steps converge to that compromise (a Gauss-Newton fixed point).
+
+    Parameters
+    ----------
+    J : ndarray, shape (n, 6, N)
+        Linear (mm/rad) and angular (rad/rad) Jacobian rows.
+    e_pos : ndarray, shape (n, 3), mm
+    e_rot : ndarray, shape (n, 3), rad (world-aligned rotation vector)
+    dq_so_far : ndarray, shape (n, N), rad, optional
+        Correction already made (the Tikhonov term acts on the total).
+    """
+    Jp, Jr = J[:, :3], J[:, 3:]
+    Jp_pinv = np.linalg.pinv(Jp, rcond=1e-10)
+    dq1 = np.einsum("nij,nj->ni", Jp_pinv, e_pos)
+    n, _, N = J.shape
+    Np = np.eye(N)[None] - Jp_pinv @ Jp
+    A = Jr @ Np
+    rest = e_rot - np.einsum("nij,nj->ni", Jr, dq1)
+    total = dq1 if dq_so_far is None else dq_so_far + dq1
+    # [A; lambda Np] z = [rest; -lambda Np total], solved through the normal equations (batched)
+    M = np.transpose(A, (0, 2, 1)) @ A + damping ** 2 * Np
+    b = np.einsum("nji,nj->ni", A, rest) - damping ** 2 * np.einsum("nij,nj->ni", Np, total)
+    z = np.einsum("nij,nj->ni", np.linalg.pinv(M, rcond=1e-12, hermitian=True), b)
+    return dq1 + np.einsum("nij,nj->ni", Np, z)
+
+
+def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
+                     sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
+                     tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER) -> Correction:
+    """Commands that make the fitted model reach the points (see the module docstring).
+
+    Parameters
+    ----------
+    kin : ModelKinematics
+    q_deg : ndarray, shape (n, N), deg
+        The program's nominal joint values, in visiting order.
+    target_mm : ndarray, shape (n, 3), mm, optional
+        Points to reach in the robot base frame; NaN rows or None: the nominal kinematics of ``q_deg``.
+    dirs : ndarray, shape (n, N), int (+1/-1), optional
+        Sign of each joint's last motion (backlash); None: from the visiting order of ``q_deg``.
+    payload_kg : ndarray, shape (n,), kg, optional (default 0)
+    temperature_c : ndarray, shape (n,), degC, optional (default 20)
+    sampled : dict, optional
+        ``{"lower_deg": [N], "upper_deg": [N]}``: joint ranges the model was fitted on.
+    max_correction_deg : float, deg
+        Rows needing a larger correction of any joint are left as given.
+    tol_um : float, um
+        Largest model residual of an ``ok`` row.
+    """
+    from ..robot.simulate import directions_from_sequence
+
+    q0 = np.atleast_2d(np.asarray(q_deg, float))
+    n, nj = q0.shape
+    dirs = directions_from_sequence(q0) if dirs is None else np.asarray(dirs, int)
+    payload = np.zeros(n) if payload_kg is None else np.asarray(payload_kg, float)
+    temp = np.full(n, REFERENCE_TEMPERATURE_C) if temperature_c is None else np.asarray(temperature_c, float)
+    R_nom, P_nom = kin.nominal(q0)
+    target = P_nom.copy()
+    if target_mm is not None:
+        t = np.asarray(target_mm, float)
+        given = np.all(np.isfinite(t), axis=1)
+        target[given] = t[given]
+    status = np.full(n, OK, dtype=object)
+    reason = np.full(n, "", dtype=object)
+    if sampled is not None:
+        out = outside_range(q0, sampled)
+        lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
+        for k in np.flatnonzero(out):
+            j = int(np.argmax(np.maximum(lo - q0[k], q0[k] - hi)))
+            status[k] = OUTSIDE
+            reason[k] = (f"joint {j + 1} at {q0[k, j]:.3f} deg is outside the range the model was fitted on "
+                         f"({lo[j]:.3f} to {hi[j]:.3f} deg)")
+    q = q0.copy()
+    iters = np.zeros(n, int)
+    active = status == OK
+    res = np.full(n, np.inf)
+    for it in range(max_iter + 1):
+        idx = np.flatnonzero(active)
+        if not idx.size:
+            break
+        R, P, J = kin.pose(q[idx], dirs[idx], payload[idx], temp[idx])
+        e_pos = target[idx] - P
+        res[idx] = np.linalg.norm(e_pos, axis=1) * 1000.0
+        e_rot = Rotation.from_matrix(R_nom[idx] @ np.transpose(R, (0, 2, 1))).as_rotvec()
+        if it == max_iter:
+            break
+        step = np.rad2deg(_prioritised_step(J, e_pos, e_rot, np.deg2rad(q[idx] - q0[idx])))
+        bad = ~np.all(np.isfinite(step), axis=1) | (np.abs(step).max(axis=1) > 45.0)
+        # a row is done when its position is a thousand times inside the tolerance and the next step
+        # would move no joint by more than STEP_DONE_DEG (the orientation has converged as far as it can)
+        done = (res[idx] <= 1e-3 * tol_um) & (np.abs(step).max(axis=1) <= STEP_DONE_DEG)
+        move = ~done & ~bad
+        q[idx[move]] += step[move]
+        iters[idx[move]] += 1
+        active[idx[done | bad]] = False
+    # final residual and orientation of every solved row
+    solved = np.flatnonzero(status == OK)
+    orient = np.zeros(n)
+    if solved.size:
+        R, P, _ = kin.pose(q[solved], dirs[solved], payload[solved], temp[solved])
+        res[solved] = np.linalg.norm(target[solved] - P, axis=1) * 1000.0
+        orient[solved] = np.rad2deg(np.linalg.norm(
+            Rotation.from_matrix(R_nom[solved] @ np.transpose(R, (0, 2, 1))).as_rotvec(), axis=1)) * 3600.0
+    dq = q - q0
+    for k in solved:
+        if not np.isfinite(res[k]) or res[k] > tol_um:
+            status[k] = NO_SOLUTION
+            reason[k] = (f"the model does not reach the point: {res[k]:.3g} um left after {iters[k]} iterations "
+                         f"(limit {tol_um:g} um)")
+        elif np.abs(dq[k]).max() > max_correction_deg:
+            j = int(np.argmax(np.abs(dq[k])))
+            status[k] = TOO_LARGE
+            reason[k] = (f"joint {j + 1} would need {dq[k, j]:+.3f} deg, beyond --max-correction-deg "
+                         f"{max_correction_deg:g}")
+    left = status != OK
+    q[left] = q0[left]
+    dq[left] = 0.0
+    if left.any():
+        # what the model says of the given commands where the row was left as given
+        P = kin.predict(q0[left], dirs[left], payload[left], temp[left])
+        res[left] = np.linalg.norm(target[left] - P, axis=1) * 1000.0
+        orient[left] = np.nan
+    _, xyz = kin.nominal(q)
+    return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs)

@@ -1,0 +1,108 @@
+"""Stage ``simulate measure`` (contract section 10): the virtual cell as a robot.
+
+Given commanded poses, the cell whose truth ``jointcal simulate robot`` wrote moves to them and its
+tracker measures the SMR - with the simulator's own physics (:class:`pipeline.robot.simulate.VirtualCell`:
+true geometry and tool, transmission error, gravity compliance under the row's payload, backlash by
+the row's approach direction, repeatability jitter, the hidden effect, tracker noise). The result is a
+campaign folder of section 2 (``robot.toml``, ``poses.csv``, ``tracker.csv``; every pose ``target``
+unless the poses say otherwise), so that planning, fitting and correcting can be checked end to end.
+
+A simulator, not the pipeline: it reads the truth. The cell is rebuilt from the truth's drawn values
+(not from the seed), so it is the cell that wrote the truth whatever the generator does now.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..core.units import REFERENCE_TEMPERATURE_C
+from .kinematics import Robot
+from .simulate import VirtualCell, directions_from_sequence, rng_for
+
+#: the generator's stream for measuring given programs (simulate.py uses 1-4)
+PROGRAM = 5
+
+
+def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
+    """The virtual cell a truth dict describes (:func:`pipeline.robot.simulate.cell_truth`).
+
+    Parameters
+    ----------
+    robot : Robot
+        The cell's nominal robot (N joints).
+    truth : dict
+        ``mdh_errors``, ``transmission``, ``compliance_arcsec_per_knm``, ``backlash_arcsec``,
+        ``tool_xyz_mm``, ``tracker_frame``, ``config``, ``hidden`` (KeyError/ValueError when missing).
+    """
+    n = len(robot.joints)
+    true = robot
+    geo = {int(g["joint"]): g for g in truth["mdh_errors"]}
+    for i, j in enumerate(robot.joints):
+        g = geo.get(i + 1, {})
+        true = true.replace_joint(i, theta_offset_deg=j.theta_offset_deg + g.get("dtheta_arcsec", 0.0) / 3600,
+                                  d_mm=j.d_mm + g.get("dd_mm", 0.0), a_mm=j.a_mm + g.get("da_mm", 0.0),
+                                  alpha_deg=j.alpha_deg + g.get("dalpha_arcsec", 0.0) / 3600,
+                                  beta_deg=j.beta_deg + g.get("dbeta_arcsec", 0.0) / 3600)
+    true = Robot(true.name, true.joints, tuple(float(v) for v in truth["tool_xyz_mm"]), true.path)
+    trans = {int(t["joint"]): t for t in truth["transmission"]}
+    K = max((max(t["orders"]) for t in trans.values()), default=1)
+    amp, phase = np.zeros((n, K)), np.zeros((n, K))
+    for j, t in trans.items():
+        for k, a, p in zip(t["orders"], t["amplitude_arcsec"], t["phase_deg"]):
+            amp[j - 1, int(k) - 1] = a / 3600
+            phase[j - 1, int(k) - 1] = np.deg2rad(p)
+    compliance = np.asarray(truth["compliance_arcsec_per_knm"], float) / 3600 / 1000
+    backlash = np.asarray(truth["backlash_arcsec"], float) / 3600
+    if compliance.shape != (n,) or backlash.shape != (n,):
+        raise ValueError(f"the truth describes {compliance.size} joints, the robot has {n}")
+    fr = truth["tracker_frame"]
+    return VirtualCell(robot, true, dict(truth["config"]), amp, phase, compliance, backlash, dict(truth.get("hidden") or {}),
+                       np.asarray(fr["rotation"], float), np.asarray(fr["translation_mm"], float))
+
+
+def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temperature_c=None, seed=None):
+    """Move the cell to commanded poses (in visiting order) and measure the SMR.
+
+    Parameters
+    ----------
+    q_cmd_deg : ndarray, shape (n, N), deg
+    dirs : ndarray, shape (n, N), +1/-1, optional
+        Sign of each joint's last motion; None: from the visiting order, starting from the middle
+        of the joint ranges (as ``simulate robot``).
+    payload_kg : ndarray, shape (n,), kg, optional (default 0)
+    temperature_c : ndarray, shape (n,), degC, optional (default 20)
+    seed : int, optional
+        Seed of the jitter and tracker noise (default the cell's).
+
+    Returns
+    -------
+    dirs : ndarray, shape (n, N), int
+    xyz_mm : ndarray, shape (n, 3), mm, robot base frame
+    """
+    q = np.atleast_2d(np.asarray(q_cmd_deg, float))
+    n = len(q)
+    if dirs is None:
+        dirs = directions_from_sequence(q, start_deg=(cell.robot.lower_deg + cell.robot.upper_deg) / 2)
+    payload = np.zeros(n) if payload_kg is None else np.asarray(payload_kg, float)
+    temp = np.full(n, REFERENCE_TEMPERATURE_C) if temperature_c is None else np.asarray(temperature_c, float)
+    rng = rng_for(cell.config["seed"] if seed is None else seed, PROGRAM)
+    q_true = cell.open_loop(q, dirs, payload, rng)
+    return np.asarray(dirs, int), cell.measure(q_true, rng, temp)
+
+
+def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz_mm, sigma_mm):
+    """``poses.csv`` and ``tracker.csv`` text of a measured program (contract section 2)."""
+    q = np.asarray(q_cmd_deg, float)
+    poses = pd.DataFrame({"point_id": np.asarray(point_id, str), "set": np.asarray(sets, str)})
+    for j in range(q.shape[1]):
+        poses[f"q{j + 1}"] = [f"{v:.9f}" for v in q[:, j]]
+    for j in range(q.shape[1]):
+        poses[f"dir{j + 1}"] = np.asarray(dirs, int)[:, j]
+    poses["payload_kg"] = [f"{v:g}" for v in payload_kg]
+    poses["temperature_c"] = [f"{v:g}" for v in temperature_c]
+    tracker = pd.DataFrame({"point_id": poses["point_id"]})
+    for k, c in enumerate(("x_mm", "y_mm", "z_mm")):
+        tracker[c] = [f"{v:.6f}" for v in np.asarray(xyz_mm)[:, k]]
+    tracker["sigma_mm"] = f"{sigma_mm:g}"
+    return poses.to_csv(index=False, lineterminator="\n"), tracker.to_csv(index=False, lineterminator="\n")

@@ -55,7 +55,8 @@ def write_text(path, text: str) -> None:
 # 1e-10 mm, 1e-8 in a diagnosis gain), so numbers with a unit are written at a fixed resolution far below
 # any measurement (a nanometre, a micro-arcsecond) and far above that noise. Keys without a unit keep 12
 # significant digits; a key without a unit inside one with a unit (``"RP_mm": {"+x": ...}``) takes its parent's.
-RESOLUTION_DECIMALS = {"_mm": 6, "_um": 3, "_arcsec": 6, "_pct": 4, "gain": 6}
+RESOLUTION_DECIMALS = {"_mm": 6, "_um": 3, "_arcsec": 6, "_pct": 4, "gain": 6,
+                       "cv_rms": 6, "cv_rms_with": 6, "cv_rms_region": 6}      # in the campaign's unit, mm or arcsec
 
 
 def _decimals_for(key: str, inherited):
@@ -113,16 +114,18 @@ def write_json(path, obj) -> None:
 
 
 def _significant(frame, digits: int = 10):
-    """A copy of ``frame`` with every float column rounded to ``digits`` significant digits.
+    """A copy of ``frame`` with every float column rounded to ``digits`` significant digits (and its
+    ``attrs`` written by the JSON rules).
 
     A least-squares fit's amplitudes differ by 1e-15 between CPUs and BLAS builds; Parquet stores all
     53 bits, so the file (and every hash of it downstream) would differ. Rounded by Python's own
     correctly rounded decimal conversion, the result is the same on every machine.
     """
     floats = [c for c in frame.columns if frame[c].dtype.kind == "f"]
-    if not floats:
+    if not floats and not frame.attrs:
         return frame
     out = frame.copy()
+    out.attrs = _jsonable(frame.attrs)       # stored in the file too (pandas metadata): same rules as JSON
     fmt = f"{{:.{digits}g}}".format
     for c in floats:
         out[c] = np.array([float(fmt(v)) for v in out[c].to_numpy(dtype=float).tolist()], dtype=float)

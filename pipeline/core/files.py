@@ -114,21 +114,29 @@ def write_json(path, obj) -> None:
 
 
 def _significant(frame, digits: int = 10):
-    """A copy of ``frame`` with every float column rounded to ``digits`` significant digits (and its
-    ``attrs`` written by the JSON rules).
+    """A copy of ``frame`` with every float column rounded to ``digits`` significant digits of the
+    column's largest magnitude (one absolute resolution per column), and its ``attrs`` written by
+    the JSON rules.
 
-    A least-squares fit's amplitudes differ by 1e-15 between CPUs and BLAS builds; Parquet stores all
-    53 bits, so the file (and every hash of it downstream) would differ. Rounded by Python's own
-    correctly rounded decimal conversion, the result is the same on every machine.
+    A least-squares fit's amplitudes differ by 1e-15 between CPUs and BLAS builds, and a value that
+    is zero comes out as +-1e-16; Parquet stores all 53 bits, so the file (and every hash of it
+    downstream) would differ. Rounded to the column's resolution by Python's correctly rounded
+    decimal arithmetic, the result is the same on every machine.
     """
     floats = [c for c in frame.columns if frame[c].dtype.kind == "f"]
     if not floats and not frame.attrs:
         return frame
     out = frame.copy()
     out.attrs = _jsonable(frame.attrs)       # stored in the file too (pandas metadata): same rules as JSON
-    fmt = f"{{:.{digits}g}}".format
     for c in floats:
-        out[c] = np.array([float(fmt(v)) for v in out[c].to_numpy(dtype=float).tolist()], dtype=float)
+        values = out[c].to_numpy(dtype=float).tolist()
+        finite = [abs(v) for v in values if math.isfinite(v)]
+        top = max(finite, default=0.0)
+        if top == 0.0:
+            continue
+        exponent = int(f"{top:.{digits - 1}e}".split("e")[1])          # decimal exponent of the largest value
+        decimals = digits - 1 - exponent
+        out[c] = np.array([round(v, decimals) + 0.0 if math.isfinite(v) else v for v in values], dtype=float)
     return out
 
 

@@ -18,6 +18,7 @@ from ..robot.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F40
 from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.kinematics import gravity_torques
 from ..robot.lm import describe_implausible, implausible_parameters
+from ..robot.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
 
@@ -52,10 +53,11 @@ class RobotAdapter:
     registry = REGISTRY
     parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
-    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1):
+    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None):
         self.robot = robot
         self.n_folds = n_folds
         self.workers = workers
+        self.repeat = repeat
         self._lin = None
         self._blocks = {}
 
@@ -175,6 +177,18 @@ class RobotAdapter:
         if lin_extra is not None:
             lin, blocks = lin_extra
             return CVResult(lin.cv(blocks, folds), np.arange(data.n))
+        return self._refit(effects, data, folds)
+
+    def refit_cv(self, effects, data) -> tuple[CVResult, CVResult]:
+        """Held-out residuals of ``effects`` with every fold refitted (the estimator ``jointcal fit``
+        uses, from the start), by pose and by region: how a recommended set is verified."""
+        return self._refit(effects, data, "random"), self._refit(effects, data, "region")
+
+    def noise_estimate(self, data) -> dict:
+        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.noise.noise_estimate`)."""
+        return noise_estimate(self.robot, data, getattr(self, "repeat", None))
+
+    def _refit(self, effects, data, folds):
         if folds == "random":
             return cross_validate(self.robot, effects, data, self.n_folds)
         ids = region_folds(data.q_deg, self.n_folds)

@@ -17,6 +17,7 @@ from ..robot.calibrate import Design
 from ..robot.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.kinematics import gravity_torques
+from ..robot.budget import angle_budget, angle_variation, error_scale, lever_arms
 from ..robot.lm import describe_implausible, implausible_parameters
 from ..robot.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
@@ -302,9 +303,9 @@ class RobotAdapter:
             if lin.model is not None:
                 Jb = Jb[:, ~np.isin(d.names, lin.model.fixed_)]
             nominal = Design(self.robot, [], data).predict(np.zeros(0))
-            scale = float(np.max(np.linalg.norm(np.asarray(data.measured_mm) - nominal, axis=1)))
+            scale = error_scale(data.measured_mm, nominal)
             # lever arm of each joint to the SMR (mm per rad of its angle), median over the sample poses
-            lever = np.median(np.linalg.norm(lin.Jext[:, :, lin.idx_model[1].joints], axis=1), axis=0)
+            lever = lever_arms(lin.Jext, lin.idx_model[1].joints)
             lin._box = (box, Jext, Jb, scale, lever)
         box, Jext, Jb, scale, lever = lin._box
         Jc, _, _ = effect_columns(self.robot, cand_prepared, box, Jext, lin.idx_model)
@@ -314,9 +315,8 @@ class RobotAdapter:
         dc = Design(self.robot, [cand_prepared], box, lin.idx_model)
         dQ = dc.configurations(parts[-1]) - dc.Q0 if dc.p else np.zeros_like(dc.Q0)
         # about its mean: a constant angle error is the joint's offset, which geometry carries
-        dqj = dQ[:, dc.idx.joints]
-        dq = np.abs(dqj - dqj.mean(axis=0)).max(axis=0)
-        budget = scale / np.maximum(lever, 1e-9)
+        dq = angle_variation(dQ[:, dc.idx.joints])
+        budget = angle_budget(scale, lever)
         return scale, (float(np.max(np.linalg.norm(change, axis=1))) if change.size else 0.0), dq, budget, lever
 
     # ------------------------------------------------------------------ evidence

@@ -176,7 +176,7 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say,
                    base_region if regional else None)
-    verified = (verify_set(adapter, data, base_effects, candidates, cand_objects, min_gain, say)
+    verified = (verify_set(adapter, data, base_effects, candidates, cand_objects, min_gain, say, base, base_region)
                 if hasattr(adapter, "refit_cv") else None)
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     noise = adapter.noise_estimate(data) if hasattr(adapter, "noise_estimate") else None
@@ -212,7 +212,8 @@ def done_text(result: dict) -> str:
     cv = result["baseline"]["cv_rms"]
     noise = result.get("noise")
     if noise is None:           # a domain without a noise estimate (encoder: runs are the folds)
-        return "nothing more that carries over to other runs; the model explains the data down to their noise"
+        return (f"the model has nothing more that carries over to other runs (cross-validated RMS {cv:.4g} {unit}; "
+                "no noise estimate)")
     rms = noise.get("rms")
     if rms is not None and cv <= NOISE_FACTOR * rms:
         return (f"the model explains the data down to their noise (cross-validated RMS {cv:.4g} {unit}, "
@@ -238,9 +239,12 @@ def _overlap_with(obj, accepted, base_effects) -> str:
     return ""
 
 
-def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say) -> dict:
+def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, base, base_region) -> dict:
     """The candidates recommended in one round, verified as a set: one real refit per fold
     (``adapter.refit_cv``: by pose and by region), not the linear corrections each was tested by.
+    The baseline's own held-out residuals ``base`` / ``base_region`` are those diagnosis ranked by
+    (its shared fit refitted fold by fold; for the baseline alone that is its own refit to first order
+    about a converged solution).
 
     The set must beat the baseline the way each member did: lower the refitted error by pose by at
     least ``min_gain`` and lower it by region, and do no worse by pose than its best member alone
@@ -253,7 +257,7 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say) 
     if not members:
         return {"members": [], "checked": False}
     say(f"verifying the recommended set by refitting it: {' + '.join(label(c) for c in members)}")
-    b, br = adapter.refit_cv(list(base_effects), data)
+    b, br = base, base_region
     effects = list(base_effects)
     for c in members:
         effects = adapter.add(effects, objects[id(c)])

@@ -75,6 +75,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
     say = progress or (lambda s: None)
     text = spec_text.rstrip() + "\n"
     rounds, prev, done = [], None, ""
+    refits = {}   # refitted cross-validations, shared by the rounds (a verified set is the next baseline)
     for k in range(1, max_rounds + 1):
         spec = parse_spec(text, "<loop spec>")
         say(f"round {k}: {' + '.join(spec.names())}")
@@ -83,7 +84,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
                "own": _stats(target.measured_mm - model.predict(target)) if target.n else None,
                "other": _stats(errors_elsewhere(model, *other)) if other is not None else None,
                "converged": bool(model.converged_), "plausible": bool(model.plausible_)}
-        result = diagnose(RobotAdapter(robot, repeat=repeat), spec, sample, progress=say)
+        result = diagnose(RobotAdapter(robot, repeat=repeat, refit_cache=refits), spec, sample, progress=say)
         best = [c for c in result["candidates"] if c["meaningful"]]
         row["cv_rms_mm"] = result["baseline"]["cv_rms"]
         row["cv_rms_region_mm"] = result["baseline"].get("cv_rms_region")

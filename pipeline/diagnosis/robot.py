@@ -54,11 +54,12 @@ class RobotAdapter:
     registry = REGISTRY
     parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
-    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None):
+    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None, refit_cache=None):
         self.robot = robot
         self.n_folds = n_folds
         self.workers = workers
         self.repeat = repeat
+        self.refit_cache = refit_cache
         self._lin = None
         self._blocks = {}
 
@@ -182,8 +183,14 @@ class RobotAdapter:
 
     def refit_cv(self, effects, data) -> tuple[CVResult, CVResult]:
         """Held-out residuals of ``effects`` with every fold refitted (the estimator ``jointcal fit``
-        uses, from the start), by pose and by region: how a recommended set is verified."""
-        return self._refit(effects, data, "random"), self._refit(effects, data, "region")
+        uses, from the start), by pose and by region: how a recommended set is verified. Kept in
+        ``refit_cache`` (a dict the loop shares between rounds: a round's verified set is the next
+        round's baseline) under the effects' spec lines and the data."""
+        key = (id(data), data.n, tuple(e.spec_lines() for e in effects))
+        cache = self.refit_cache if self.refit_cache is not None else {}
+        if key not in cache:
+            cache[key] = (self._refit(effects, data, "random"), self._refit(effects, data, "region"))
+        return cache[key]
 
     def noise_estimate(self, data) -> dict:
         """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.noise.noise_estimate`)."""

@@ -27,7 +27,7 @@ SPECS = {"kinematic": "geometry + base + tool (specs/robot_kinematic.toml)",
          "diagnosed": "what the diagnosis loop ended with (results/real/<series>_diagnosed.toml)"}
 
 
-def _wrap(text: str, width: int = 100) -> list[str]:
+def _wrap(text: str, width: int = 86) -> list[str]:
     import textwrap
 
     return textwrap.wrap(text, width, subsequent_indent="  ")
@@ -186,6 +186,7 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                              f"{(far or {}).get('rms_mm', float('nan')):>7.3f} / {(far or {}).get('max_mm', float('nan')):>6.3f}"
                              f"  {added}")
             # issue 16: each round's set verified by refitting it; rounds rolled back; the words it ends with
+            lines.append("")
             for x in loop["rounds"]:
                 v = x.get("verified_set") or {}
                 if v.get("checked"):

@@ -85,3 +85,30 @@ def test_nothing_hidden_nothing_meaningful(tmp_path):
         result = diagnose(RobotAdapter(robot), SPEC, data)
         assert not [c for c in result["candidates"] if c["meaningful"]], result["candidates"][:3]
         assert result["baseline"]["cv_rms"] <= 1.5 * FLOOR
+
+
+def test_overlapping_candidates_one_recommended_and_the_set_verified(tmp_path):
+    """A periodic error of joint 3: its harmonic, joint 3's angle-error map and joint 3's Chebyshev
+    transfer matrix are each significant alone; they overlap, so one is recommended and the others
+    are listed as overlapping it (issue 16); the recommended set is verified by refitting it."""
+    from pipeline.diagnosis.engine import format_table
+
+    hidden = {"effect": "joint_harmonic", "joint": 3, "order": 8, "arcsec": 20.0, "phase_deg": 30.0}
+    robot, data = campaign(tmp_path, 3, hidden)
+    result = diagnose(RobotAdapter(robot), SPEC, data)
+    p_max, min_gain = result["thresholds"]["p_max"], result["thresholds"]["min_gain"]
+    on3 = {c["effect"]: c for c in result["candidates"] if c["target"] == 3
+           and (c["effect"] != "joint_harmonic" or c.get("order") == 8)}
+    alone = [n for n, c in on3.items() if c["p"] <= p_max and c["gain"] >= min_gain]
+    assert {"joint_harmonic", "joint_map", "chebyshev"} <= set(alone), alone
+    best = [c for c in result["candidates"] if c["meaningful"]]
+    assert len([c for c in best if c["target"] == 3]) == 1, [(c["effect"], c["target"]) for c in best]
+    chosen = best[0]
+    assert (chosen["effect"], chosen.get("order")) == ("joint_harmonic", 8)
+    for name in ("joint_map", "chebyshev"):
+        assert not on3[name]["meaningful"] and on3[name]["overlaps"] == "joint_harmonic joint 3 order 8", on3[name]
+    v = result["verified_set"]
+    assert v["checked"] and v["passed"] and v["members"] == ["joint_harmonic joint 3 order 8"]
+    assert v["cv_rms"] < v["baseline_cv_rms"] and v["cv_rms_region"] < v["baseline_cv_rms_region"]
+    text = format_table(result)
+    assert "overlaps joint_harmonic joint 3 order 8" in text and "Verified as a set" in text

@@ -610,22 +610,28 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
 def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, rounds):
     """The user's loop, run for you: diagnose, add every recommended effect, diagnose again, until
     nothing is recommended. Prints each round's held-out error (mm) on the campaign's own target
-    poses and, with --other, on the other series' target poses (jointcal predict --register)."""
+    poses and, with --other, on the other series' target poses (jointcal predict --register).
+
+    Each round's recommended set is verified by refitting it (by pose and by region); a round whose
+    cross-validated RMS is not below the round before's is rolled back and its candidates added one
+    at a time, best first, each kept only if it helps. The loop never ends worse than it started."""
     from ..core.files import read_text_input, write_json, write_text
     from ..core.spec import load_spec
+    from ..diagnosis.engine import verified_text
     from ..diagnosis.loop import diagnosis_loop
     from ..robot.ingest import robot_data_sets
 
     _edge()
     spec = load_spec(spec_path)
     spec.require_kind("robot", campaign)
-    robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+    robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
     other = robot_data_sets(other_campaign, ("sample",), ("target",))[1] if other_campaign else None
 
     def say(msg):
         click.echo(f"  {msg}", err=True)
 
-    result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, rounds, say)
+    result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, rounds, say,
+                            repeat=repeat)
     result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
     write_json(json_out, result)
     if spec_out:
@@ -634,7 +640,16 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
         own, far = r["own"], r["other"]
         click.echo(f"{json_out}: round {r['round']}: held-out RMS {own['rms_mm']:.3f} mm (max {own['max_mm']:.3f})"
                    + (f", other series {far['rms_mm']:.3f} mm (max {far['max_mm']:.3f})" if far else "")
+                   + f"; cross-validated {r['cv_rms_mm']:.4g} mm by pose, {r['cv_rms_region_mm']:.4g} by region"
                    + f"; recommended: {', '.join(x['label'] for x in r['recommended']) or 'nothing'}", err=True)
+        v = r.get("verified_set") or {}
+        if v.get("checked"):
+            click.echo(f"  {verified_text(v, 'mm')}", err=True)
+        if r.get("rolled_back"):
+            click.echo(f"  round {r['round']}: {r['rolled_back']}; one at a time: "
+                       + ", ".join(f"{t['label']} {'kept' if t['kept'] else 'left out'}" for t in r["one_at_a_time"]),
+                       err=True)
+    click.echo(f"{json_out}: {result['done']}; the spec of round {result['final_round']} is the result", err=True)
 
 
 def fit_robot(campaign, spec, spec_path, out):

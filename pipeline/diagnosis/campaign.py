@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..core.campaign import campaign_kind
 from ..core.spec import load_spec
-from ..robot.ingest import robot_data_from_campaign
+from ..robot.ingest import robot_data_sets
 from .encoder import EncoderAdapter, encoder_data_from_campaign
 from .engine import diagnose
 from .robot import RobotAdapter
@@ -14,8 +14,8 @@ def adapter_and_data(campaign, kind, workers=1):
     """The adapter of a ``kind`` campaign and its data (robot: the sample poses)."""
     if kind == "encoder":
         return EncoderAdapter(), encoder_data_from_campaign(campaign)
-    robot, data = robot_data_from_campaign(campaign)
-    return RobotAdapter(robot, workers=workers), data
+    robot, (data, repeat) = robot_data_sets(campaign, ("sample",), ("repeat",))
+    return RobotAdapter(robot, workers=workers, repeat=repeat), data
 
 
 def run_diagnosis(campaign, spec_path, progress=None, workers=1):

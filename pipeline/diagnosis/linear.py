@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+# configurations drawn in the sampled joint box (the robot's error budget, shared with every fit)
+from ..robot.budget import N_BOX, box_configurations  # noqa: F401 (re-exported)
 from ..robot.calibrate import WEAK_TOL, Design
 from ..robot.evaluate import fit_effects
 from ..robot.kinematics import positions_and_jacobians
@@ -32,8 +34,6 @@ from ..robot.kinematics import positions_and_jacobians
 #: Region folds: number of blocks of joint space and k-means iterations.
 N_REGIONS = 5
 KMEANS_ITER = 30
-#: Configurations drawn in the sampled joint box to look for wild predictions.
-N_BOX = 400
 #: A refit may not change the predicted position anywhere in the sampled joint box by more than this
 #: many times the larger of the largest error measured (nominal model) and its own largest change on
 #: the sample poses: random configurations there reach further and turn the wrist more than the
@@ -79,13 +79,6 @@ def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
         C = newC
     _, lab = np.unique(lab, return_inverse=True)
     return lab
-
-
-def box_configurations(q_deg, n: int = N_BOX, seed: int = 0) -> np.ndarray:
-    """Random joint configurations, uniform in each joint's sampled range, shape (n, 6) deg."""
-    q = np.asarray(q_deg, float)
-    rng = np.random.default_rng(seed)
-    return q.min(axis=0) + rng.random((n, q.shape[1])) * np.ptp(q, axis=0)
 
 
 def channel_jacobian(design: Design, x) -> np.ndarray:

@@ -30,7 +30,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ..core.plotting import pdf_pages, plt, save, text_page
-from .engine import label, target_text, waterfall
+from .engine import done_text, label, target_text, verified_text, waterfall
 
 A4 = (8.27, 11.69)
 MAX_ORDER = 17
@@ -183,8 +183,12 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
             lines.append("   add to the spec:")
             lines += ["      " + ln for ln in c["spec_line"].splitlines()]
     else:
-        lines += wrap("No candidate lowers the held-out error beyond noise: the model explains these "
-                      "data down to their noise; nothing to add.", "")
+        lines += wrap(f"No candidate lowers the held-out error beyond noise in a way that carries over: "
+                      f"{done_text(result)}; nothing to add.", "")
+    v = result.get("verified_set")
+    if v and v.get("checked"):
+        lines.append("")
+        lines += wrap(verified_text(v, unit), "")
     refused = [c for c in result["candidates"] if c.get("refused")]
     if refused:
         lines += ["", "Refused although they lower the error on neighbouring poses (why):"]

@@ -17,7 +17,9 @@ from ..robot.calibrate import Design
 from ..robot.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.kinematics import gravity_torques
+from ..robot.budget import angle_budget, angle_variation, error_scale, lever_arms
 from ..robot.lm import describe_implausible, implausible_parameters
+from ..robot.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
 
@@ -52,10 +54,12 @@ class RobotAdapter:
     registry = REGISTRY
     parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
-    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1):
+    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None, refit_cache=None):
         self.robot = robot
         self.n_folds = n_folds
         self.workers = workers
+        self.repeat = repeat
+        self.refit_cache = refit_cache
         self._lin = None
         self._blocks = {}
 
@@ -175,6 +179,24 @@ class RobotAdapter:
         if lin_extra is not None:
             lin, blocks = lin_extra
             return CVResult(lin.cv(blocks, folds), np.arange(data.n))
+        return self._refit(effects, data, folds)
+
+    def refit_cv(self, effects, data) -> tuple[CVResult, CVResult]:
+        """Held-out residuals of ``effects`` with every fold refitted (the estimator ``jointcal fit``
+        uses, from the start), by pose and by region: how a recommended set is verified. Kept in
+        ``refit_cache`` (a dict the loop shares between rounds: a round's verified set is the next
+        round's baseline) under the effects' spec lines and the data."""
+        key = (id(data), data.n, tuple(e.spec_lines() for e in effects))
+        cache = self.refit_cache if self.refit_cache is not None else {}
+        if key not in cache:
+            cache[key] = (self._refit(effects, data, "random"), self._refit(effects, data, "region"))
+        return cache[key]
+
+    def noise_estimate(self, data) -> dict:
+        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.noise.noise_estimate`)."""
+        return noise_estimate(self.robot, data, getattr(self, "repeat", None))
+
+    def _refit(self, effects, data, folds):
         if folds == "random":
             return cross_validate(self.robot, effects, data, self.n_folds)
         ids = region_folds(data.q_deg, self.n_folds)
@@ -288,9 +310,9 @@ class RobotAdapter:
             if lin.model is not None:
                 Jb = Jb[:, ~np.isin(d.names, lin.model.fixed_)]
             nominal = Design(self.robot, [], data).predict(np.zeros(0))
-            scale = float(np.max(np.linalg.norm(np.asarray(data.measured_mm) - nominal, axis=1)))
+            scale = error_scale(data.measured_mm, nominal)
             # lever arm of each joint to the SMR (mm per rad of its angle), median over the sample poses
-            lever = np.median(np.linalg.norm(lin.Jext[:, :, lin.idx_model[1].joints], axis=1), axis=0)
+            lever = lever_arms(lin.Jext, lin.idx_model[1].joints)
             lin._box = (box, Jext, Jb, scale, lever)
         box, Jext, Jb, scale, lever = lin._box
         Jc, _, _ = effect_columns(self.robot, cand_prepared, box, Jext, lin.idx_model)
@@ -300,9 +322,8 @@ class RobotAdapter:
         dc = Design(self.robot, [cand_prepared], box, lin.idx_model)
         dQ = dc.configurations(parts[-1]) - dc.Q0 if dc.p else np.zeros_like(dc.Q0)
         # about its mean: a constant angle error is the joint's offset, which geometry carries
-        dqj = dQ[:, dc.idx.joints]
-        dq = np.abs(dqj - dqj.mean(axis=0)).max(axis=0)
-        budget = scale / np.maximum(lever, 1e-9)
+        dq = angle_variation(dQ[:, dc.idx.joints])
+        budget = angle_budget(scale, lever)
         return scale, (float(np.max(np.linalg.norm(change, axis=1))) if change.size else 0.0), dq, budget, lever
 
     # ------------------------------------------------------------------ evidence

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.linalg
 
 from . import lm  # the solvers as lm.improved_lm: looked up at call time (tests wrap them)
+from .budget import model_over_budget
 from .effects import REFERENCE_TEMPERATURE_C, Base, Geometry, RobotData, RobotEffect
 from .kinematics import Robot, build_error_model, positions_and_jacobians, positions
 from .lm import GAIN_REL_CONVERGED, implausible_parameters
@@ -249,6 +250,9 @@ class RobotErrorModel:
     rank_tol : float
         Relative singular value (column-scaled Jacobian) below which a direction counts as
         not identifiable.
+    start : dict, optional
+        Parameter name -> value (internal units) to start the solver from (the solution of a model
+        nested in this one, :func:`pipeline.robot.evaluate.fit_effects`); default: nominal (0).
     reduction : {"fix", "svd"}
         What to do with the directions that are not identifiable: ``"fix"`` fixes the
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
@@ -268,8 +272,9 @@ class RobotErrorModel:
 
     def __init__(self, robot: Robot, effects, solver: str = "gauss-newton", identifiability: bool = True,
                  lm_options: dict | None = None, max_iter: int = 100, rank_tol: float = RANK_TOL,
-                 reduction: str = "fix", weak_tol: float | None = WEAK_TOL):
+                 reduction: str = "fix", weak_tol: float | None = WEAK_TOL, start: dict | None = None):
         self.robot = robot
+        self.start = start
         self.effects = effects
         self.solver = solver
         self.identifiability = identifiability
@@ -350,6 +355,10 @@ class RobotErrorModel:
 
         free = np.arange(B.shape[1])
         result = None
+        z0 = np.zeros(free.size)
+        if self.start:
+            x0 = np.array([float(self.start.get(nm, 0.0)) for nm in d.names])
+            z0 = np.linalg.lstsq(B, x0, rcond=None)[0] if B.shape[1] else z0
         if self.solver == "gauss-newton":
             # Gauss-Newton (Eq. 6 iterated) on the column-scaled Jacobian (minimum-norm steps from
             # its SVD), with Levenberg damping only when a full step does not lower the cost: the
@@ -359,11 +368,15 @@ class RobotErrorModel:
             # GAIN_REL_CONVERGED fraction of ||F||^2): the improved L-M's test (pipeline.robot.lm).
             # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
             GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
-            xf = np.zeros(free.size)
-            F, Jf = np.concatenate([(P - meas).ravel(), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
+            xf = z0.copy()
+            if self.start:
+                F, Jf = fun_and_jac(xf)
+            else:
+                F, Jf = np.concatenate([(P - meas).ravel(), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             cost = 0.5 * float(F @ F)
             scale = np.zeros(free.size)
-            lam, moved, converged, it = 0.0, False, False, 0
+            # a start from a nested model's solution counts as having left nominal
+            lam, moved, converged, it = 0.0, bool(self.start), False, 0
             reason = f"iteration limit ({self.max_iter}) reached"
             for it in range(1, self.max_iter + 1):
                 if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Jf))):
@@ -402,11 +415,11 @@ class RobotErrorModel:
             self.n_iter_ = it
             self.converged_, self.convergence_ = bool(converged), reason
         elif self.solver == "lm":
-            result = lm.improved_lm(fun, None, np.zeros(free.size), fun_and_jac=fun_and_jac, **(self.lm_options or {}))
+            result = lm.improved_lm(fun, None, z0, fun_and_jac=fun_and_jac, **(self.lm_options or {}))
             xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter
             self.converged_, self.convergence_ = bool(result.converged), result.reason
         elif self.solver == "scipy":
-            result = lm.scipy_least_squares(fun, lambda xf: fun_and_jac(xf)[1], np.zeros(free.size))
+            result = lm.scipy_least_squares(fun, lambda xf: fun_and_jac(xf)[1], z0)
             xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter
             self.converged_, self.convergence_ = bool(result.converged), result.reason
         else:
@@ -427,10 +440,20 @@ class RobotErrorModel:
             n = len(e.parameter_names(self.robot))
             checked += e.checked_values(self.robot, params[k:k + n], data.q_deg)
             k += n
-        self.implausible_ = implausible_parameters(checked)
+        # and whether a joint's angle error varies beyond the robot's own error budget in the sampled
+        # joint box (the yardstick diagnosis uses: pipeline.robot.budget)
+        self.implausible_ = implausible_parameters(checked) + self._over_budget(d, data)
         self.plausible_ = not self.implausible_
         self.seconds_ = time.perf_counter() - t0
         return self
+
+    def _over_budget(self, d, data) -> list[dict]:
+        """Joints whose fitted angle error varies beyond the robot's error budget (:mod:`.budget`)."""
+        if not any(getattr(e, "on_joint_angle", False) for e in self.effects_) or data.measured_mm is None:
+            return []
+        nominal, Jext = positions_and_jacobians(d.model, d.Q0)
+        return model_over_budget(self.robot, Design, self.effects_, dict(zip(d.names, self.coef_)), data, Jext,
+                                 d.idx.joints, nominal)
 
     def predict(self, data: RobotData) -> np.ndarray:
         """Model SMR positions, shape (n, 3), mm."""

@@ -113,6 +113,10 @@ class RobotEffect(Effect):
     on_joint_angle: ClassVar[bool] = False
     #: ``jointcal simulate robot --hidden`` syntax (empty: cannot be simulated)
     hidden_syntax: ClassVar[str] = ""
+    #: effects whose columns on the same joint overlap this one's (one contains the other's, or both
+    #: model the same angle error over the sampled range): a diagnosis round recommends at most one
+    #: of such a pair, and never one beside the other already in the model
+    overlaps_with: ClassVar[tuple[str, ...]] = ()
 
     @classmethod
     def candidates(cls, data, present):
@@ -156,6 +160,14 @@ class RobotEffect(Effect):
 
     def joints(self):
         return _joints(self.params)
+
+    def overlaps(self, other) -> list[int]:
+        """Joints on which this effect and ``other`` overlap (see :attr:`overlaps_with`); [] for none."""
+        if other.name not in self.overlaps_with and self.name not in getattr(other, "overlaps_with", ()):
+            return []
+        mine = self.joints() if "joints" in self.allowed_params else []
+        theirs = other.joints() if "joints" in getattr(other, "allowed_params", ()) else []
+        return sorted(set(mine) & set(theirs))
 
     def check(self):
         problems = super().check()
@@ -326,6 +338,8 @@ class Chebyshev(RobotEffect):
     name = "chebyshev"
     allowed_params = ("order", "joints")
     diagnosis_order = 7
+    #: the error transfer matrix of link j holds joint j's angle error against its own angle
+    overlaps_with = ("joint_map", "joint_harmonic")
     acts_on = "link frame"
     compensable = True
     compensation = ("the error transfer matrices in the controller's model (a joint-angle dependent "
@@ -546,6 +560,8 @@ class JointHarmonic(RobotEffect):
     name = "joint_harmonic"
     allowed_params = ("joints", "orders")
     diagnosis_order = 8
+    #: over the sampled range a periodic error of joint j is one of joint j's angle-error curves
+    overlaps_with = ("joint_map", "chebyshev")
     on_joint_angle = True
     acts_on = "joint angle"
     compensable = True
@@ -643,6 +659,7 @@ class JointMap(RobotEffect):
     name = "joint_map"
     allowed_params = ("joints", "step_deg", "smoothing", "range_deg")
     diagnosis_order = 6
+    overlaps_with = ("chebyshev", "joint_harmonic")
     on_joint_angle = True
     acts_on = "joint angle"
     compensable = True

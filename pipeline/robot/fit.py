@@ -53,7 +53,7 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
     effects = list(spec.effects)
     out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
            "spec_lines": [e.spec_lines() for e in effects]}
-    model = fit_effects(robot, effects, sample)
+    model = fit_effects(robot, effects, sample, check_nested=True)
     if target.n:
         out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
         rng = sampled_range(sample.q_deg)
@@ -66,6 +66,8 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
     out["convergence"] = getattr(model, "convergence_", "")
     out["plausible"] = bool(getattr(model, "plausible_", True))
     out["implausible"] = getattr(model, "implausible_", [])
+    if getattr(model, "conflict_", ""):
+        out["conflict"] = model.conflict_
     return out
 
 
@@ -76,4 +78,6 @@ def fit_problems(result: dict) -> list[str]:
         out.append(f"the fit did not converge ({result.get('convergence') or 'no reason given'})")
     if not result.get("plausible", True):
         out.append(f"parameters no real robot has: {describe_implausible(result.get('implausible', []))}")
+    if result.get("conflict"):
+        out.append(result["conflict"])
     return out

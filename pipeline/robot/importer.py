@@ -423,7 +423,9 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
         cols["set"] = imap.split_column
     else:
         sets = seeded_split(n, imap.sample_fraction, imap.seed)
-    if not (sets == "sample").any():
+    # a validation set (every pose target, taken from the file's own column) imports as it is
+    validation = imap.split_column is not None and n > 0 and bool((sets == "target").all())
+    if not (sets == "sample").any() and not validation:
         line, col = imap.where.key("split", "column" if imap.split_column else "sample_fraction")
         raise InputError(imap.path, f"no pose is a sample pose ({n} rows): nothing to fit a model on", line, col)
     if imap.split_column is None and not (sets == "target").any():

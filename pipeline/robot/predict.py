@@ -184,6 +184,9 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     registration = None
     if register:
         on = sets == "sample"
+        if not on.any():
+            raise ValueError("--register needs sample poses to register on: this campaign has none (a validation "
+                             "set, every pose target); without --register the model is applied to it as measured")
         if on.sum() < 3:
             raise ValueError("--register needs at least 3 sample poses in the campaign to estimate the "
                              "tracker-to-base transform on")

@@ -27,6 +27,12 @@ SPECS = {"kinematic": "geometry + base + tool (specs/robot_kinematic.toml)",
          "diagnosed": "what the diagnosis loop ended with (results/real/<series>_diagnosed.toml)"}
 
 
+def _wrap(text: str, width: int = 86) -> list[str]:
+    import textwrap
+
+    return textwrap.wrap(text, width, subsequent_indent="  ")
+
+
 def _stats(d: dict) -> dict:
     return {k: d[k] for k in ("rms_mm", "max_mm", "mean_mm", "std_mm") if k in d}
 
@@ -200,6 +206,20 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                 lines.append(f"{x['round']:>5}  {x['cv_rms_mm']:>8.3f}  {own['rms_mm']:>6.3f} / {own['max_mm']:>6.3f}  "
                              f"{(far or {}).get('rms_mm', float('nan')):>7.3f} / {(far or {}).get('max_mm', float('nan')):>6.3f}"
                              f"  {added}")
+            # issue 16: each round's set verified by refitting it; rounds rolled back; the words it ends with
+            lines.append("")
+            for x in loop["rounds"]:
+                v = x.get("verified_set") or {}
+                if v.get("checked"):
+                    lines += _wrap(f"round {x['round']}: verified as a set (each fold refitted): "
+                                   f"{' + '.join(v['members']) or 'nothing'}: {v['baseline_cv_rms']:.4g} -> "
+                                   f"{v['cv_rms']:.4g} mm by pose, {v['baseline_cv_rms_region']:.4g} -> "
+                                   f"{v['cv_rms_region']:.4g} mm by region"
+                                   + (f"; dropped {', '.join(v['dropped'])}" if v.get("dropped") else ""))
+                if x.get("rolled_back"):
+                    lines += _wrap(f"round {x['round']}: {x['rolled_back']}")
+            if loop.get("done"):
+                lines += _wrap(f"The loop ends: {loop['done']}.")
             last = loop["rounds"][-1]
             refused = last.get("refused", []) + [r for x in loop["rounds"][:-1] for r in x.get("refused", [])]
             if refused:

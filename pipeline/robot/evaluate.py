@@ -104,15 +104,21 @@ def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, s
     return out
 
 
+def effects_estimator(robot, effects) -> RobotErrorModel:
+    """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
+    parameters a set of poses identifies."""
+    if any(e.name == "chebyshev" for e in effects):
+        return chebyshev_estimator(robot, effects, "gauss-newton")
+    return RobotErrorModel(robot, effects, solver="gauss-newton")
+
+
 def fit_effects(robot, effects, data):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
     leading singular directions, as the Chebyshev stage does (:func:`pipeline.robot.chebyshev.chebyshev_estimator`).
     """
-    if any(e.name == "chebyshev" for e in effects):
-        return chebyshev_estimator(robot, effects, "gauss-newton").fit(data)
-    return RobotErrorModel(robot, effects, solver="gauss-newton").fit(data)
+    return effects_estimator(robot, effects).fit(data)
 
 
 def heldout_fit(robot, effects, sample, target, model=None) -> dict:

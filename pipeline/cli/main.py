@@ -12,6 +12,7 @@ import click
 
 from ..core.errors import InputError
 from . import campaign, diagnose, encoder, fleet, importer, robot, summary
+from . import plan
 
 
 class BadInput(click.ClickException):
@@ -62,6 +63,7 @@ for _command in (
     diagnose.diagnose, diagnose.diagnose_all,
     fleet.fleet,
     importer.import_cmd,
+    plan.plan_cmd,
 ):
     cli.add_command(_command)
 for _command in (encoder.simulate_encoder_cmd, robot.simulate_robot_cmd, fleet.simulate_fleet_cmd):

@@ -277,6 +277,10 @@ class Plan:
     def summary(self) -> dict:
         ident = self.identification
         return {"n": int(len(self.chosen)), "criterion": self.criterion, "criterion_value": self.criterion_value,
+                "criterion_note": ("Ds-optimal: log det of the suspected effect's information after the model's own is "
+                                   "adjusted out (Schur complement)" if self.criterion == "Ds-optimal" else
+                                   "D-optimal: log det of the information matrix of the identifiable parameters, "
+                                   "columns scaled as jointcal fit scales them"),
                 "parameters_identifiable": int(np.sum(ident["keep"])), "n_params": int(ident["n_params"]),
                 "not_identified": ident["not_identifiable"],
                 "not_identified_reasons": ident["fixed_reasons"],
@@ -427,8 +431,7 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     order = visiting_order(qc, start)
     not_on_pool = {nm: ident_pool["fixed_reasons"].get(nm, {}).get("reason", "not identifiable")
                    for nm, k in zip(names, keep) if not k}
-    plan = Plan(chosen[order], "Ds-optimal (the suspected effect's information after the model's own)" if reveal
-                else "D-optimal (log det of the scaled information matrix)", float(crit.value()), kept_names,
+    plan = Plan(chosen[order], "Ds-optimal" if reveal else "D-optimal", float(crit.value()), kept_names,
                 not_on_pool, ident, pred, float(noise_mm), curve,
                 path_cost(qc, order, start), path_cost(qc, np.arange(len(qc)), start), notes)
     return plan

@@ -143,6 +143,7 @@ OPTIONAL_JOBS = {
     "figaroh": "bench.figaroh_bench",      # FIGAROH comparison
     "fleet": "bench.fleet_bench",          # fleet of robots
     "real": "bench.real_bench",            # real UR10: import + fit of 2,773 poses, predict on 10,000
+    "plan": "bench.plan_bench",            # planned poses against random ones (real UR10, virtual cell)
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

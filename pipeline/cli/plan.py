@@ -33,10 +33,16 @@ import click
 @click.option("--reveal", "reveal_line", default=None, metavar="EFFECT",
               help="An [[effect]] line, e.g. 'name = \"compliance\", joints = [5]': choose the poses that best "
                    "tell this effect apart from the spec's model (Ds-optimal).")
+@click.option("--criterion", type=click.Choice(["robust", "D", "I"]), default="robust", show_default=True,
+              help="robust: log det of the information on the model's parameters and on the error transfer terms "
+                   "(order 2) it lacks, held by a prior (model-robust D-optimal; poses that also hold where the "
+                   "model is not exact). D: log det of the model's information only (D-optimal). I: D, then "
+                   "exchanges that lower the mean prediction variance over the pool (slower). --reveal is always "
+                   "Ds-optimal.")
 @click.option("--noise-mm", "noise_mm", default=0.05, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Measurement noise (mm, standard deviation of each coordinate) for predicted_rms_mm.")
 def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, json_path, campaign, reveal_line,
-             noise_mm):
+             criterion, noise_mm):
     """Choose N poses from a pool that determine SPEC's model best (D-optimal), or that reveal a
     suspected effect (--reveal, Ds-optimal), from joint values and the nominal robot only.
 
@@ -74,7 +80,7 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     def say(msg):
         click.echo(f"plan: {msg}", err=True)
 
-    text, summary = plan_from_pool(robot, spec.effects, pool, n, measured, reveal, noise_mm, say)
+    text, summary = plan_from_pool(robot, spec.effects, pool, n, measured, reveal, noise_mm, say, criterion)
     write_text(out_path, text)
     if json_path:
         write_json(json_path, summary)

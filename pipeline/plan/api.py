@@ -12,7 +12,7 @@ from .reveal import doubled_for_backlash, reveal_text, what_poses_need
 
 
 def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=None, noise_mm: float = 0.05,
-                   say=None) -> tuple[str, dict]:
+                   say=None, criterion: str = "robust") -> tuple[str, dict]:
     """Choose ``n`` poses of ``pool``; returns (plan CSV text, summary dict).
 
     Parameters
@@ -26,6 +26,8 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     reveal : RobotEffect, optional
     noise_mm : float
         Measurement noise, mm (standard deviation of each coordinate).
+    criterion : {"robust", "D", "I"}
+        See :func:`pipeline.plan.design.plan_poses`.
     """
     backlash = reveal is not None and reveal.name == "backlash"
     if backlash:
@@ -36,10 +38,8 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     else:
         data = pool_data(robot, pool.q_deg, pool.payload_kg)
         data.point_id = np.asarray(pool.point_id, object)
-        if measured is not None:
-            # measured poses were reached as the campaign says; new ones take directions from the path
-            pass
-    plan = plan_poses(robot, effects, data, n, measured=measured, reveal=reveal, noise_mm=noise_mm, say=say)
+    plan = plan_poses(robot, effects, data, n, measured=measured, reveal=reveal, noise_mm=noise_mm, say=say,
+                      criterion=criterion)
     chosen = plan.chosen
     summary = plan.summary()
     ids = data.point_id[chosen]

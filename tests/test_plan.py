@@ -174,3 +174,11 @@ def test_bad_pools_are_refused(cell, tmp_path, invoke, edit, line, col, words):
     assert (m["file"], m["line"], m["col"]) == (str(pool), line, col), msg
     assert all(w in msg for w in words), msg
     assert not out.exists() and not list(tmp_path.glob(".plan.csv*"))
+
+
+def test_payloads_are_visited_together():
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-90, 90, (30, 4))          # four joints
+    pay = np.repeat([0.0, 10.0, 20.0], 10)[rng.permutation(30)]
+    order = visiting_order(q, payload_kg=pay)
+    assert np.count_nonzero(np.diff(pay[order])) == 2

@@ -24,7 +24,8 @@ import click
 @click.option("--n", "n", required=True, type=click.IntRange(min=1), help="Number of poses to choose.")
 @click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False),
               help="Plan CSV to write, in visiting order: point_id, q1 … qN (deg), payload_kg when the pool has "
-                   "it, dir1 … dirN when the plan needs approach directions (backlash).")
+                   "it, dir1 … dirN when the plan needs approach directions (backlash), set = sample: ready to "
+                   "become a campaign's poses.csv.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
               help="Also write the plan's summary: n, criterion, parameters_identifiable, predicted_rms_mm (mm), the "
                    "predicted error against the number of poses (curve), the path length (deg).")
@@ -43,13 +44,13 @@ import click
               help="Measurement noise (mm, standard deviation of each coordinate) for predicted_rms_mm.")
 def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, json_path, campaign, reveal_line,
              criterion, noise_mm):
-    """Choose N poses from a pool that determine SPEC's model best (D-optimal), or that reveal a
-    suspected effect (--reveal, Ds-optimal), from joint values and the nominal robot only.
+    """Choose N poses from a pool that determine SPEC's model best (model-robust D-optimal), or that
+    reveal a suspected effect (--reveal, Ds-optimal), from joint values and the nominal robot only.
 
     The parameters and their scaling are those `jointcal fit` identifies; the poses are chosen by a
     greedy start and a Fedorov exchange on log det of the information matrix, and written in an
     order that keeps the robot's path short (nearest neighbour + 2-opt; a move costs its largest
-    joint motion). The console and --json say how many parameters the poses identify, which ones
+    joint motion; a payload change costs more than any motion, so payloads are visited together). The console and --json say how many parameters the poses identify, which ones
     the pool cannot identify and why, and the position error (mm RMS over the pool) that the
     parameters' uncertainty leaves for --noise-mm.
     """

@@ -276,7 +276,12 @@ def path_cost(q_deg, order, start_deg=None, weights=None) -> float:
     return float(np.sum(np.max(np.abs(np.diff(q, axis=0)) * w, axis=1))) if len(q) > 1 else 0.0
 
 
-def visiting_order(q_deg, start_deg=None, weights=None, max_passes=50) -> np.ndarray:
+#: Cost (deg-equivalent) of changing the payload between two poses: a change of end effector or
+#: weights takes far longer than any joint motion, so poses of one payload are visited together.
+PAYLOAD_CHANGE_DEG = 3600.0
+
+
+def visiting_order(q_deg, start_deg=None, weights=None, max_passes=50, payload_kg=None) -> np.ndarray:
     """An order that keeps the robot's path short: nearest neighbour, then 2-opt (open path).
 
     A move's cost is ``max_j w_j |dq_j|`` (deg): joints move together, the one with the longest
@@ -288,6 +293,8 @@ def visiting_order(q_deg, start_deg=None, weights=None, max_passes=50) -> np.nda
     start_deg : ndarray, shape (N,), deg, optional
         Where the robot is before the first pose (the path starts there; else at the first pose chosen
         by nearest neighbour from the middle of the poses).
+    payload_kg : ndarray, shape (n,), kg, optional
+        A change of payload between two poses costs :data:`PAYLOAD_CHANGE_DEG` more.
     """
     q = np.asarray(q_deg, float)
     n = len(q)
@@ -295,6 +302,9 @@ def visiting_order(q_deg, start_deg=None, weights=None, max_passes=50) -> np.nda
         return np.arange(n)
     w = np.ones(q.shape[1]) if weights is None else np.asarray(weights, float)
     D = np.max(np.abs(q[:, None, :] - q[None, :, :]) * w, axis=2)
+    if payload_kg is not None:
+        pay = np.asarray(payload_kg, float)
+        D = D + PAYLOAD_CHANGE_DEG * (pay[:, None] != pay[None, :])
     s = np.median(q, axis=0) if start_deg is None else np.asarray(start_deg, float)
     d0 = np.max(np.abs(q - s) * w, axis=1)
     # nearest neighbour
@@ -565,7 +575,7 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     if m0:
         start = measured.q_deg[-1]
     qc = pool.q_deg[chosen]
-    order = visiting_order(qc, start)
+    order = visiting_order(qc, start, payload_kg=pool.payload_kg[chosen] if np.ptp(pool.payload_kg) > 0 else None)
     not_on_pool = {nm: ident_pool["fixed_reasons"].get(nm, {}).get("reason", "not identifiable")
                    for nm, k in zip(names, keep) if not k}
     plan = Plan(chosen[order], name, value, kept_names,

@@ -102,7 +102,8 @@ def read_pool(path, robot) -> Pool:
 
 def format_plan_csv(point_id, q_deg, payload_kg=None, directions=None) -> str:
     """The plan in visiting order: ``point_id, q1 … qN`` (full precision, deg), ``payload_kg`` when
-    given, ``dir1 … dirN`` when the plan needs approach directions."""
+    given, ``dir1 … dirN`` when the plan needs approach directions, and ``set`` = ``sample`` (poses
+    to identify the model on: the file is ready to become a campaign's poses.csv)."""
     q = np.asarray(q_deg, float)
     nj = q.shape[1]
     head = ["point_id"] + [f"q{j}" for j in range(1, nj + 1)]
@@ -110,6 +111,7 @@ def format_plan_csv(point_id, q_deg, payload_kg=None, directions=None) -> str:
         head.append("payload_kg")
     if directions is not None:
         head += [f"dir{j}" for j in range(1, nj + 1)]
+    head.append("set")
     out = [",".join(head)]
     for k, pid in enumerate(point_id):
         cells = [str(pid)] + [repr(float(v)) for v in q[k]]
@@ -117,5 +119,6 @@ def format_plan_csv(point_id, q_deg, payload_kg=None, directions=None) -> str:
             cells.append(repr(float(payload_kg[k])))
         if directions is not None:
             cells += [str(int(v)) for v in directions[k]]
+        cells.append("sample")
         out.append(",".join(cells))
     return "\n".join(out) + "\n"

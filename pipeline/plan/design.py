@@ -385,7 +385,10 @@ class Plan:
                 "predicted_rms_note": ("RMS position error over the pool that the fitted parameters' scatter leaves "
                                        "for measurement noise noise_mm (each coordinate), from the identification "
                                        "Jacobian at the nominal robot; it leaves out effects the model lacks"),
-                "curve": self.curve, "path_deg": self.path_deg, "path_deg_in_choice_order": self.path_deg_unordered,
+                "curve": self.curve,
+                "curve_note": ("predicted_rms_mm (for noise_mm) of the first k poses a greedy D-optimal choice takes "
+                               "from this pool; null where k poses are too few for the parameters"),
+                "path_deg": self.path_deg, "path_deg_in_choice_order": self.path_deg_unordered,
                 "path_note": "joint-space path from the start, each move costing its largest joint motion (deg)",
                 "notes": self.notes, **({"reveal": self.reveal} if self.reveal else {})}
 

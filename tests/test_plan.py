@@ -127,14 +127,17 @@ def test_campaign_never_repeats_a_measured_pose(cell, tmp_path, invoke):
                   "z_mm": meas.measured_mm[:, 2]}).to_csv(camp / "tracker.csv", index=False)
     # the pool holds the measured poses again: under their own ids and under new ones
     pool = tmp_path / "pool.csv"
-    _write_pool(pool, np.vstack([Q, Q[:30]]), ids + [f"P{k:04d}" for k in range(30, 120)] + [f"N{k}" for k in range(30)])
-    res = invoke("plan", "--robot", KR210, "--spec", SPEC, "--pool", pool, "--n", 40, "--campaign", camp,
+    again = Q[:30] + np.random.default_rng(1).uniform(-5e-5, 5e-5, (30, 6))     # as another file rounds them
+    _write_pool(pool, np.vstack([Q, again]), ids + [f"P{k:04d}" for k in range(30, 120)] + [f"N{k}" for k in range(30)])
+    # more poses asked for than the pool has new ones: only the 90 new ones may come
+    res = invoke("plan", "--robot", KR210, "--spec", SPEC, "--pool", pool, "--n", 100, "--campaign", camp,
                  "--out", tmp_path / "plan.csv", "--json", tmp_path / "plan.json")
     assert res.exit_code == 0, res.output
     plan = pd.read_csv(tmp_path / "plan.csv")
-    assert len(plan) == 40 and not set(plan["point_id"]) & set(ids)
-    measured = {tuple(np.round(r, 6)) for r in Q[:30]}
-    assert not any(tuple(np.round(r, 6)) in measured for r in plan[[f"q{j}" for j in range(1, 7)]].to_numpy())
+    assert len(plan) == 90 and not set(plan["point_id"]) & set(ids)
+    assert "only 90 distinct poses not yet measured" in res.stderr
+    planned = plan[[f"q{j}" for j in range(1, 7)]].to_numpy()
+    assert np.abs(planned[:, None, :] - Q[None, :30, :]).max(axis=2).min() > 1e-3
     assert json.loads((tmp_path / "plan.json").read_text())["campaign_poses"] == 30
 
 

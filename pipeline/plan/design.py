@@ -53,6 +53,9 @@ DS_WEIGHT = 0.5
 #: precision 1 are the method's textbook choice (unit prior on scaled terms); no other was tried.
 POTENTIAL_ORDER = 2
 POTENTIAL_PRECISION = 1.0
+#: A pool pose within this of a measured one (deg, every joint) is that pose again (--campaign never
+#: plans it): 0.36 arcsec, far below any robot's repeatability, above the rounding of exported files.
+MEASURED_POSE_DEG = 1e-4
 #: Exchange passes at most (each pass tries every chosen pose once)
 MAX_PASSES = 20
 
@@ -161,6 +164,16 @@ class _Criterion:
         self.full.refresh()
         if self.sub:
             self.sub.refresh()
+
+
+def near_any(q_deg, ref_deg, tol) -> np.ndarray:
+    """Mask of the rows of ``q_deg`` (n, N) within ``tol`` deg, every joint, of a row of ``ref_deg`` (m, N)."""
+    q, ref = np.asarray(q_deg, float), np.asarray(ref_deg, float)
+    out = np.zeros(len(q), bool)
+    for k in range(0, len(ref), 256):
+        block = ref[k:k + 256]
+        out |= (np.abs(q[:, None, :] - block[None, :, :]).max(axis=2) <= tol).any(axis=1)
+    return out
 
 
 def distinct_rows(q_deg, tol=SAME_POSE_DEG) -> np.ndarray:
@@ -494,15 +507,18 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
         own = set(reveal.parameter_names(robot))
         sub = np.array([i for i, nm in enumerate(kept_names) if nm not in own], int)
         if sub.size == q:
-            raise ValueError("none of the suspected effect's parameters can be identified on this pool")
+            from ..core.errors import InputError
+            from .reveal import what_poses_need
+
+            why = "; ".join(f"{nm}: {ident_pool['fixed_reasons'].get(nm, {}).get('reason', 'not identifiable')}"
+                            for nm in reveal.parameter_names(robot))
+            raise InputError("--reveal", f"no pose of this pool can identify the suspected effect ({why}); the "
+                             f"poses need {what_poses_need(reveal)}", 1, 1)
     # candidates: distinct pool poses, none equal to a measured one
     qkey = pool.q_deg if reveal is None or reveal.name != "backlash" else np.hstack([pool.q_deg, pool.dir])
     cand = distinct_rows(np.hstack([qkey, pool.payload_kg[:, None]]))
     if m0:
-        mq = np.round(measured.q_deg / SAME_POSE_DEG).astype(np.int64)
-        pq = np.round(pool.q_deg / SAME_POSE_DEG).astype(np.int64)
-        seen = {tuple(r) for r in mq}
-        cand &= np.array([tuple(r) not in seen for r in pq], bool)
+        cand &= ~near_any(pool.q_deg, measured.q_deg, MEASURED_POSE_DEG)
         pid = set(map(str, measured.point_id))
         cand &= np.array([str(p) not in pid for p in pool.point_id], bool)
     candidates = np.flatnonzero(cand)

@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import io
 import shutil
 import tempfile
 import time
@@ -113,7 +114,7 @@ def _virtual_trial(robot, cell, spec_path, K, seed, tmp: Path) -> dict:
     pool = Pool(np.array([f"P{k:03d}" for k in range(len(Q))], dtype=object), Q, np.zeros(len(Q)), False)
     text, _ = plan_from_pool(robot, load_spec(spec_path).effects, pool, K,
                              reveal=parse_reveal('name = "backlash", joints = [4]'))
-    plan = pd.read_csv(pd.io.common.StringIO(text))
+    plan = pd.read_csv(io.StringIO(text))
     out["planned"] = (plan[[f"q{j}" for j in range(1, 7)]].to_numpy(float),
                       plan[[f"dir{j}" for j in range(1, 7)]].to_numpy(int))
     named = {}

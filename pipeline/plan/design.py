@@ -541,20 +541,18 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
         c = _Criterion(A, M0)
         allowed = np.zeros(len(A), bool)
         allowed[candidates] = True
-        Apool = A
         for step in range(1, max(curve_k) + 1):
             g = np.where(allowed, c.gains(), -np.inf)
             i = int(np.argmax(g))
             c.add(i)
             allowed[i] = False
+            if step % 25 == 0:
+                c.refresh()          # the rank-3 updates' rounding does not accumulate
             if step in curve_k:
-                if step % 10 == 0:
-                    c.refresh()
                 tr = np.einsum("nkk->n", c.full.G)
                 rms = noise_mm * float(np.sqrt(max(np.mean(tr), 0.0)))
                 ok = 3 * (m0 + step) >= q
                 curve.append({"k": step, "predicted_rms_mm": rms if ok and np.isfinite(rms) else None})
-        del Apool
     if criterion not in ("robust", "D", "I"):
         raise ValueError(f"unknown criterion {criterion!r}")
     if reveal is None and criterion == "robust":

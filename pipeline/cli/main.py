@@ -11,7 +11,7 @@ import sys
 import click
 
 from ..core.errors import InputError
-from . import campaign, deploy, diagnose, encoder, fleet, importer, robot, summary
+from . import campaign, deploy, diagnose, encoder, fleet, importer, plan, robot, summary
 
 
 class BadInput(click.ClickException):
@@ -63,6 +63,7 @@ for _command in (
     fleet.fleet,
     importer.import_cmd,
     deploy.export_cmd,
+    plan.plan_cmd,
 ):
     cli.add_command(_command)
 for _command in (encoder.simulate_encoder_cmd, robot.simulate_robot_cmd, fleet.simulate_fleet_cmd, deploy.measure_cmd):

@@ -129,7 +129,7 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             revealable.append(cand)
         else:
             unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
-                                 "explanation": cand.explanation})
+                                 "explanation": cand.explanation, **_plan_hint(cand, spec)})
     if regional:
         say(f"{len(revealable)} candidates, each a linear correction to the shared baseline fit")
         evaluated = adapter.evaluate(base_effects, revealable, data, say)
@@ -410,6 +410,8 @@ def format_table(result: dict, width: int = 110) -> str:
     for u in result.get("not_revealable", []):
         tgt = "" if u["target"] is None else f" {u['target']}"
         lines.append(f"not revealable by these data: {u['effect']}{tgt}: {u['reason']}")
+        if u.get("plan"):
+            lines.append(f"  to reveal it, the poses need {u['needs']}; plan them with: {u['plan']}")
     return "\n".join(lines)
 
 
@@ -444,3 +446,13 @@ def waterfall(adapter, spec, data, progress=None) -> list[dict]:
         steps.append({"effects": [e.name for e in effects[:k]], "added": effects[k - 1].name,
                       "cv_rms": adapter.cross_validate(effects[:k], data).rms})
     return steps
+
+
+def _plan_hint(effect, spec) -> dict:
+    """For a robot effect these poses cannot reveal: the ``jointcal plan --reveal`` line that plans
+    poses which would, and what those poses need (``plan``, ``needs``); {} for other domains."""
+    if getattr(effect, "domain", None) != "robot":
+        return {}
+    from ..plan.reveal import reveal_hint
+
+    return reveal_hint(effect, "CAMPAIGN", getattr(spec, "path", None) or "SPEC")

@@ -200,6 +200,8 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
         for u in nr:
             tgt = "" if u["target"] is None else f" {u['target']}"
             lines += wrap(f"- {u['effect']}{tgt}: {u['reason']}", "   ")
+            if u.get("plan"):
+                lines += wrap(f"  to reveal it, the poses need {u['needs']}; plan them with: {u['plan']}", "   ")
     return lines
 
 

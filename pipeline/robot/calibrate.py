@@ -299,12 +299,20 @@ class RobotErrorModel:
         return Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
                       getattr(self, "_model_and_index", None))
 
-    def fit(self, data: RobotData) -> "RobotErrorModel":
-        t0 = time.perf_counter()
+    def identification(self, data: RobotData):
+        """The identification problem of ``data`` at the nominal parameters, as :meth:`fit` sees it.
+
+        Prepares the effects on ``data`` (``effects_``), and returns ``(design, P, J, Pen, penalised,
+        ident)``: the :class:`Design`, nominal SMR positions P (n, 3) mm, the identification Jacobian
+        J (3 n, p) mm per internal unit (rows x, y, z of each pose), the effects' penalty rows Pen
+        (m, p), which parameters are penalised (p,) bool, and :func:`identifiability`'s verdict
+        (rank, condition number, the parameters kept and why the others are fixed) with this
+        estimator's rank and weak-determination tolerances. It needs joint values only (no
+        measurement): ``jointcal plan`` chooses poses on the same problem.
+        """
         self.effects_ = [e.prepared(self.robot, data) for e in self.effects]
         d = self.design(data)
         self._model_and_index = (d.model, d.idx)
-        meas = np.asarray(data.measured_mm, float)
         x = np.zeros(d.p)
         P, J = d.predict_and_jacobian(x)
         J2 = J.reshape(-1, d.p)
@@ -325,6 +333,12 @@ class RobotErrorModel:
                                 weak_tol=self.weak_tol if self.identifiability and self.reduction == "fix" else None,
                                 penalised=penalised)
         ident["rank_exact"] = int(np.sum(np.asarray(ident["singular_values"]) > 1e-10 * ident["singular_values"][0]))
+        return d, P, J2, Pen, penalised, ident
+
+    def fit(self, data: RobotData) -> "RobotErrorModel":
+        t0 = time.perf_counter()
+        d, P, J2, Pen, penalised, ident = self.identification(data)
+        meas = np.asarray(data.measured_mm, float)
         norms = np.linalg.norm(J2, axis=0)
         norms = np.where(norms > 0, norms, 1.0)
         if self.identifiability and self.reduction == "svd":

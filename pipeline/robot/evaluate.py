@@ -104,7 +104,10 @@ def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, s
     return out
 
 
-def _estimator(robot, effects, start=None):
+def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
+    """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
+    parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
+    start the solver from (a nested model's solution)."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
         est.start = start
@@ -154,17 +157,17 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
     (else it is ''). ``nested_`` lists each nested model's sample RMS (mm).
     """
-    model = _estimator(robot, effects).fit(data)
+    model = effects_estimator(robot, effects).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
     for nested in nested_models(effects):
-        m0 = _estimator(robot, nested).fit(data)
+        m0 = effects_estimator(robot, nested).fit(data)
         entry = {"effects": [e.name for e in nested], "rms_mm": m0.rms_mm_}
         model.nested_.append(entry)
         if model.rms_mm_ <= m0.rms_mm_ * (1.0 + NESTED_RTOL):
             continue
-        warm = _estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_))).fit(data)
+        warm = effects_estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_))).fit(data)
         entry["started_from_it"] = True
         if warm.rms_mm_ < model.rms_mm_:
             warm.conflict_, warm.nested_ = "", model.nested_

@@ -1,0 +1,69 @@
+"""``jointcal plan`` as one library call: a pool, a spec's effects (and a campaign already measured,
+a suspected effect) in, the plan's CSV text and JSON-ready summary out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..robot.simulate import directions_from_sequence
+from .design import plan_poses, pool_data
+from .pool import Pool, format_plan_csv
+from .reveal import doubled_for_backlash, reveal_text, what_poses_need
+
+
+def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=None, noise_mm: float = 0.05,
+                   say=None, criterion: str = "robust") -> tuple[str, dict]:
+    """Choose ``n`` poses of ``pool``; returns (plan CSV text, summary dict).
+
+    Parameters
+    ----------
+    robot : Robot (N joints)
+    effects : list of RobotEffect (the spec's model)
+    pool : Pool (joint values deg, payloads kg)
+    n : int
+    measured : RobotData, optional
+        The campaign's poses already measured, in visiting order.
+    reveal : RobotEffect, optional
+    noise_mm : float
+        Measurement noise, mm (standard deviation of each coordinate).
+    criterion : {"robust", "D", "I"}
+        See :func:`pipeline.plan.design.plan_poses`.
+    """
+    backlash = reveal is not None and reveal.name == "backlash"
+    if backlash:
+        q, pay, dirs, back = doubled_for_backlash(pool.q_deg, pool.payload_kg, reveal.joints())
+        data = pool_data(robot, q, pay, dirs)
+        data.point_id = np.array([f"{pool.point_id[b]}{'@dir+' if k < pool.q_deg.shape[0] else '@dir-'}"
+                                  for k, b in enumerate(back)], dtype=object)
+    else:
+        data = pool_data(robot, pool.q_deg, pool.payload_kg)
+        data.point_id = np.asarray(pool.point_id, object)
+    plan = plan_poses(robot, effects, data, n, measured=measured, reveal=reveal, noise_mm=noise_mm, say=say,
+                      criterion=criterion)
+    chosen = plan.chosen
+    summary = plan.summary()
+    ids = data.point_id[chosen]
+    q = data.q_deg[chosen]
+    directions = None
+    if backlash:
+        start = measured.q_deg[-1] if measured is not None else (robot.lower_deg + robot.upper_deg) / 2
+        directions = directions_from_sequence(q, start_deg=start)
+        for j in reveal.joints():
+            directions[:, j - 1] = data.dir[chosen, j - 1]
+    if reveal is not None:
+        sel = data.subset(chosen)
+        if directions is not None:
+            sel.dir = directions
+        ok, why = reveal.can_reveal(sel)
+        summary["reveal"] = {"effect": reveal_text(reveal), "revealable": bool(ok), "why_not": why,
+                             "needs": what_poses_need(reveal),
+                             "parameters": reveal.parameter_names(robot)}
+        if not ok:
+            summary["notes"].append(f"even the best poses of this pool cannot reveal it: {why}; the poses need "
+                                    f"{what_poses_need(reveal)}")
+    if measured is not None:
+        summary["campaign_poses"] = int(measured.n)
+    summary["point_ids"] = [str(p) for p in ids]
+    text = format_plan_csv(ids, q, pool.payload_kg[chosen % pool.q_deg.shape[0]] if pool.has_payload else None,
+                           directions)
+    return text, summary

@@ -1,0 +1,124 @@
+"""The pool of feasible poses ``jointcal plan`` chooses from (contract section 9), read and checked,
+and the plan written as the start of a ``poses.csv``."""
+
+from __future__ import annotations
+
+import csv
+import io
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.files import read_text_input
+
+
+@dataclass
+class Pool:
+    """Poses the robot can reach and the tracker can see.
+
+    Attributes
+    ----------
+    point_id : ndarray of str, shape (n,)
+    q_deg : ndarray, shape (n, N), deg
+    payload_kg : ndarray, shape (n,), kg (0 when the file has no payload_kg)
+    has_payload : bool
+    """
+
+    point_id: np.ndarray
+    q_deg: np.ndarray
+    payload_kg: np.ndarray
+    has_payload: bool
+
+
+def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") -> Pool:
+    """Read a pool CSV (``point_id, q1 … qN``, optional ``payload_kg``); bad input raises InputError
+    naming the line (the header is line 1) and the column."""
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or not any(c.strip() for c in rows[0]):
+        raise InputError(path, "empty file: a pool needs a header point_id, q1 … qN and one row per pose", 1, None)
+    header = [c.strip() for c in rows[0]]
+    qcols = sorted((int(m.group(1)) for c in header if (m := re.fullmatch(r"q(\d+)", c))))
+    if "point_id" not in header:
+        raise InputError(path, "no point_id column (a pool has point_id, q1 … qN, optional payload_kg)", 1, "point_id")
+    if len(qcols) != n_joints or qcols != list(range(1, len(qcols) + 1)):
+        found = f"q1 … q{len(qcols)}" if qcols == list(range(1, len(qcols) + 1)) else ", ".join(f"q{k}" for k in qcols)
+        raise InputError(path, f"the pool has {len(qcols)} joint columns ({found or 'none'}) but the robot has "
+                         f"{n_joints} joints (q1 … q{n_joints})", 1,
+                         f"q{n_joints + 1}" if len(qcols) > n_joints else f"q{len(qcols) + 1}")
+    dup = sorted({c for c in header if header.count(c) > 1})
+    if dup:
+        raise InputError(path, f"column {dup[0]!r} appears twice in the header", 1, dup[0])
+    col = {c: k for k, c in enumerate(header)}
+    has_payload = "payload_kg" in col
+    ids, Q, pay, seen = [], [], [], {}
+    lower, upper = np.asarray(lower_deg, float), np.asarray(upper_deg, float)
+    for ln, row in enumerate(rows[1:], start=2):
+        if not row or not any(c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise InputError(path, f"{len(row)} fields, the header has {len(header)}", ln, None)
+        pid = row[col["point_id"]].strip()
+        if not pid:
+            raise InputError(path, "empty point_id", ln, "point_id")
+        if pid in seen:
+            raise InputError(path, f"point_id {pid!r} already on line {seen[pid]}", ln, "point_id")
+        seen[pid] = ln
+        q = []
+        for j in range(1, n_joints + 1):
+            name = f"q{j}"
+            v = _number(row[col[name]], path, ln, name, "deg")
+            if not lower[j - 1] - 1e-9 <= v <= upper[j - 1] + 1e-9:
+                raise InputError(path, f"{name} = {v:g} deg is outside joint {j}'s range [{lower[j - 1]:g}, "
+                                 f"{upper[j - 1]:g}] deg of the robot (angles in degrees?)", ln, name)
+            q.append(v)
+        p = _number(row[col["payload_kg"]], path, ln, "payload_kg", "kg") if has_payload else 0.0
+        if p < 0:
+            raise InputError(path, f"payload_kg = {p:g} is negative", ln, "payload_kg")
+        ids.append(pid)
+        Q.append(q)
+        pay.append(p)
+    if not ids:
+        raise InputError(path, "no pose in the pool (only a header)", 2, None)
+    return Pool(np.array(ids, dtype=object), np.array(Q, float), np.array(pay, float), has_payload)
+
+
+def _number(text, path, line, column, unit):
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(path, f"{column} must be a number ({unit}), found {text.strip()!r}", line, column) from None
+    if not np.isfinite(v):
+        raise InputError(path, f"{column} must be a finite number ({unit}), found {text.strip()!r}", line, column)
+    return v
+
+
+def read_pool(path, robot) -> Pool:
+    """:func:`parse_pool` of a file, for ``robot``'s joint count and ranges."""
+    text = read_text_input(path, "pool")
+    return parse_pool(text, len(robot.joints), robot.lower_deg, robot.upper_deg, str(path))
+
+
+def format_plan_csv(point_id, q_deg, payload_kg=None, directions=None) -> str:
+    """The plan in visiting order: ``point_id, q1 … qN`` (full precision, deg), ``payload_kg`` when
+    given, ``dir1 … dirN`` when the plan needs approach directions, and ``set`` = ``sample`` (poses
+    to identify the model on: the file is ready to become a campaign's poses.csv)."""
+    q = np.asarray(q_deg, float)
+    nj = q.shape[1]
+    head = ["point_id"] + [f"q{j}" for j in range(1, nj + 1)]
+    if payload_kg is not None:
+        head.append("payload_kg")
+    if directions is not None:
+        head += [f"dir{j}" for j in range(1, nj + 1)]
+    head.append("set")
+    out = [",".join(head)]
+    for k, pid in enumerate(point_id):
+        cells = [str(pid)] + [repr(float(v)) for v in q[k]]
+        if payload_kg is not None:
+            cells.append(repr(float(payload_kg[k])))
+        if directions is not None:
+            cells += [str(int(v)) for v in directions[k]]
+        cells.append("sample")
+        out.append(",".join(cells))
+    return "\n".join(out) + "\n"

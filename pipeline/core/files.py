@@ -113,7 +113,7 @@ def write_json(path, obj) -> None:
     write_text(path, json.dumps(_jsonable(obj), indent=2) + "\n")
 
 
-def _significant(frame, digits: int = 10):
+def _significant(frame, digits: int = 11):
     """A copy of ``frame`` with every float column rounded to ``digits`` significant digits of the
     column's largest magnitude (one absolute resolution per column), and its ``attrs`` written by
     the JSON rules.

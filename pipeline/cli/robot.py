@@ -154,27 +154,39 @@ def _hidden_help() -> str:
 @click.option("--hidden", cls=HiddenOption, choices_help=_hidden_help, default=None,
               metavar="EFFECT[:JOINT]",
               help="Add one effect the paper's spec lacks, at a random realistic size: {choices}.")
-def simulate_robot_cmd(campaign, truth_path, seed, hidden):
-    """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
+@click.option("--robot", "robot_path", default=None, type=click.Path(dir_okay=False),
+              help="Simulate this robot instead of the campaign's robot.toml: a robot.toml with 4 to 7 [[joint]] "
+                   "tables, or a URDF (with --tip); copied into the campaign as its robot.toml.")
+@click.option("--tip", default=None, help="URDF --robot: the link whose origin is the SMR.")
+@click.option("--base", default=None, help="URDF --robot: the base link (default: the URDF's root).")
+def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base):
+    """Simulate the laser-tracker campaign of a virtual cell (seeded; lengths mm, angles deg).
 
-    100 sample + 104 target poses in the paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm
-    box with the end orientation within +-10 deg, visited in random order, and ISO 9283 repeat rows
-    (P1-P3, 30 cycles, three 100 mm approaches). Physics: raw/README.md.
+    Without --robot: the paper's KR210 cell (raw/robot/kr210): 100 sample + 104 target poses in the
+    paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm box with the end orientation within
+    +-10 deg, visited in random order, and ISO 9283 repeat rows (P1-P3, 30 cycles, three 100 mm
+    approaches). With --robot (any serial arm of 4 to 7 joints, e.g. raw/robot/panda/robot.toml):
+    the same physics scaled to the arm (test box 0.9 x its reach, orientation within +-30 deg,
+    payload a tenth of its mass, no ISO rows, no gratings). Physics: raw/README.md.
     """
     from ..core.files import write_json, write_text
-    from ..robot.simulate import (ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, hidden_robot_effect,
-                                 simulate_robot)
+    from ..robot.importer import load_import_robot
+    from ..robot.simulate import cell_config, format_poses_csv, format_tracker_csv, hidden_robot_effect, simulate_robot
 
     _edge()
-    robot = _robot(Path(campaign) / "robot.toml")
-    config = dict(ROBOT_FIXTURE)
-    if seed is not None:
-        config["seed"] = seed
+    robot_text = None
+    if robot_path is not None:
+        robot, robot_text, _ = load_import_robot(robot_path, tip, base)
+    else:
+        robot = _robot(Path(campaign) / "robot.toml")
+    config = cell_config(robot, seed, paper=robot_path is None)
     try:
-        hid = hidden_robot_effect(hidden, config["seed"]) if hidden else None
+        hid = hidden_robot_effect(hidden, config["seed"], robot.n_joints) if hidden else None
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--hidden") from None
     poses, tracker, truth = simulate_robot(robot, config, hid)
+    if robot_text is not None:
+        write_text(Path(campaign) / "robot.toml", robot_text)
     write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
     write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
     write_json(truth_path, truth)

@@ -51,7 +51,7 @@ def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) 
 
     Parameters
     ----------
-    sample_q, target_q : ndarray, shape (n, 6), deg
+    sample_q, target_q : ndarray, shape (n, N), deg
     target_ids : sequence of str, length n_targets
     target_lines : sequence of int or None, optional
         Line of each target in poses.csv.

@@ -53,7 +53,7 @@ def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg
 
     Returns
     -------
@@ -82,7 +82,7 @@ def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
 
 
 def box_configurations(q_deg, n: int = N_BOX, seed: int = 0) -> np.ndarray:
-    """Random joint configurations, uniform in each joint's sampled range, shape (n, 6) deg."""
+    """Random joint configurations, uniform in each joint's sampled range, shape (n, N) deg."""
     q = np.asarray(q_deg, float)
     rng = np.random.default_rng(seed)
     return q.min(axis=0) + rng.random((n, q.shape[1])) * np.ptp(q, axis=0)

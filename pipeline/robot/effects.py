@@ -160,7 +160,7 @@ class RobotEffect(Effect):
 
     @classmethod
     def inject_joint_error(cls, hidden, q_rad, error_deg) -> None:
-        """Add the effect's repeatable joint angle error (deg) at ``q_rad`` (n, 6) to ``error_deg``."""
+        """Add the effect's repeatable joint angle error (deg) at ``q_rad`` (n, N) to ``error_deg``."""
 
     @classmethod
     def inject_conditions(cls, hidden, payload_kg, temperature_c, t_s, draw):
@@ -215,7 +215,7 @@ class RobotEffect(Effect):
         """What a real robot's error budget applies to, as ``{name, value, unit}``: by default the
         fitted parameters themselves (reported units). An effect whose parameters are not physical
         amounts on their own (polynomial coefficients that may cancel) returns what they produce
-        over the sampled joint angles ``q_deg`` (n, 6) deg instead."""
+        over the sampled joint angles ``q_deg`` (n, N) deg instead."""
         return parameters
 
     def basis(self, robot: Robot, idx: ErrorModelIndex, data: RobotData) -> list[list[tuple[int, object]]]:

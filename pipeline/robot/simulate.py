@@ -172,12 +172,12 @@ class VirtualCell:
         return effect_class(self.hidden["effect"]) if self.hidden else None
 
     def repeatable_offset_deg(self, q_cmd_deg, payload_kg):
-        """Transmission error + gravity deflection, (n, 6) deg."""
+        """Transmission error + gravity deflection, (n, N) deg."""
         tau = gravity_torques(self.true_robot, q_cmd_deg, payload_kg, self.model_true)
         return self.transmission_deg(q_cmd_deg) - self.compliance_deg_per_nm * tau
 
     def open_loop(self, q_cmd_deg, dirs, payload_kg, rng):
-        """True joint angles (n, 6) deg reached by commands approached in directions ``dirs``."""
+        """True joint angles (n, N) deg reached by commands approached in directions ``dirs``."""
         q_cmd_deg = np.atleast_2d(q_cmd_deg)
         jitter = rng.normal(0.0, self.config["jitter_arcsec"] / 3600.0, q_cmd_deg.shape)
         return (q_cmd_deg + self.repeatable_offset_deg(q_cmd_deg, payload_kg)

@@ -90,6 +90,19 @@ def _robot(path):
     return load_robot(path)
 
 
+def _paper_robot(path, command: str):
+    """The robot of a stage that runs the paper's virtual six-joint cell (gratings on joints 1-3):
+    another joint count is refused with one line."""
+    from ..robot.kinematics import PAPER_JOINTS
+
+    robot = _robot(path)
+    if robot.n_joints != PAPER_JOINTS:
+        raise InputError(path, f"jointcal robot {command} runs the second paper's six-joint cell (gratings on joints "
+                         f"1-3, Eqs. 22-24); this robot has {robot.n_joints} joints: use jointcal fit / predict / "
+                         "diagnose, which take any arm of 4 to 7 joints", 1, 1)
+    return robot
+
+
 def _spec(path):
     spec = load_spec(path)
     if spec.kind != "robot":
@@ -347,11 +360,11 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     from ..robot.simulate import directions_from_sequence
 
     _edge()
-    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    robot, frame, spec = _paper_robot(robot_path, "map-joints"), _interim(interim), _spec(spec_path)
     model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
 
     tg = frame[frame["set"] == "target"]
-    qcols = [f"q{j}" for j in range(1, 7)]
+    qcols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
     lines = [int(v) + 2 if np.isfinite(v) else None for v in tg["visit"]] if "visit" in tg else None
     outside = outside_calibrated_range(frame.loc[frame["set"] == "sample", qcols], tg[qcols],
                                        tg["point_id"].to_numpy(), lines)
@@ -379,7 +392,7 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
                 f"beyond --max-correction-deg {max_correction_deg:g} ({int(beyond.any(axis=1).sum())} of {len(tg)} "
                 "targets beyond; the model, or the mapping near a singular pose, is not plausible there)", out)
     table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
-    for j in range(6):
+    for j in range(robot.n_joints):
         table[f"q{j + 1}"] = data.q_deg[:, j]
     for k, j in enumerate(joints):
         table[f"q{j}_corrected"] = qc[:, j - 1]
@@ -394,10 +407,11 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
 def _corrected(path, robot):
     from ..core.tables import FLOAT, STR, read_table
 
-    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in range(1, 7)}},
-                   {f"q{j}_corrected": FLOAT for j in range(1, 7)})
-    q = t[[f"q{j}" for j in range(1, 7)]].to_numpy(float).copy()
-    for j in range(1, 7):
+    joints = range(1, robot.n_joints + 1)
+    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in joints}},
+                   {f"q{j}_corrected": FLOAT for j in joints})
+    q = t[[f"q{j}" for j in joints]].to_numpy(float).copy()
+    for j in joints:
         c = f"q{j}_corrected"
         if c in t:
             q[:, j - 1] = t[c].to_numpy(float)
@@ -424,7 +438,7 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     from ..robot.simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
 
     _edge()
-    robot, frame = _robot(robot_path), _interim(interim)
+    robot, frame = _paper_robot(robot_path, "closed-loop"), _interim(interim)
     ids, q = _corrected(corrected, robot)
     config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
     cell = make_cell(robot, config)
@@ -481,7 +495,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
     from ..robot.simulate import ROBOT_FIXTURE, make_cell
 
     _edge()
-    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    robot, frame, spec = _paper_robot(robot_path, "evaluate"), _interim(interim), _spec(spec_path)
     mdh_json = _read_json(mdh_path)
     mdh = RobotErrorModel.from_parameters(robot, stage_effects(spec, "kinematic"), mdh_json["parameters"])
     tg = frame[frame["set"] == "target"].reset_index(drop=True)
@@ -531,7 +545,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
         errs[f"{name}_abs_mm"] = np.linalg.norm(e, axis=1)
     write_csv(outdir / "target_errors.csv", errs, float_format="%.5f")
     kc = pd.DataFrame({"point_id": tg["point_id"]})
-    for j in range(6):
+    for j in range(robot.n_joints):
         kc[f"q{j + 1}"] = qk[:, j]
     write_csv(outdir / "kinematic_commands.csv", kc, float_format="%.7f")
     if len(rep):

@@ -96,8 +96,9 @@ def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, s
     out = {"kinematic": Pk, "feedback": Pf, "loop": loop}
     if len(rep):
         rng = rng_for(seed, EXECUTE, 3)
-        qr = rep[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
-        dr = rep[[f"dir{j}" for j in range(1, 7)]].to_numpy(int)
+        joints = range(1, cell.robot.n_joints + 1)
+        qr = rep[[f"q{j}" for j in joints]].to_numpy(float)
+        dr = rep[[f"dir{j}" for j in joints]].to_numpy(int)
         qt, loop_r = cell.closed_loop(qr, dr, qr[:, :3], rep["payload_kg"].to_numpy(float), rng)
         out["repeat_loop"] = cell.measure(qt, rng, rep["temperature_c"].to_numpy(float))
         out["repeat_loop_cycles"] = loop_r["cycles"]

@@ -645,6 +645,9 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     spec = load_spec(spec_path)
     spec.require_kind("robot", campaign)
     robot, (sample, target) = robot_data_sets(campaign, ("sample",), ("target",))
+    from ..robot.fit import check_spec_joints
+
+    check_spec_joints(spec, robot)
     other = robot_data_sets(other_campaign, ("sample",), ("target",))[1] if other_campaign else None
 
     def say(msg):

@@ -143,6 +143,7 @@ OPTIONAL_JOBS = {
     "figaroh": "bench.figaroh_bench",      # FIGAROH comparison
     "fleet": "bench.fleet_bench",          # fleet of robots
     "real": "bench.real_bench",            # real UR10: import + fit of 2,773 poses, predict on 10,000
+    "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

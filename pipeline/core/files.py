@@ -50,19 +50,36 @@ def write_text(path, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def _jsonable(obj):
+# Decimals a written number keeps, by the unit its key ends in (issue 15, "same bytes on any machine"):
+# a fit's or a statistic's last bits differ from one CPU or BLAS build to another (measured: 1e-12 to
+# 1e-10 mm, 1e-8 in a diagnosis gain), so numbers with a unit are written at a fixed resolution far below
+# any measurement (a nanometre, a micro-arcsecond) and far above that noise. Keys without a unit keep 12
+# significant digits; a key without a unit inside one with a unit (``"RP_mm": {"+x": ...}``) takes its parent's.
+RESOLUTION_DECIMALS = {"_mm": 6, "_um": 3, "_arcsec": 6, "_pct": 4, "gain": 6}
+
+
+def _decimals_for(key: str, inherited):
+    for suffix, decimals in RESOLUTION_DECIMALS.items():
+        if key.endswith(suffix):
+            return decimals
+    return inherited
+
+
+def _jsonable(obj, decimals=None):
     if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): _jsonable(v, _decimals_for(str(k), decimals)) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
+        return [_jsonable(v, decimals) for v in obj]
     if isinstance(obj, np.ndarray):
-        return [_jsonable(v) for v in obj.tolist()]
+        return [_jsonable(v, decimals) for v in obj.tolist()]
     if isinstance(obj, (np.integer,)):
         return int(obj)
     if isinstance(obj, (np.floating, float)):
         value = float(obj)
         if not math.isfinite(value):
             return None
+        if decimals is not None:
+            value = round(value, decimals) + 0.0
         # 12 significant digits: stable across platforms, far below any measurement noise.
         return float(f"{value:.12g}")
     if isinstance(obj, (np.bool_,)):
@@ -70,8 +87,46 @@ def _jsonable(obj):
     return obj
 
 
+def to_resolution(obj, decimals: int):
+    """``obj`` with every float rounded to ``decimals`` decimal places (absolute, in its own unit).
+
+    For numbers a computation gives only up to rounding noise: a linear-algebra result (an SVD, a
+    Newton solve) differs in its last bits from one CPU or BLAS build to another, and a quantity
+    that is zero comes out as +-1e-14. Written with 12 *significant* digits such noise is written
+    too; rounded to a fixed absolute resolution far above the noise (and far below anything that
+    matters: 1e-9 deg is 4 micro-arcseconds, 1e-6 mm a nanometre) it is the same number everywhere.
+    Lists, tuples, dicts and arrays are followed; -0.0 becomes 0.0; other values are left alone.
+    """
+    if isinstance(obj, dict):
+        return {k: to_resolution(v, decimals) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_resolution(v, decimals) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_resolution(obj.tolist(), decimals)
+    if isinstance(obj, (float, np.floating)) and math.isfinite(float(obj)):
+        return round(float(obj), decimals) + 0.0
+    return obj
+
+
 def write_json(path, obj) -> None:
     write_text(path, json.dumps(_jsonable(obj), indent=2) + "\n")
+
+
+def _significant(frame, digits: int = 10):
+    """A copy of ``frame`` with every float column rounded to ``digits`` significant digits.
+
+    A least-squares fit's amplitudes differ by 1e-15 between CPUs and BLAS builds; Parquet stores all
+    53 bits, so the file (and every hash of it downstream) would differ. Rounded by Python's own
+    correctly rounded decimal conversion, the result is the same on every machine.
+    """
+    floats = [c for c in frame.columns if frame[c].dtype.kind == "f"]
+    if not floats:
+        return frame
+    out = frame.copy()
+    fmt = f"{{:.{digits}g}}".format
+    for c in floats:
+        out[c] = np.array([float(fmt(v)) for v in out[c].to_numpy(dtype=float).tolist()], dtype=float)
+    return out
 
 
 def write_parquet(path, frame, metadata: dict | None = None) -> None:
@@ -82,7 +137,7 @@ def write_parquet(path, frame, metadata: dict | None = None) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    table = pa.Table.from_pandas(frame, preserve_index=False)
+    table = pa.Table.from_pandas(_significant(frame), preserve_index=False)
     if metadata is not None:
         meta = dict(table.schema.metadata or {})
         meta[b"jointcal"] = json.dumps(_jsonable(metadata), sort_keys=True).encode()

@@ -219,7 +219,9 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
     sk = np.linalg.svd(Js[:, keep], compute_uv=False) if keep.any() else np.array([1.0])
     return {"rank": rank, "n_params": int(J.shape[1]),
             "condition_number": float(sk[0] / sk[-1]),
-            "condition_number_all": float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
+            # rank-deficient: the smallest singular value is rounding noise, and so would be the ratio
+            # (1e17 on one CPU, 3e18 on another): infinite, written as null
+            "condition_number_all": float(s[0] / s[-1]) if s.size and s[-1] > tol * s[0] else float("inf"),
             "singular_values": s.tolist(), "keep": keep, "rank_tol": tol, "weak_tol": weak_tol,
             "not_identifiable": [n for n, k in zip(names, keep) if not k],
             "fixed_reasons": reasons, "zero": zero}

@@ -28,12 +28,16 @@ import numpy as np
 import pandas as pd
 import pinocchio as pin
 
+from ..core.files import to_resolution
 from .closedloop import JointPlant, run_loop
 from .effects import effect_class, effect_classes
 from .kinematics import Robot, build_model, gravity_torques, inverse_kinematics, placements, positions
 
 # streams of the generator
 TRUTH, POSES, MEASURE, EXECUTE = 1, 2, 3, 4
+# decimals of every drawn or derived number in a truth file (deg, arcsec, mm, rotation elements): 1e-8 deg
+# is 36 micro-arcseconds, 1e-8 mm ten picometres; rounding noise (1e-16 to 1e-12) stays below it on any machine
+TRUTH_DECIMALS = 8
 
 ROBOT_FIXTURE = {
     "seed": 15,                              # chosen among seeds 0-59: closest to Table 2 (raw/README.md)
@@ -253,8 +257,10 @@ def cell_truth(cell: VirtualCell) -> dict:
                     "dbeta_arcsec": (j1.beta_deg - j0.beta_deg) * 3600})
     # "generator": this module's name when the shipped truth (raw/truth) was written (pipeline.robot_simulate,
     # now pipeline.robot.simulate); kept so that `make fixtures-robot` rewrites it byte for byte
+    # drawn and derived numbers at a fixed resolution (TRUTH_DECIMALS): the tracker frame comes from an
+    # SVD whose last bits differ between CPUs and BLAS builds (issue 15); the configuration is written as given
     return {"generator": "pipeline.robot_simulate", "synthetic": True, "config": cell.config, "hidden": cell.hidden,
-            "mdh_errors": geo,
+            **to_resolution({"mdh_errors": geo,
             "transmission": [{"joint": i + 1, "orders": [1, 2, 3],
                               "amplitude_arcsec": (cell.trans_amp_deg[i] * 3600).tolist(),
                               "phase_deg": np.rad2deg(cell.trans_phase[i]).tolist()}
@@ -262,7 +268,8 @@ def cell_truth(cell: VirtualCell) -> dict:
             "compliance_arcsec_per_knm": (cell.compliance_deg_per_nm * 3600 * 1000).tolist(),
             "backlash_arcsec": (cell.backlash_deg * 3600).tolist(),
             "tool_xyz_mm": list(cell.true_robot.tool_xyz_mm),
-            "tracker_frame": {"rotation": cell.frame_R.tolist(), "translation_mm": cell.frame_t.tolist()}}
+            "tracker_frame": {"rotation": cell.frame_R.tolist(), "translation_mm": cell.frame_t.tolist()}},
+                            TRUTH_DECIMALS)}
 
 
 # ------------------------------------------------------------------------------ poses
@@ -393,7 +400,9 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     tracker = pd.DataFrame({"point_id": poses["point_id"], "x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
                             "sigma_mm": config["tracker_sigma_mm"]})
     truth = cell_truth(cell)
-    truth["repeat_poses"] = {k: {"q_deg": v["q"].tolist(), "xyz_mm": v["xyz_mm"].tolist()} for k, v in rep.items()}
+    # the ISO poses come from a Newton solve: a joint that stays at 0 comes out as +-1e-14 deg (issue 15)
+    truth["repeat_poses"] = to_resolution({k: {"q_deg": v["q"], "xyz_mm": v["xyz_mm"]} for k, v in rep.items()},
+                                          TRUTH_DECIMALS)
     return poses, tracker, truth
 
 

@@ -145,6 +145,7 @@ OPTIONAL_JOBS = {
     "real": "bench.real_bench",            # real UR10: import + fit of 2,773 poses, predict on 10,000
     "correct": "bench.correct_bench",      # jointcal correct of a 10,000-point program (every effect)
     "plan": "bench.plan_bench",            # planned poses against random ones (real UR10, virtual cell)
+    "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

@@ -27,6 +27,8 @@ def ingest(campaign, out):
 
     Encoder: adds error_arcsec (joint reading minus polygon + autocollimator reference,
     relative to the run's first reading) and theta_deg (encoder reading mod 360).
+    Robot (any arm of 4 to 7 joints): poses.csv has q1..qN (N = robot.toml's [[joint]] tables);
+    adds dir1..dirN, the nominal SMR position and the gravity torques tau1..tauN (N m).
     """
     from ..core.files import provenance, write_parquet
     from ..encoder.ingest import ingest_encoder

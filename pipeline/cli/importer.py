@@ -17,7 +17,7 @@ import click
               help="map.toml: which source columns are the joints, the positions (and their units, frame), "
                    "the optional columns and the sample/target split.")
 @click.option("--robot", "robot_path", required=True, type=click.Path(dir_okay=False),
-              help="Nominal kinematics: a robot.toml (copied), or a URDF (then --tip).")
+              help="Nominal kinematics of a 4- to 7-joint arm: a robot.toml (copied), or a URDF (then --tip).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Campaign folder to write (robot.toml, poses.csv, tracker.csv, campaign.toml); replaced as a whole.")
 @click.option("--tip", default=None, metavar="LINK", help="URDF only: the link whose origin is the SMR (or the flange).")
@@ -28,8 +28,10 @@ import click
 def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
     """Turn a measurement export into a robot campaign folder (contract sections 2 and 6).
 
-    Joint angles are written in degrees, positions in mm, in the source's row order; poses are
-    split into sample and target by the map's [split]. The result is validated as `jointcal
+    The robot has N joints, 4 to 7 (its [[joint]] tables, or the URDF's revolute joints from
+    --base to --tip); the map's [joints] columns name one source column per joint, q1..qN, and
+    another count is refused naming both. Joint angles are written in degrees, positions in mm,
+    in the source's row order; poses are split into sample and target by the map's [split]. The result is validated as `jointcal
     ingest` would (nominal consistency included) before it replaces --out; on any problem
     nothing is written and one line names the file, line and column.
     """

@@ -51,7 +51,7 @@ def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) 
 
     Parameters
     ----------
-    sample_q, target_q : ndarray, shape (n, 6), deg
+    sample_q, target_q : ndarray, shape (n, N), deg
     target_ids : sequence of str, length n_targets
     target_lines : sequence of int or None, optional
         Line of each target in poses.csv.
@@ -88,6 +88,19 @@ def _robot(path):
     from ..robot.kinematics import load_robot
 
     return load_robot(path)
+
+
+def _paper_robot(path, command: str):
+    """The robot of a stage that runs the paper's virtual six-joint cell (gratings on joints 1-3):
+    another joint count is refused with one line."""
+    from ..robot.kinematics import PAPER_JOINTS
+
+    robot = _robot(path)
+    if robot.n_joints != PAPER_JOINTS:
+        raise InputError(path, f"jointcal robot {command} runs the second paper's six-joint cell (gratings on joints "
+                         f"1-3, Eqs. 22-24); this robot has {robot.n_joints} joints: use jointcal fit / predict / "
+                         "diagnose, which take any arm of 4 to 7 joints", 1, 1)
+    return robot
 
 
 def _spec(path):
@@ -154,28 +167,40 @@ def _hidden_help() -> str:
 @click.option("--hidden", cls=HiddenOption, choices_help=_hidden_help, default=None,
               metavar="EFFECT[:JOINT]",
               help="Add one effect the paper's spec lacks, at a random realistic size: {choices}.")
-def simulate_robot_cmd(campaign, truth_path, seed, hidden):
-    """Simulate the laser-tracker campaign of the virtual KR210 cell (seeded; lengths mm, angles deg).
+@click.option("--robot", "robot_path", default=None, type=click.Path(dir_okay=False),
+              help="Simulate this robot instead of the campaign's robot.toml: a robot.toml with 4 to 7 [[joint]] "
+                   "tables, or a URDF (with --tip); copied into the campaign as its robot.toml.")
+@click.option("--tip", default=None, help="URDF --robot: the link whose origin is the SMR.")
+@click.option("--base", default=None, help="URDF --robot: the base link (default: the URDF's root).")
+def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base):
+    """Simulate the laser-tracker campaign of a virtual cell (seeded; lengths mm, angles deg).
 
-    100 sample + 104 target poses in the paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm
-    box with the end orientation within +-10 deg, visited in random order, and ISO 9283 repeat rows
-    (P1-P3, 30 cycles, three 100 mm approaches). Physics: raw/README.md.
+    Without --robot: the paper's KR210 cell (raw/robot/kr210): 100 sample + 104 target poses in the
+    paper's Table 1 joint ranges inside a 600 x 1000 x 600 mm box with the end orientation within
+    +-10 deg, visited in random order, and ISO 9283 repeat rows (P1-P3, 30 cycles, three 100 mm
+    approaches). With --robot (any serial arm of 4 to 7 joints, e.g. raw/robot/panda/robot.toml):
+    the same physics scaled to the arm (test box 0.9 x its reach, orientation within +-30 deg,
+    payload a tenth of its mass, no ISO rows, no gratings). Physics: raw/README.md.
     """
     from ..core.files import write_json, write_text
-    from ..robot.simulate import (ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, hidden_robot_effect,
-                                 simulate_robot)
+    from ..robot.importer import load_import_robot
+    from ..robot.simulate import cell_config, format_poses_csv, format_tracker_csv, hidden_robot_effect, simulate_robot
 
     _edge()
-    robot = _robot(Path(campaign) / "robot.toml")
-    config = dict(ROBOT_FIXTURE)
-    if seed is not None:
-        config["seed"] = seed
+    robot_text = None
+    if robot_path is not None:
+        robot, robot_text, _ = load_import_robot(robot_path, tip, base)
+    else:
+        robot = _robot(Path(campaign) / "robot.toml")
+    config = cell_config(robot, seed, paper=robot_path is None)
     try:
-        hid = hidden_robot_effect(hidden, config["seed"]) if hidden else None
+        hid = hidden_robot_effect(hidden, config["seed"], robot.n_joints) if hidden else None
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--hidden") from None
     poses, tracker, truth = simulate_robot(robot, config, hid)
     truth["robot_toml"] = robot.to_toml()   # the cell's nominal robot: `simulate measure` rebuilds the cell from it
+    if robot_text is not None:
+        write_text(Path(campaign) / "robot.toml", robot_text)
     write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
     write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
     write_json(truth_path, truth)
@@ -336,11 +361,11 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     from ..robot.simulate import directions_from_sequence
 
     _edge()
-    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    robot, frame, spec = _paper_robot(robot_path, "map-joints"), _interim(interim), _spec(spec_path)
     model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
 
     tg = frame[frame["set"] == "target"]
-    qcols = [f"q{j}" for j in range(1, 7)]
+    qcols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
     lines = [int(v) + 2 if np.isfinite(v) else None for v in tg["visit"]] if "visit" in tg else None
     outside = outside_calibrated_range(frame.loc[frame["set"] == "sample", qcols], tg[qcols],
                                        tg["point_id"].to_numpy(), lines)
@@ -368,7 +393,7 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
                 f"beyond --max-correction-deg {max_correction_deg:g} ({int(beyond.any(axis=1).sum())} of {len(tg)} "
                 "targets beyond; the model, or the mapping near a singular pose, is not plausible there)", out)
     table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
-    for j in range(6):
+    for j in range(robot.n_joints):
         table[f"q{j + 1}"] = data.q_deg[:, j]
     for k, j in enumerate(joints):
         table[f"q{j}_corrected"] = qc[:, j - 1]
@@ -383,10 +408,11 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
 def _corrected(path, robot):
     from ..core.tables import FLOAT, STR, read_table
 
-    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in range(1, 7)}},
-                   {f"q{j}_corrected": FLOAT for j in range(1, 7)})
-    q = t[[f"q{j}" for j in range(1, 7)]].to_numpy(float).copy()
-    for j in range(1, 7):
+    joints = range(1, robot.n_joints + 1)
+    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in joints}},
+                   {f"q{j}_corrected": FLOAT for j in joints})
+    q = t[[f"q{j}" for j in joints]].to_numpy(float).copy()
+    for j in joints:
         c = f"q{j}_corrected"
         if c in t:
             q[:, j - 1] = t[c].to_numpy(float)
@@ -413,7 +439,7 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     from ..robot.simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
 
     _edge()
-    robot, frame = _robot(robot_path), _interim(interim)
+    robot, frame = _paper_robot(robot_path, "closed-loop"), _interim(interim)
     ids, q = _corrected(corrected, robot)
     config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
     cell = make_cell(robot, config)
@@ -470,7 +496,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
     from ..robot.simulate import ROBOT_FIXTURE, make_cell
 
     _edge()
-    robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
+    robot, frame, spec = _paper_robot(robot_path, "evaluate"), _interim(interim), _spec(spec_path)
     mdh_json = _read_json(mdh_path)
     mdh = RobotErrorModel.from_parameters(robot, stage_effects(spec, "kinematic"), mdh_json["parameters"])
     tg = frame[frame["set"] == "target"].reset_index(drop=True)
@@ -520,7 +546,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
         errs[f"{name}_abs_mm"] = np.linalg.norm(e, axis=1)
     write_csv(outdir / "target_errors.csv", errs, float_format="%.5f")
     kc = pd.DataFrame({"point_id": tg["point_id"]})
-    for j in range(6):
+    for j in range(robot.n_joints):
         kc[f"q{j + 1}"] = qk[:, j]
     write_csv(outdir / "kinematic_commands.csv", kc, float_format="%.7f")
     if len(rep):
@@ -625,6 +651,9 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     spec = load_spec(spec_path)
     spec.require_kind("robot", campaign)
     robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
+    from ..robot.fit import check_spec_joints
+
+    check_spec_joints(spec, robot)
     other = robot_data_sets(other_campaign, ("sample",), ("target",))[1] if other_campaign else None
 
     def say(msg):

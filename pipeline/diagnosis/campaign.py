@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..core.campaign import campaign_kind
 from ..core.spec import load_spec
+from ..robot.fit import check_spec_joints
 from ..robot.ingest import robot_data_sets
 from .encoder import EncoderAdapter, encoder_data_from_campaign
 from .engine import diagnose
@@ -27,6 +28,8 @@ def run_diagnosis(campaign, spec_path, progress=None, workers=1):
     kind = campaign_kind(campaign)
     spec.require_kind(kind, campaign)
     adapter, data = adapter_and_data(campaign, kind, workers)
+    if kind == "robot":
+        check_spec_joints(spec, adapter.robot)
     result = diagnose(adapter, spec, data, progress=progress, workers=workers if kind == "encoder" else None)
     result = {"kind": result.pop("kind"), "campaign": str(campaign), "spec": str(spec_path), **result}
     return result, (adapter, spec, data)

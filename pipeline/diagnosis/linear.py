@@ -53,7 +53,7 @@ def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg
 
     Returns
     -------

@@ -298,7 +298,7 @@ class RobotAdapter:
             n = len(qb)
             rng = np.random.default_rng(1)
             payload = np.full(n, float(np.median(data.payload_kg)))
-            box = _replace(data, q_deg=qb, dir=rng.choice([-1, 1], size=(n, 6)), payload_kg=payload,
+            box = _replace(data, q_deg=qb, dir=rng.choice([-1, 1], size=(n, qb.shape[1])), payload_kg=payload,
                            temperature_c=np.full(n, float(np.median(data.temperature_c))),
                            torque_nm=gravity_torques(self.robot, qb, payload), measured_mm=None,
                            point_id=np.array([], dtype=object))
@@ -364,11 +364,12 @@ class RobotAdapter:
 
     def signature_variables(self, data) -> dict:
         out = {}
-        for j in range(6):
+        n_joints = data.q_deg.shape[1]
+        for j in range(n_joints):
             out[f"q{j + 1}"] = (data.q_deg[:, j], "deg", "continuous")
-        for j in range(6):
+        for j in range(n_joints):
             out[f"gravity torque {j + 1}"] = (data.torque_nm[:, j], "N m", "continuous")
-        for j in range(6):
+        for j in range(n_joints):
             out[f"direction of last motion {j + 1}"] = (data.dir[:, j].astype(float), "+1/-1", "categorical")
         out["temperature"] = (data.temperature_c, "degC", "continuous")
         out["payload"] = (data.payload_kg, "kg", "categorical" if np.unique(data.payload_kg).size <= 6 else "continuous")

@@ -44,7 +44,7 @@ def robot_table(robot, model, sampled: dict, step_deg: float = 1.0) -> pd.DataFr
     nj = len(robot.joints)
     parts = [(e, sl) for e, sl in effect_slices(robot, model) if e.name in TABLE_EFFECTS]
     has_backlash = any(e.name == "backlash" for e, _ in parts)
-    joints = sorted({j for e, _ in parts for j in e.joints() if j <= nj})
+    joints = sorted({j for e, _ in parts for j in e.joints(robot) if j <= nj})
     coef = np.asarray(model.coef_, float)
     rows = []
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)

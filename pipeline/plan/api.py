@@ -31,7 +31,7 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     """
     backlash = reveal is not None and reveal.name == "backlash"
     if backlash:
-        q, pay, dirs, back = doubled_for_backlash(pool.q_deg, pool.payload_kg, reveal.joints())
+        q, pay, dirs, back = doubled_for_backlash(pool.q_deg, pool.payload_kg, reveal.joints(robot))
         data = pool_data(robot, q, pay, dirs)
         data.point_id = np.array([f"{pool.point_id[b]}{'@dir+' if k < pool.q_deg.shape[0] else '@dir-'}"
                                   for k, b in enumerate(back)], dtype=object)
@@ -48,7 +48,7 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     if backlash:
         start = measured.q_deg[-1] if measured is not None else (robot.lower_deg + robot.upper_deg) / 2
         directions = directions_from_sequence(q, start_deg=start)
-        for j in reveal.joints():
+        for j in reveal.joints(robot):
             directions[:, j - 1] = data.dir[chosen, j - 1]
     if reveal is not None:
         sel = data.subset(chosen)

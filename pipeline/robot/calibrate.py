@@ -498,8 +498,9 @@ class RobotErrorModel:
 
 
 def _empty_data(robot):
-    z = np.zeros((1, 6))
-    return RobotData(z + (robot.lower_deg + robot.upper_deg) / 2, np.ones((1, 6), int), np.zeros(1), np.full(1, REFERENCE_TEMPERATURE_C),
+    z = np.zeros((1, robot.n_joints))
+    return RobotData(z + (robot.lower_deg + robot.upper_deg) / 2, np.ones((1, robot.n_joints), int), np.zeros(1),
+                     np.full(1, REFERENCE_TEMPERATURE_C),
                      z, robot.lower_deg, robot.upper_deg)
 
 

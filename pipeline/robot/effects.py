@@ -32,7 +32,26 @@ from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
 MRAD_ARCSEC = 206.264806  # arcsec per mrad
 #: Joint numbers of a six-axis robot
+#: the joints of the papers' six-joint robots (the default when an effect is not told the robot)
 ALL_JOINTS = (1, 2, 3, 4, 5, 6)
+#: most joints a robot may have (contract section 2: 4 to 7)
+MAX_JOINTS = 7
+
+
+def joint_count(of=None) -> int:
+    """N, the joint count of a Robot (``n_joints``), of RobotData (its q_deg columns), or an int; 6 when None."""
+    if of is None:
+        return len(ALL_JOINTS)
+    if isinstance(of, (int, np.integer)):
+        return int(of)
+    if hasattr(of, "n_joints"):
+        return int(of.n_joints)
+    return int(np.shape(of.q_deg)[1])
+
+
+def all_joints(of=None) -> tuple:
+    """1..N of a Robot, RobotData or joint count (see :func:`joint_count`)."""
+    return tuple(range(1, joint_count(of) + 1))
 #: A compliance is revealable only when the joint's gravity torque varies by at least this much
 #: between poses (N m); the UR10's wrist joints carry under 1 N m in any pose.
 MIN_TORQUE_SPREAD_NM = 50.0
@@ -44,17 +63,17 @@ class RobotData:
 
     Attributes
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg (N = the robot's joint count, 4 to 7)
         Joint angles the model uses (commanded, or the grating readings of joints 1-3).
-    dir : ndarray, shape (n, 6), int
+    dir : ndarray, shape (n, N), int
         Sign of the last motion of each joint before the pose (+1/-1).
     payload_kg : ndarray, shape (n,), kg
     temperature_c : ndarray, shape (n,), degC
-    torque_nm : ndarray, shape (n, 6), N m
+    torque_nm : ndarray, shape (n, N), N m
         Gravity torque of each joint (arm + payload), from pinocchio.
     measured_mm : ndarray, shape (n, 3), mm, or None
         Tracker positions in the robot base frame.
-    lower_deg, upper_deg : ndarray, shape (6,), deg
+    lower_deg, upper_deg : ndarray, shape (N,), deg
         Joint range of the campaign (robot.toml), used by the Chebyshev variable (Eq. 10).
     point_id : ndarray of str, shape (n,)
     """
@@ -80,7 +99,7 @@ class RobotData:
                          self.point_id[mask] if len(self.point_id) == self.n else self.point_id)
 
 
-def _joints(params, default=(1, 2, 3, 4, 5, 6)):
+def _joints(params, default=ALL_JOINTS):
     j = params.get("joints")
     return list(default) if j is None else sorted(int(x) for x in j)
 
@@ -127,9 +146,9 @@ class RobotEffect(Effect):
         covered = set()
         for e in present:
             if e.name == cls.name:
-                joints = e.joints() if hasattr(e, "joints") and "joints" in e.allowed_params else None
-                covered.update(joints or ALL_JOINTS)
-        return [cls(joints=[j]) for j in ALL_JOINTS if j not in covered]
+                joints = e.joints(data) if hasattr(e, "joints") and "joints" in e.allowed_params else None
+                covered.update(joints or all_joints(data))
+        return [cls(joints=[j]) for j in all_joints(data) if j not in covered]
 
     # --- the simulator's interface (a hidden effect, ``{"effect": name, ...}``)
     @classmethod
@@ -145,7 +164,7 @@ class RobotEffect(Effect):
 
     @classmethod
     def inject_joint_error(cls, hidden, q_rad, error_deg) -> None:
-        """Add the effect's repeatable joint angle error (deg) at ``q_rad`` (n, 6) to ``error_deg``."""
+        """Add the effect's repeatable joint angle error (deg) at ``q_rad`` (n, N) to ``error_deg``."""
 
     @classmethod
     def inject_conditions(cls, hidden, payload_kg, temperature_c, t_s, draw):
@@ -158,22 +177,29 @@ class RobotEffect(Effect):
         """The tracker positions (n, 3) mm with the effect."""
         return xyz_mm
 
-    def joints(self):
-        return _joints(self.params)
+    def joints(self, robot=None):
+        """The effect's joints (1-based): its ``joints``, or every joint of ``robot`` (a Robot,
+        RobotData or joint count; the papers' six when None)."""
+        return _joints(self.params, all_joints(robot))
 
-    def overlaps(self, other) -> list[int]:
-        """Joints on which this effect and ``other`` overlap (see :attr:`overlaps_with`); [] for none."""
+    def overlaps(self, other, robot=None) -> list[int]:
+        """Joints on which this effect and ``other`` overlap (see :attr:`overlaps_with`); [] for none.
+        ``robot`` (a Robot, RobotData or joint count) says what "every joint" is (when None: every joint
+        an arm can have, so that an effect on all joints overlaps one on joint 7 too)."""
         if other.name not in self.overlaps_with and self.name not in getattr(other, "overlaps_with", ()):
             return []
-        mine = self.joints() if "joints" in self.allowed_params else []
-        theirs = other.joints() if "joints" in getattr(other, "allowed_params", ()) else []
+        robot = MAX_JOINTS if robot is None else robot
+        mine = self.joints(robot) if "joints" in self.allowed_params else []
+        theirs = other.joints(robot) if "joints" in getattr(other, "allowed_params", ()) else []
         return sorted(set(mine) & set(theirs))
 
     def check(self):
         problems = super().check()
         j = self.params.get("joints")
-        if j is not None and (not isinstance(j, list) or not all(isinstance(x, int) and 1 <= x <= 6 for x in j)):
-            problems.append(f"effect '{self.name}': joints must be a list of joint numbers 1..6")
+        if j is not None and (not isinstance(j, list) or not all(isinstance(x, int) and not isinstance(x, bool)
+                                                               and 1 <= x <= MAX_JOINTS for x in j)):
+            problems.append(f"effect '{self.name}': joints must be a list of joint numbers 1..N (N = the robot's "
+                            f"joints, at most {MAX_JOINTS})")
         return problems
 
     def target(self):
@@ -204,7 +230,7 @@ class RobotEffect(Effect):
         """What a real robot's error budget applies to, as ``{name, value, unit}``: by default the
         fitted parameters themselves (reported units). An effect whose parameters are not physical
         amounts on their own (polynomial coefficients that may cancel) returns what they produce
-        over the sampled joint angles ``q_deg`` (n, 6) deg instead."""
+        over the sampled joint angles ``q_deg`` (n, N) deg instead."""
         return parameters
 
     def basis(self, robot: Robot, idx: ErrorModelIndex, data: RobotData) -> list[list[tuple[int, object]]]:
@@ -231,16 +257,16 @@ class Geometry(RobotEffect):
     PARAMS = ("dtheta", "dd", "da", "dalpha", "dbeta")
 
     def parameter_names(self, robot):
-        return [f"{p}{i}" for i in self.joints() for p in self.PARAMS]
+        return [f"{p}{i}" for i in self.joints(robot) for p in self.PARAMS]
 
     def units(self, robot):
         u = {"dtheta": ("arcsec", MRAD_ARCSEC), "dd": ("mm", 1.0), "da": ("mm", 1.0),
              "dalpha": ("arcsec", MRAD_ARCSEC), "dbeta": ("arcsec", MRAD_ARCSEC)}
-        return [u[p] for i in self.joints() for p in self.PARAMS]
+        return [u[p] for i in self.joints(robot) for p in self.PARAMS]
 
     def basis(self, robot, idx, data):
         out = []
-        for i in self.joints():
+        for i in self.joints(robot):
             j = robot.joints[i - 1]
             RL = link_placement(j).rotation          # Rx(alpha) Ry(beta)
             Ry = link_placement(type(j)(**{**j.__dict__, "alpha_deg": 0.0})).rotation
@@ -363,11 +389,11 @@ class Chebyshev(RobotEffect):
     def parameter_names(self, robot):
         # lambda for rotations (e*), gamma for translations (d*), Eq. 10
         return [f"{'gamma' if t[0] == 'd' else 'lambda'}_{j}_{t}_{i}"
-                for i in self.joints() for t in TWIST for j in range(self.order() + 1)]
+                for i in self.joints(robot) for t in TWIST for j in range(self.order() + 1)]
 
     def units(self, robot):
         return [("mm", 1.0) if t[0] == "d" else ("arcsec", MRAD_ARCSEC)
-                for i in self.joints() for t in TWIST for j in range(self.order() + 1)]
+                for i in self.joints(robot) for t in TWIST for j in range(self.order() + 1)]
 
     def checked_values(self, robot, parameters, q_deg):
         """The largest translation (mm) and rotation (arcsec) of each error transfer matrix over the
@@ -375,7 +401,7 @@ class Chebyshev(RobotEffect):
         value = {p["name"]: p["value"] for p in parameters}
         out = []
         q = np.asarray(q_deg, float)
-        for i in self.joints():
+        for i in self.joints(robot):
             grid = np.linspace(q[:, i - 1].min(), q[:, i - 1].max(), 61)
             C = chebyshev_polys(chebyshev_variable(grid, robot.lower_deg[i - 1], robot.upper_deg[i - 1]), self.order())
             for t in TWIST:
@@ -387,7 +413,7 @@ class Chebyshev(RobotEffect):
 
     def basis(self, robot, idx, data):
         out = []
-        for i in self.joints():
+        for i in self.joints(robot):
             x = chebyshev_variable(data.q_deg[:, i - 1], data.lower_deg[i - 1], data.upper_deg[i - 1])
             C = chebyshev_polys(x, self.order())
             for k in range(6):
@@ -409,24 +435,24 @@ class Compliance(RobotEffect):
     signature = "error that grows with the gravity torque of a joint (pose- and payload-dependent droop)"
 
     def parameter_names(self, robot):
-        return [f"compliance{i}" for i in self.joints()]
+        return [f"compliance{i}" for i in self.joints(robot)]
 
     def units(self, robot):
         # internal: mrad per kN m; reported arcsec per kN m
-        return [("arcsec/kNm", MRAD_ARCSEC)] * len(self.joints())
+        return [("arcsec/kNm", MRAD_ARCSEC)] * len(self.joints(robot))
 
     def basis(self, robot, idx, data):
-        return [[(idx.joints[i - 1], 1e-3 * data.torque_nm[:, i - 1] / 1000.0)] for i in self.joints()]
+        return [[(idx.joints[i - 1], 1e-3 * data.torque_nm[:, i - 1] / 1000.0)] for i in self.joints(robot)]
 
     def can_reveal(self, data):
-        cols = [i - 1 for i in self.joints()]
+        cols = [i - 1 for i in self.joints(data)]
         spread = np.ptp(data.torque_nm[:, cols], axis=0)
         if np.all(spread < MIN_TORQUE_SPREAD_NM):
             tau = np.abs(data.torque_nm[:, cols]).max()
             if tau < MIN_TORQUE_SPREAD_NM:
-                return False, (f"the gravity torque of joint {', '.join(map(str, self.joints()))} stays below "
+                return False, (f"the gravity torque of joint {', '.join(map(str, self.joints(data)))} stays below "
                                f"{tau:.2g} N m on every pose (little weight beyond it): too small to bend it measurably")
-            return False, (f"the gravity torque of joint {', '.join(map(str, self.joints()))} changes by only "
+            return False, (f"the gravity torque of joint {', '.join(map(str, self.joints(data)))} changes by only "
                            f"{spread.max():.2g} N m between these poses (same posture and payload)")
         return True, ""
 
@@ -458,16 +484,16 @@ class Backlash(RobotEffect):
     signature = "residuals of poses reached with a joint turning forwards and backwards differ by a constant"
 
     def parameter_names(self, robot):
-        return [f"half_backlash{i}" for i in self.joints()]
+        return [f"half_backlash{i}" for i in self.joints(robot)]
 
     def units(self, robot):
-        return [("arcsec", MRAD_ARCSEC)] * len(self.joints())
+        return [("arcsec", MRAD_ARCSEC)] * len(self.joints(robot))
 
     def basis(self, robot, idx, data):
-        return [[(idx.joints[i - 1], 1e-3 * data.dir[:, i - 1].astype(float))] for i in self.joints()]
+        return [[(idx.joints[i - 1], 1e-3 * data.dir[:, i - 1].astype(float))] for i in self.joints(robot)]
 
     def can_reveal(self, data):
-        both = [np.unique(data.dir[:, i - 1]).size > 1 for i in self.joints()]
+        both = [np.unique(data.dir[:, i - 1]).size > 1 for i in self.joints(data)]
         if not any(both):
             return False, "every joint reached its poses turning one way only; both directions are needed"
         return True, ""
@@ -575,14 +601,14 @@ class JointHarmonic(RobotEffect):
         return sorted(int(o) for o in self.params.get("orders", [1, 2]))
 
     def parameter_names(self, robot):
-        return [f"{ab}{k}_joint{i}" for i in self.joints() for k in self.orders() for ab in "AB"]
+        return [f"{ab}{k}_joint{i}" for i in self.joints(robot) for k in self.orders() for ab in "AB"]
 
     def units(self, robot):
-        return [("arcsec", MRAD_ARCSEC)] * (2 * len(self.joints()) * len(self.orders()))
+        return [("arcsec", MRAD_ARCSEC)] * (2 * len(self.joints(robot)) * len(self.orders()))
 
     def basis(self, robot, idx, data):
         out = []
-        for i in self.joints():
+        for i in self.joints(robot):
             th = np.deg2rad(data.q_deg[:, i - 1])
             for k in self.orders():
                 out.append([(idx.joints[i - 1], 1e-3 * np.cos(k * th))])
@@ -597,8 +623,8 @@ class JointHarmonic(RobotEffect):
     def candidates(cls, data, present):
         """One candidate per joint and order (:func:`jh_orders` of the joint's sampled range), as for
         an encoder, unless the model has that joint and order."""
-        have = {(j, k) for e in present if e.name == cls.name for j in e.joints() for k in e.orders()}
-        return [cls(joints=[j], orders=[k]) for j in ALL_JOINTS for k in jh_orders(data.q_deg[:, j - 1])
+        have = {(j, k) for e in present if e.name == cls.name for j in e.joints(data) for k in e.orders()}
+        return [cls(joints=[j], orders=[k]) for j in all_joints(data) for k in jh_orders(data.q_deg[:, j - 1])
                 if (j, k) not in have]
 
     @classmethod
@@ -696,7 +722,7 @@ class JointMap(RobotEffect):
             return self
         q = np.asarray(data.q_deg, float)
         rng = {str(j): [float(np.round(q[:, j - 1].min(), 6)), float(np.round(q[:, j - 1].max(), 6))]
-               for j in self.joints()}
+               for j in self.joints(robot)}
         return type(self)(**{**self.params, "range_deg": rng})
 
     def knots(self, j: int) -> np.ndarray:
@@ -708,14 +734,14 @@ class JointMap(RobotEffect):
         return np.linspace(lo, hi if hi > lo else lo + 1e-6, k)
 
     def parameter_names(self, robot):
-        return [f"map{j}_{k:03d}" for j in self.joints() for k in range(len(self.knots(j)))]
+        return [f"map{j}_{k:03d}" for j in self.joints(robot) for k in range(len(self.knots(j)))]
 
     def units(self, robot):
-        return [("arcsec", MRAD_ARCSEC)] * sum(len(self.knots(j)) for j in self.joints())
+        return [("arcsec", MRAD_ARCSEC)] * sum(len(self.knots(j)) for j in self.joints(robot))
 
     def basis(self, robot, idx, data):
         out = []
-        for j in self.joints():
+        for j in self.joints(robot):
             B = joint_map_basis(data.q_deg[:, j - 1], self.knots(j))
             out += [[(idx.joints[j - 1], 1e-3 * B[:, k])] for k in range(B.shape[1])]
         return out
@@ -724,7 +750,7 @@ class JointMap(RobotEffect):
         import scipy.linalg
 
         blocks = []
-        for j in self.joints():
+        for j in self.joints(robot):
             K = len(self.knots(j))
             D2 = np.diff(np.eye(K), 2, axis=0) if K > 2 else np.zeros((0, K))
             # curvature (smooth curve) and the mean level (an offset is geometry's dtheta)
@@ -734,7 +760,7 @@ class JointMap(RobotEffect):
 
     def checked_values(self, robot, parameters, q_deg):
         out, k = [], 0
-        for j in self.joints():
+        for j in self.joints(robot):
             K = len(self.knots(j))
             v = np.array([p["value"] for p in parameters[k:k + K]])
             out.append({"name": f"joint {j}'s angle error map (largest)", "value": float(np.max(np.abs(v))),
@@ -745,7 +771,8 @@ class JointMap(RobotEffect):
     def amplitudes_arcsec(self, parameters) -> dict:
         """Half the peak-to-peak of each joint's map (arcsec)."""
         out, k = {}, 0
-        for j in self.joints():
+        joints = self.params.get("joints") or sorted(int(x) for x in self.params.get("range_deg", {}))
+        for j in sorted(int(x) for x in joints):
             K = len(self.knots(j))
             v = np.array([p["value"] for p in parameters[k:k + K]])
             out[j] = float(np.ptp(v) / 2)

@@ -96,8 +96,9 @@ def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, s
     out = {"kinematic": Pk, "feedback": Pf, "loop": loop}
     if len(rep):
         rng = rng_for(seed, EXECUTE, 3)
-        qr = rep[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
-        dr = rep[[f"dir{j}" for j in range(1, 7)]].to_numpy(int)
+        joints = range(1, cell.robot.n_joints + 1)
+        qr = rep[[f"q{j}" for j in joints]].to_numpy(float)
+        dr = rep[[f"dir{j}" for j in joints]].to_numpy(int)
         qt, loop_r = cell.closed_loop(qr, dr, qr[:, :3], rep["payload_kg"].to_numpy(float), rng)
         out["repeat_loop"] = cell.measure(qt, rng, rep["temperature_c"].to_numpy(float))
         out["repeat_loop_cycles"] = loop_r["cycles"]
@@ -121,26 +122,26 @@ def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
 NESTED_RTOL = 0.01
 
 
-def overlapping_pairs(effects) -> list[str]:
+def overlapping_pairs(effects, robot=None) -> list[str]:
     """The pairs of effects of a model that overlap (:meth:`RobotEffect.overlaps`), in words."""
     out = []
     for i, a in enumerate(effects):
         for b in effects[i + 1:]:
-            joints = a.overlaps(b) if hasattr(a, "overlaps") else []
+            joints = a.overlaps(b, robot) if hasattr(a, "overlaps") else []
             if joints:
                 js = ", ".join(map(str, joints))
                 out.append(f"{a.name} joint {js} and {b.name} joint {js}")
     return out
 
 
-def nested_models(effects) -> list[list]:
+def nested_models(effects, robot=None) -> list[list]:
     """Models nested in ``effects`` that a fit of it must do at least as well as on its sample poses:
     the kinematic core (the effects on the whole robot: geometry, base, tool, thermal) and, when
     the model has overlapping effects, the model without the later effect of each overlapping pair."""
     effects = list(effects)
     core = [e for e in effects if not getattr(e, "per_joint", True)]
     out = [core] if 0 < len(core) < len(effects) else []
-    later = {id(b) for i, a in enumerate(effects) for b in effects[i + 1:] if hasattr(a, "overlaps") and a.overlaps(b)}
+    later = {id(b) for i, a in enumerate(effects) for b in effects[i + 1:] if hasattr(a, "overlaps") and a.overlaps(b, robot)}
     if later:
         out.append([e for e in effects if id(e) not in later])
     return out
@@ -161,7 +162,7 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
-    for nested in nested_models(effects):
+    for nested in nested_models(effects, robot):
         m0 = effects_estimator(robot, nested).fit(data)
         entry = {"effects": [e.name for e in nested], "rms_mm": m0.rms_mm_}
         model.nested_.append(entry)
@@ -173,7 +174,7 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
             warm.conflict_, warm.nested_ = "", model.nested_
             model = warm
         if model.rms_mm_ > m0.rms_mm_ * (1.0 + NESTED_RTOL):
-            pairs = overlapping_pairs(effects)
+            pairs = overlapping_pairs(effects, robot)
             names = {id(e) for e in nested}
             added = [e.name for e in effects if id(e) not in names]
             who = ("; ".join(pairs) + " overlap (they model the same angle error)" if pairs else

@@ -15,6 +15,21 @@ from .lm import describe_implausible
 from .predict import model_document, outside_range, sampled_range
 
 
+def check_spec_joints(spec, robot) -> None:
+    """Refuse a spec whose effect names a joint the robot does not have (one located line)."""
+    for e in spec.effects:
+        joints = e.params.get("joints") if isinstance(e.params, dict) else None
+        bad = [j for j in (joints or []) if isinstance(j, int) and j > robot.n_joints]
+        if bad:
+            try:
+                text = Path(spec.path).read_text(encoding="utf-8")
+                where = _locate(text, rf"^\s*joints\s*=\s*\[[^\]]*\b{bad[0]}\b")
+            except OSError:
+                where = (None, None)
+            raise InputError(spec.path, f"effect '{e.name}': joints = {joints} names joint {bad[0]}; the robot "
+                             f"({robot.name}) has {robot.n_joints} joints, 1..{robot.n_joints}", *where)
+
+
 def stage_effects(spec, stage: str):
     """Effects of a stage: ``[model] kinematic_effects`` / ``feedback_effects`` name them;
     by default the kinematic stage takes every effect except ``chebyshev`` and the feedback
@@ -47,6 +62,7 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
     else:
         robot, sample, target, *rest = loaded
         frame_info = rest[0] if rest else None
+    check_spec_joints(spec, robot)
     if sample.n == 0:
         raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on "
                          "(to check a fitted model on these poses, use jointcal predict)", 1, "set")

@@ -319,8 +319,8 @@ def consistency(robot, q_deg, meas_mm, fit_rows=None, frame="base", model=None, 
     Parameters
     ----------
     robot : pipeline.robot.kinematics.Robot
-    q_deg : array_like, shape (n, 6), deg
-        Joint angles as given in poses.csv.
+    q_deg : array_like, shape (n, N), deg
+        Joint angles as given in poses.csv (N = the robot's joint count).
     meas_mm : array_like, shape (n, 3), mm
         Measured SMR positions as given in tracker.csv (tracker or base frame).
     fit_rows : array_like of bool, shape (n,), optional

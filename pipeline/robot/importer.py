@@ -3,10 +3,10 @@
 Contract section 6. The map (``map.toml``) says how to read the export::
 
     [source]    delimiter = ";"  decimal = ","            (defaults "," and ".")
-    [joints]    columns = [6 source columns]  unit = "rad" | "deg"
+    [joints]    columns = [N source columns, one per joint]  unit = "rad" | "deg"
     [position]  columns = [3 source columns]  unit = "mm" | "m"  frame = "tracker" | "base"
     [columns]   contract column = source column          (optional: point_id, temperature_c,
-                payload_kg, timestamp, sigma_mm, dir1..dir6)
+                payload_kg, timestamp, sigma_mm, dir1..dirN)
     [split]     sample_fraction = 0.6  seed = 1          (seeded random split; default seed 0)
                 or column = "set"                        (values sample / target)
 
@@ -37,13 +37,14 @@ from ..core.errors import InputError, parse_toml
 from ..core.files import _UMASK, read_text_input
 from .frame import apply, rigid_fit
 from .ingest import ingest_robot
-from .kinematics import build_model, parse_robot, positions
+from .kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot, positions
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "columns", "split")
 KEYS = {"source": ("delimiter", "decimal"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
         "split": ("sample_fraction", "seed", "column")}
-EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(f"dir{j}" for j in range(1, 7))
+EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
+    f"dir{j}" for j in range(1, MAX_JOINTS + 1))
 JOINT_UNITS = {"rad": 180.0 / np.pi, "deg": 1.0}
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}
 FRAMES = ("tracker", "base")
@@ -155,9 +156,11 @@ def _string_list(path, where, doc, section, key, n, what):
         line, col = where.section(section)
         raise InputError(path, f"[{section}] needs {key} = [{n} source column names] ({what})", line, col)
     v = doc[section][key]
-    if not isinstance(v, list) or len(v) != n or not all(isinstance(s, str) and s.strip() for s in v):
+    ok = (lambda m: m in n) if isinstance(n, range) else (lambda m: m == n)
+    if not isinstance(v, list) or not ok(len(v)) or not all(isinstance(s, str) and s.strip() for s in v):
         got = f"{len(v)} entries" if isinstance(v, list) else repr(v)
-        _fail(path, where, section, key, f"[{section}] {key} must list {n} source column names ({what}); got {got}")
+        count = f"{n.start} to {n.stop - 1}" if isinstance(n, range) else n
+        _fail(path, where, section, key, f"[{section}] {key} must list {count} source column names ({what}); got {got}")
     return [s.strip() for s in v]
 
 
@@ -200,7 +203,8 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
     if decimal == delimiter:
         _fail(path, where, "source", "decimal",
               f"[source] decimal and delimiter are both {delimiter!r}; a decimal comma needs another delimiter (\";\")")
-    joints = _string_list(path, where, doc, "joints", "columns", 6, "joint angles q1..q6 in order from the base")
+    joints = _string_list(path, where, doc, "joints", "columns", range(MIN_JOINTS, MAX_JOINTS + 1),
+                          "joint angles q1..qN in order from the base, one per joint of the robot")
     junit = _choice(path, where, doc, "joints", "unit", tuple(JOINT_UNITS))
     pos = _string_list(path, where, doc, "position", "columns", 3, "the SMR's x, y, z")
     punit = _choice(path, where, doc, "position", "unit", tuple(LENGTH_UNITS))
@@ -432,7 +436,8 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
         line, col = imap.where.key("split", "sample_fraction")
         raise InputError(imap.path, f"sample_fraction = {imap.sample_fraction:g} of {n} rows leaves no target pose",
                          line, col)
-    extra_pose = [c for c in ("payload_kg", "temperature_c", "timestamp") + tuple(f"dir{j}" for j in range(1, 7))
+    n_joints = robot.n_joints
+    extra_pose = [c for c in ("payload_kg", "temperature_c", "timestamp") + tuple(f"dir{j}" for j in range(1, n_joints + 1))
                   if c in imap.columns]
     values = {}
     for c in extra_pose + (["sigma_mm"] if "sigma_mm" in imap.columns else []):
@@ -452,7 +457,7 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
             values[c] = ["" if not np.isfinite(x) else str(int(x)) for x in v]
         else:
             values[c] = [_fmt(x, 9) for x in v]
-    pose_header = ["point_id", "set"] + [f"q{j}" for j in range(1, 7)] + extra_pose
+    pose_header = ["point_id", "set"] + [f"q{j}" for j in range(1, n_joints + 1)] + extra_pose
     pose_rows = [[pid[i], sets[i]] + [_fmt(x, 10) for x in q[i]] + [values[c][i] for c in extra_pose] for i in range(n)]
     track_header = ["point_id", "x_mm", "y_mm", "z_mm"] + (["sigma_mm"] if "sigma_mm" in values else [])
     track_rows = [[pid[i]] + [_fmt(x, 9) for x in xyz[i]] + ([values["sigma_mm"][i]] if "sigma_mm" in values else [])
@@ -553,7 +558,7 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
 
 def check_limits(camp: Campaign, imap: ImportMap, robot, source: Source) -> None:
     """Joint angles outside robot.toml's ranges, named at the source line and column."""
-    for j in range(6):
+    for j in range(robot.n_joints):
         q = camp.q_deg[:, j]
         lo, hi = robot.lower_deg[j], robot.upper_deg[j]
         out = (q < lo - 1e-6) | (q > hi + 1e-6)
@@ -741,6 +746,20 @@ def load_import_robot(robot_path, tip=None, base=None, tool_mm=None):
     return robot, head + robot.to_toml(), f"# robot: {name} (sha256 {_sha(robot_path)}){tool}"
 
 
+def check_joint_count(imap: ImportMap, robot, robot_path) -> None:
+    """The map's [joints] columns must be one per joint of the robot; refused naming both counts."""
+    n, m = robot.n_joints, len(imap.joint_columns)
+    extra = [c for c in imap.columns if c.startswith("dir") and int(c[3:]) > n]
+    if m != n:
+        line, col = imap.where.key("joints", "columns")
+        raise InputError(imap.path, f"[joints] columns lists {m} joint columns; the robot ({Path(robot_path).name}) "
+                         f"has {n} joints: list one source column per joint, from the base", line, col)
+    if extra:
+        line, col = imap.where.key("columns", extra[0])
+        raise InputError(imap.path, f"[columns] {extra[0]} names joint {extra[0][3:]}; the robot "
+                         f"({Path(robot_path).name}) has {n} joints", line, col)
+
+
 def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=None, tool_mm=None) -> dict:
     """Read, check and install a campaign folder (contract section 6). Returns a summary.
 
@@ -749,6 +768,7 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     map_text = read_text_input(map_path, "map")
     imap = parse_map(map_text, str(map_path))
     robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm)
+    check_joint_count(imap, robot, robot_path)
     source = read_source_file(source_path, imap)
     prov = [f"# source: {Path(source_path).name} (sha256 {source.sha256})",
             f"# map: {Path(map_path).name} (sha256 {_sha(map_path)})", robot_line]

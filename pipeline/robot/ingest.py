@@ -22,10 +22,10 @@ tracker point is moved into the base frame with it. The raw points stay in
 ``frame.attrs["jointcal_frame"] = {"frame": ..., "tracker_to_base": 4x4 list (mm)}``.
 
 The output (``interim/robot/poses.parquet``) has one row per pose in visiting order with
-q1..q6 (deg), dir1..dir6 (derived from the visiting order when absent: sign of
+q1..qN (deg), dir1..dirN (N = the robot's joint count, 4 to 7; derived from the visiting order when absent: sign of
 q_j(this) - q_j(previous pose), carrying the previous sign when unchanged, +1 for the first
 pose), payload_kg, temperature_c, x_mm/y_mm/z_mm (base frame), the nominal SMR position
-xn/yn/zn (mm), the gravity torques tau1..tau6 (N m), the optional grating readings, and with
+xn/yn/zn (mm), the gravity torques tau1..tauN (N m), the optional grating readings, and with
 ``frame = "tracker"`` the raw tracker-frame points x_tracker_mm/y_tracker_mm/z_tracker_mm.
 """
 
@@ -45,10 +45,20 @@ from .effects import REFERENCE_TEMPERATURE_C, RobotData
 from .kinematics import Robot, build_model, gravity_torques, load_robot, positions
 from .simulate import directions_from_sequence
 
-POSES_REQUIRED = {"point_id": STR, "set": STR, **{f"q{j}": FLOAT for j in range(1, 7)}}
-POSES_OPTIONAL = {**{f"dir{j}": SIGN for j in range(1, 7)}, "payload_kg": FLOAT, "temperature_c": FLOAT,
-                  "timestamp": TIME, "pose": STR, "approach": STR, "cycle": INT,
-                  **{f"grating{j}_deg": FLOAT for j in range(1, 4)}}
+def poses_required(n: int = 6) -> dict:
+    """Required poses.csv columns of an ``n``-joint robot: point_id, set, q1..qn."""
+    return {"point_id": STR, "set": STR, **{f"q{j}": FLOAT for j in range(1, n + 1)}}
+
+
+def poses_optional(n: int = 6) -> dict:
+    """Optional poses.csv columns of an ``n``-joint robot (dir1..dirn, payload, temperature, ...)."""
+    return {**{f"dir{j}": SIGN for j in range(1, n + 1)}, "payload_kg": FLOAT, "temperature_c": FLOAT,
+            "timestamp": TIME, "pose": STR, "approach": STR, "cycle": INT,
+            **{f"grating{j}_deg": FLOAT for j in range(1, 4)}}
+
+
+POSES_REQUIRED = poses_required(6)
+POSES_OPTIONAL = poses_optional(6)
 TRACKER_REQUIRED = {"point_id": STR, "x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT}
 TRACKER_OPTIONAL = {"sigma_mm": FLOAT}
 SETS = ("sample", "target", "repeat")
@@ -100,8 +110,10 @@ def load_robot_campaign(folder, problems: Problems | None = None):
     for p in (pp, tp):
         if not p.exists():
             problems.add(p, "file not found; a robot campaign needs robot.toml, poses.csv and tracker.csv")
-    if pp.exists():
-        poses = read_table(pp, POSES_REQUIRED, POSES_OPTIONAL, problems)
+    n = robot.n_joints if robot is not None else None
+    if pp.exists() and (n is None or check_joint_columns(pp, n, "robot.toml", problems)):
+        n = n or _header_joint_count(pp) or 6
+        poses = read_table(pp, poses_required(n), poses_optional(n), problems)
     if tp.exists():
         tracker = read_table(tp, TRACKER_REQUIRED, TRACKER_OPTIONAL, problems)
     if poses is not None:
@@ -147,6 +159,53 @@ def load_robot_campaign(folder, problems: Problems | None = None):
     if own:
         problems.raise_first()
     return robot, poses, tracker
+
+
+_JOINT_COLUMN = re.compile(r"^(?:q|dir)(\d+)$")
+
+
+def _header(path) -> list[str]:
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            first = fh.readline()
+    except (OSError, UnicodeDecodeError):
+        return []
+    import csv
+    row = next(csv.reader([first]), [])
+    return [c.strip() for c in row]
+
+
+def _header_joint_count(path) -> int:
+    """Highest k of the q<k> columns in a CSV header (0 when none)."""
+    ks = [int(m.group(1)) for c in _header(path) if (m := re.match(r"^q(\d+)$", c))]
+    return max(ks, default=0)
+
+
+def check_joint_columns(path, n: int, robot_name: str, problems: Problems | None = None) -> bool:
+    """Refuse a table whose joint columns (q<k>, dir<k>) do not match the robot's ``n`` joints.
+
+    One located problem naming both counts (header line, the first column in excess, or the
+    first missing q<k>); True when the header is fine (or unreadable: the table reader says why).
+    """
+    header = _header(path)
+    if not header:
+        return True
+    qs = [int(m.group(1)) for c in header if (m := re.match(r"^q(\d+)$", c))]
+    extra = [c for c in header if (m := _JOINT_COLUMN.match(c)) and not 1 <= int(m.group(1)) <= n]
+    found = max(qs, default=0)
+    if extra or (qs and found < n):
+        column = extra[0] if extra else f"q{found + 1}"
+        if found == n and len(set(qs)) == n:
+            what = f"column {column} names joint {column.lstrip('qdir')} of a robot with {n} joints ({robot_name})"
+        else:
+            what = (f"{len(set(qs))} joint angle columns (q1..q{found}) for a robot with {n} joints ({robot_name}); "
+                    f"poses need q1..q{n}, one per joint")
+        err = InputError(path, what, 1, column)
+        if problems is None:
+            raise err
+        problems.append(err)
+        return False
+    return True
 
 
 # ---------------------------------------------------------------------- campaign.toml
@@ -198,9 +257,9 @@ def read_campaign_frame(folder, problems: Problems | None = None) -> str:
 
 # ---------------------------------------------------------------- nominal consistency
 def _joined(poses, tracker):
-    """Joint angles (n, 6) deg, measured points (n, 3) mm in poses order and each pose's tracker line."""
+    """Joint angles (n, N) deg, measured points (n, 3) mm in poses order and each pose's tracker line."""
     t = tracker.set_index("point_id").loc[poses["point_id"]]
-    q = poses[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    q = poses[joint_columns(poses)].to_numpy(float)
     return q, t[["x_mm", "y_mm", "z_mm"]].to_numpy(float), t["_line"].to_numpy(int)
 
 
@@ -331,7 +390,7 @@ def check_nominal(folder, robot: Robot, poses: pd.DataFrame, tracker: pd.DataFra
 
 def _check_limits(path, poses, robot: Robot, problems):
     tol = 1e-6
-    for j in range(6):
+    for j in range(robot.n_joints):
         col = f"q{j + 1}"
         q = poses[col].to_numpy(float)
         lo, hi = robot.lower_deg[j], robot.upper_deg[j]
@@ -355,8 +414,8 @@ def _limit_hint(poses, robot: Robot, j: int, tol: float) -> str:
         v = values[np.isfinite(values)]
         return len(v) > 0 and bool(np.all((v >= lo[k] - tol) & (v <= hi[k] + tol)))
 
-    q = {k: poses[f"q{k + 1}"].to_numpy(float) for k in range(6)}
-    for k in range(6):
+    q = {k: poses[f"q{k + 1}"].to_numpy(float) for k in range(len(lo))}
+    for k in range(len(lo)):
         if k != j and inside(q[j], k) and inside(q[k], j):
             a, b = sorted((j + 1, k + 1))
             return f"; q{a} and q{b} look swapped (each column fits the other joint's range): check the joint order"
@@ -368,13 +427,14 @@ def _limit_hint(poses, robot: Robot, j: int, tol: float) -> str:
 def derive_robot(robot: Robot, poses: pd.DataFrame, tracker: pd.DataFrame) -> pd.DataFrame:
     """Join poses and tracker points, derive directions, nominal positions and torques (pure)."""
     n = len(poses)
-    q = poses[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    N = robot.n_joints
+    q = poses[[f"q{j}" for j in range(1, N + 1)]].to_numpy(float)
     out = pd.DataFrame({"point_id": poses["point_id"].astype(str).to_numpy(), "set": poses["set"].astype(str).to_numpy(),
                         "visit": np.arange(n, dtype=np.int64)})
-    for j in range(6):
+    for j in range(N):
         out[f"q{j + 1}"] = q[:, j]
     derived = directions_from_sequence(q)
-    for j in range(6):
+    for j in range(N):
         col = f"dir{j + 1}"
         given = poses[col].to_numpy(float) if col in poses else np.full(n, np.nan)
         out[col] = np.where(np.isfinite(given), given, derived[:, j]).astype(np.int64)
@@ -399,12 +459,20 @@ def derive_robot(robot: Robot, poses: pd.DataFrame, tracker: pd.DataFrame) -> pd
     nom = positions(model, np.deg2rad(q))
     out["xn_mm"], out["yn_mm"], out["zn_mm"] = nom.T
     tau = gravity_torques(robot, q, out["payload_kg"].to_numpy(float), model)
-    for j in range(6):
+    for j in range(N):
         out[f"tau{j + 1}_nm"] = tau[:, j]
     out.attrs[FRAME_ATTR] = frame_info(tracker)
     if FIT_ATTR in tracker.attrs:
         out.attrs[FIT_ATTR] = dict(tracker.attrs[FIT_ATTR])
     return out
+
+
+def joint_columns(table: pd.DataFrame) -> list[str]:
+    """``q1 .. qN`` of a poses table (N = the consecutive q<k> columns present)."""
+    cols = []
+    while f"q{len(cols) + 1}" in table:
+        cols.append(f"q{len(cols) + 1}")
+    return cols
 
 
 def frame_info(table: pd.DataFrame) -> dict:
@@ -488,7 +556,8 @@ def robot_data(robot: Robot, frame: pd.DataFrame, use_gratings: bool = False) ->
     With ``use_gratings`` the grating readings replace the commanded angles of joints 1-3
     where they exist (the joint's true angle, read by the absolute grating).
     """
-    q = frame[[f"q{j}" for j in range(1, 7)]].to_numpy(float).copy()
+    cols = range(1, robot.n_joints + 1)
+    q = frame[[f"q{j}" for j in cols]].to_numpy(float).copy()
     if use_gratings:
         for j in range(3):
             col = f"grating{j + 1}_deg"
@@ -496,8 +565,8 @@ def robot_data(robot: Robot, frame: pd.DataFrame, use_gratings: bool = False) ->
                 g = frame[col].to_numpy(float)
                 q[:, j] = np.where(np.isfinite(g), g, q[:, j])
     meas = frame[["x_mm", "y_mm", "z_mm"]].to_numpy(float) if "x_mm" in frame else None
-    return RobotData(q, frame[[f"dir{j}" for j in range(1, 7)]].to_numpy(int), frame["payload_kg"].to_numpy(float),
-                     frame["temperature_c"].to_numpy(float), frame[[f"tau{j}_nm" for j in range(1, 7)]].to_numpy(float),
+    return RobotData(q, frame[[f"dir{j}" for j in cols]].to_numpy(int), frame["payload_kg"].to_numpy(float),
+                     frame["temperature_c"].to_numpy(float), frame[[f"tau{j}_nm" for j in cols]].to_numpy(float),
                      robot.lower_deg, robot.upper_deg, meas, frame["point_id"].to_numpy(object))
 
 

@@ -4,18 +4,18 @@ Link transform of joint i (contract, Eq. 2 of the second paper)::
 
     T_i = Rz(q_i + theta_offset_i) . Tz(d_i) . Tx(a_i) . Rx(alpha_i) . Ry(beta_i)
 
-and the SMR position is ``T_1 ... T_6 . [tool.xyz_mm, 1]``. Writing
+and the SMR position is ``T_1 ... T_N . [tool.xyz_mm, 1]`` (N joints, 4 to 7). Writing
 ``L_i = Tz(d_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)`` the chain is
 
-    Rz(off_1) Rz(q_1) L_1 Rz(off_2) Rz(q_2) L_2 ... Rz(off_6) Rz(q_6) L_6 Trans(tool)
+    Rz(off_1) Rz(q_1) L_1 Rz(off_2) Rz(q_2) L_2 ... Rz(off_N) Rz(q_N) L_N Trans(tool)
 
 so a pinocchio revolute-Z joint i placed at ``L_{i-1} Rz(off_i)`` (``Rz(off_1)`` for
 the first) reproduces it exactly; the MDH link frame {i} is an operational frame at ``L_i``
-on joint i, the SMR a frame at ``L_6 Trans(tool)``.
+on joint i, the SMR a frame at ``L_N Trans(tool)``.
 
 Two models are built from one description:
 
-* :func:`build_model` - the plain 6-joint arm with link inertias (``mass_kg``, ``com_mm``
+* :func:`build_model` - the plain N-joint arm with link inertias (``mass_kg``, ``com_mm``
   in link frame {i}) for kinematics and gravity torques;
 * :func:`build_error_model` - the same chain with *error joints* inserted: a 6-dof base
   error (PX PY PZ RX RY RZ) before joint 1, a 6-dof error after every link frame {i}
@@ -41,7 +41,10 @@ from ..core.files import read_text_input
 
 JOINT_FIELDS = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "lower_deg", "upper_deg")
 GRAVITY_FIELDS = ("mass_kg", "com_mm")
-N_JOINTS = 6
+#: joint counts a robot may have (contract section 2: one ``[[joint]]`` table per joint, 4 to 7)
+MIN_JOINTS, MAX_JOINTS = 4, 7
+#: the papers' robots (KR210, UR10): the six-joint chain the paper-2 methods are written for
+PAPER_JOINTS = 6
 G = 9.81
 TWIST = ("dx", "dy", "dz", "ex", "ey", "ez")
 
@@ -69,6 +72,11 @@ class Robot:
     joints: tuple
     tool_xyz_mm: tuple
     path: str = "<robot>"
+
+    @property
+    def n_joints(self) -> int:
+        """N, the number of joints (4 to 7)."""
+        return len(self.joints)
 
     @property
     def lower_deg(self) -> np.ndarray:
@@ -121,10 +129,11 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
     doc = parse_toml(text, path)
     tables = doc.get("joint")
     starts = _table_lines(text, "joint")
-    if not isinstance(tables, list) or len(tables) != N_JOINTS:
+    if not isinstance(tables, list) or not MIN_JOINTS <= len(tables) <= MAX_JOINTS:
         n = len(tables) if isinstance(tables, list) else 0
         line = starts[-1] if starts else 1
-        raise InputError(path, f"found {n} [[joint]] tables; expected {N_JOINTS}, one per joint from the base", line, 1)
+        raise InputError(path, f"found {n} [[joint]] tables; expected {MIN_JOINTS} to {MAX_JOINTS}, one per joint "
+                         "from the base", line, 1)
     joints = []
     for i, t in enumerate(tables):
         start = starts[i] if i < len(starts) else 1
@@ -208,7 +217,7 @@ def _link_inertia(joint: Joint) -> pin.Inertia:
 
 
 def build_model(robot: Robot) -> pin.Model:
-    """The plain arm: 6 revolute-Z joints, link inertias, frames ``link1..link6``, ``flange``, ``smr``.
+    """The plain arm: N revolute-Z joints, link inertias, frames ``link1..linkN``, ``flange``, ``smr``.
 
     The body of joint i carries its link's mass; ``com_mm`` is given in link frame {i}
     (the frame after ``T_i``), i.e. at ``L_i . com`` in the joint frame.
@@ -235,10 +244,10 @@ def build_model(robot: Robot) -> pin.Model:
 
 @dataclass(frozen=True)
 class ErrorModelIndex:
-    """Positions of the channels in the error model's configuration vector (nq = nv = 51)."""
+    """Positions of the channels in the error model's configuration vector (nq = nv = 7 N + 9; 51 for six joints)."""
 
-    joints: np.ndarray        # (6,) main joints q1..q6
-    links: np.ndarray         # (6, 6) link i error twist dx dy dz ex ey ez
+    joints: np.ndarray        # (N,) main joints q1..qN
+    links: np.ndarray         # (N, 6) link i error twist dx dy dz ex ey ez
     base: np.ndarray          # (6,) base error twist
     tool: np.ndarray          # (3,) tool offset dx dy dz
     nq: int
@@ -366,13 +375,13 @@ def gravity_torques(robot: Robot, q_deg: np.ndarray, payload_kg=None, model: pin
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg
     payload_kg : ndarray, shape (n,), kg, optional
         Mass carried at the flange, lumped at the SMR point.
 
     Returns
     -------
-    ndarray, shape (n, 6), N m (positive: the torque the motor must apply in +q_i)
+    ndarray, shape (n, N), N m (positive: the torque the motor must apply in +q_i)
     """
     model = model or build_model(robot)
     data = model.createData()
@@ -396,10 +405,10 @@ def inverse_kinematics(model: pin.Model, R_target, p_target_mm, q0_rad, frame="s
     Parameters
     ----------
     model : pin.Model
-        The plain arm (6 joints).
+        The plain arm (N joints).
     R_target : ndarray, shape (3, 3)
     p_target_mm : ndarray, shape (3,), mm
-    q0_rad : ndarray, shape (6,), rad, start
+    q0_rad : ndarray, shape (N,), rad, start
     """
     data = model.createData()
     fid = model.getFrameId(frame)

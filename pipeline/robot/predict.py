@@ -40,11 +40,11 @@ def sampled_range(q_deg) -> dict:
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg
 
     Returns
     -------
-    dict ``{"lower_deg": [6], "upper_deg": [6]}``
+    dict ``{"lower_deg": [N], "upper_deg": [N]}``
     """
     q = np.asarray(q_deg, float)
     return {"lower_deg": q.min(axis=0).tolist(), "upper_deg": q.max(axis=0).tolist()}
@@ -55,7 +55,7 @@ def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg
+    q_deg : ndarray, shape (n, N), deg
 
     Returns
     -------
@@ -76,7 +76,7 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
     effects : list of RobotEffect
     model : RobotErrorModel
         Fitted (``coef_``, ``names_``, ``units_``, ``identifiability_``).
-    sample_q_deg : ndarray, shape (n, 6), deg
+    sample_q_deg : ndarray, shape (n, N), deg
         Joint angles of the poses the model was fitted on.
     frame : dict, optional
         ``{"frame": "base" | "tracker", "tracker_to_base": 4x4 list (mm)}`` of the fit's campaign.
@@ -136,6 +136,9 @@ def load_model_document(doc: dict, path) -> tuple:
 def same_robot_problem(a: Robot, b: Robot) -> str:
     """Why ``b`` is not the robot ``a`` describes ('' when it is: same joints and tool)."""
     fields = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg")
+    if a.n_joints != b.n_joints:
+        return (f"{b.n_joints} joints here, {a.n_joints} in the model's robot '{a.name}': a model applies to the "
+                "robot it was fitted on")
     for i, (ja, jb) in enumerate(zip(a.joints, b.joints)):
         for f in fields:
             if abs(getattr(ja, f) - getattr(jb, f)) > SAME_ROBOT_TOL:

@@ -128,7 +128,7 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
     Parameters
     ----------
     results : dict (see :func:`transfer_table`)
-    campaigns : dict series -> DataFrame of the imported ``poses.csv`` (point_id, set, q1..q6 deg)
+    campaigns : dict series -> DataFrame of the imported ``poses.csv`` (point_id, set, q1..qN deg)
     out : path of the PDF
     """
     table = transfer_table(results)
@@ -277,10 +277,17 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                     continue
                 poses = campaigns[s].set_index("point_id")
                 pts = pd.DataFrame(pred["points"])
-                q = poses.loc[pts["point_id"], [f"q{j}" for j in range(1, 7)]].to_numpy(float)
+                qcols = []
+                while f"q{len(qcols) + 1}" in poses:
+                    qcols.append(f"q{len(qcols) + 1}")
+                q = poses.loc[pts["point_id"], qcols].to_numpy(float)
                 e = pts["error_mm"].to_numpy(float)
-                fig, axes = plt.subplots(2, 3, figsize=(8.27, 5.6), sharey=True)
+                rows = -(-len(qcols) // 3)           # a panel per joint, three a row
+                fig, axes = plt.subplots(rows, 3, figsize=(8.27, 2.8 * rows), sharey=True, squeeze=False)
                 for j, ax in enumerate(axes.ravel()):
+                    if j >= len(qcols):
+                        ax.set_visible(False)
+                        continue
                     ax.plot(q[:, j], e, ".", ms=2, alpha=0.5)
                     # a running median shows a trend the cloud hides
                     order = np.argsort(q[:, j])

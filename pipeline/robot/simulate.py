@@ -1,4 +1,5 @@
-"""Stage ``simulate robot``: the virtual KR210 cell (synthetic, seeded, documented physics).
+"""Stage ``simulate robot``: the virtual KR210 cell (synthetic, seeded, documented physics), and
+the same cell for any serial arm of 4 to 7 joints (:func:`cell_config`).
 
 The true robot is the nominal robot.toml plus
 
@@ -60,6 +61,67 @@ ROBOT_FIXTURE = {
 }
 
 
+#: the cell of any other robot (:func:`cell_config`): the KR210 cell's physics, scaled to the arm
+GENERIC_CELL = {
+    "seed": 1,
+    "n_sample": 100,
+    "n_target": 104,
+    "box_fraction": 0.45,                    # test region: this fraction of the arm's reach on each side
+    "orientation_deg": 30.0,                 # end orientation within +-30 deg of the mid-range pose
+    "repeat_cycles": 0,                      # no ISO 9283 rows (the paper-2 chain's, KR210 only)
+    "iso_poses": False,
+    "approach_mm": 100.0,
+    "diagonal_fractions": [0.2, 0.5, 0.8],
+    "payload_fraction": 0.1,                 # payload: this fraction of the arm's mass
+    "geometry_sigma": {"dtheta_arcsec": 160.0, "dd_mm": 0.3, "da_mm": 0.3, "dalpha_arcsec": 63.0,
+                       "dbeta_arcsec": 63.0},
+    "transmission_arcsec": {"arm": 12.0, "wrist": 25.0},
+    "backlash_arcsec": {"arm": 25.0, "wrist": 62.0},
+    "compliance_deflection_arcsec": 10.0,    # deflection of each joint at its largest gravity torque
+    "jitter_arcsec": 0.5,
+    "tracker_sigma_mm": 0.015,
+    "grating_resolution_deg": float(np.rad2deg(50e-9 / 0.3)),
+    "gratings": False,                       # a user's cell: joints read by their own encoders only
+    "start_time": "2020-06-01T08:00:00Z",
+}
+
+
+def cell_config(robot: Robot, seed: int | None = None, paper: bool = True) -> dict:
+    """The virtual cell's configuration for ``robot``.
+
+    The paper's six-joint cell (:data:`ROBOT_FIXTURE`, the KR210 fixture, byte for byte) when
+    ``paper`` and the robot has six joints; otherwise the same physics (raw/README.md) scaled
+    to the arm (:data:`GENERIC_CELL`): the last three joints are the wrist (transmission and
+    backlash of the KR210's wrist), the others the arm; the test box is ``box_fraction`` of
+    the reach (sum of the link lengths and the tool) on each side of the mid-range pose; the
+    payload ``payload_fraction`` of the arm's mass; each joint's compliance bends it by
+    ``compliance_deflection_arcsec`` at the largest gravity torque it carries over 200 poses
+    drawn in its ranges (stream TRUTH, 2); gratings off.
+    """
+    if paper and robot.n_joints == 6:
+        config = dict(ROBOT_FIXTURE)
+    else:
+        g = dict(GENERIC_CELL)
+        n = robot.n_joints
+        wrist = np.arange(n) >= n - 3
+        reach = sum(abs(j.a_mm) + abs(j.d_mm) for j in robot.joints) + float(np.linalg.norm(robot.tool_xyz_mm))
+        mass = sum(j.mass_kg for j in robot.joints)
+        payload = round(g.pop("payload_fraction") * mass, 1)
+        rng = rng_for(g["seed"] if seed is None else seed, TRUTH, 2)
+        Q = rng.uniform(robot.lower_deg, robot.upper_deg, (200, n))
+        tau = np.abs(gravity_torques(robot, Q, np.full(len(Q), payload))).max(axis=0)
+        side = round(2 * g.pop("box_fraction") * reach, 1)
+        config = {**g, "box_mm": [side, side, side], "payload_kg": payload,
+                  "transmission_arcsec": np.where(wrist, g["transmission_arcsec"]["wrist"],
+                                                  g["transmission_arcsec"]["arm"]).tolist(),
+                  "backlash_arcsec": np.where(wrist, g["backlash_arcsec"]["wrist"], g["backlash_arcsec"]["arm"]).tolist(),
+                  "compliance_arcsec_per_knm": np.round(g["compliance_deflection_arcsec"] * 1000.0
+                                                        / np.maximum(tau, 1.0), 3).tolist()}
+    if seed is not None:
+        config["seed"] = seed
+    return config
+
+
 def rng_for(seed, stream, *more):
     return np.random.default_rng([int(seed), int(stream), *map(int, more)])
 
@@ -71,10 +133,10 @@ class VirtualCell:
     robot: Robot
     true_robot: Robot
     config: dict
-    trans_amp_deg: np.ndarray      # (6, 3)
-    trans_phase: np.ndarray        # (6, 3) rad
-    compliance_deg_per_nm: np.ndarray  # (6,)
-    backlash_deg: np.ndarray       # (6,) full play
+    trans_amp_deg: np.ndarray      # (N, 3)
+    trans_phase: np.ndarray        # (N, 3) rad
+    compliance_deg_per_nm: np.ndarray  # (N,)
+    backlash_deg: np.ndarray       # (N,) full play
     hidden: dict
     frame_R: np.ndarray = None     # tracker base frame registration (rotation)
     frame_t: np.ndarray = None     # and translation, mm
@@ -114,12 +176,12 @@ class VirtualCell:
         return effect_class(self.hidden["effect"]) if self.hidden else None
 
     def repeatable_offset_deg(self, q_cmd_deg, payload_kg):
-        """Transmission error + gravity deflection, (n, 6) deg."""
+        """Transmission error + gravity deflection, (n, N) deg."""
         tau = gravity_torques(self.true_robot, q_cmd_deg, payload_kg, self.model_true)
         return self.transmission_deg(q_cmd_deg) - self.compliance_deg_per_nm * tau
 
     def open_loop(self, q_cmd_deg, dirs, payload_kg, rng):
-        """True joint angles (n, 6) deg reached by commands approached in directions ``dirs``."""
+        """True joint angles (n, N) deg reached by commands approached in directions ``dirs``."""
         q_cmd_deg = np.atleast_2d(q_cmd_deg)
         jitter = rng.normal(0.0, self.config["jitter_arcsec"] / 3600.0, q_cmd_deg.shape)
         return (q_cmd_deg + self.repeatable_offset_deg(q_cmd_deg, payload_kg)
@@ -172,11 +234,13 @@ def make_cell(robot: Robot, config: dict | None = None, hidden: dict | None = No
                                   d_mm=j.d_mm + d["dd_mm"], a_mm=j.a_mm + d["da_mm"],
                                   alpha_deg=j.alpha_deg + d["dalpha_arcsec"] / 3600,
                                   beta_deg=j.beta_deg + d["dbeta_arcsec"] / 3600)
-    amp = np.asarray(config["transmission_arcsec"], float)[:, None] * rng.uniform(0.5, 1.0, (6, 3)) / 3600
+    n_joints = robot.n_joints
+    amp = np.asarray(config["transmission_arcsec"], float)[:, None] * rng.uniform(0.5, 1.0, (n_joints, 3)) / 3600
     amp[:, 2] *= 0.5
-    phase = rng.uniform(0, 2 * np.pi, (6, 3))
-    compliance = np.asarray(config["compliance_arcsec_per_knm"], float) * rng.uniform(0.8, 1.2, 6) / 3600 / 1000
-    backlash = np.asarray(config["backlash_arcsec"], float) * rng.uniform(0.8, 1.2, 6) / 3600
+    phase = rng.uniform(0, 2 * np.pi, (n_joints, 3))
+    compliance = (np.asarray(config["compliance_arcsec_per_knm"], float) * rng.uniform(0.8, 1.2, n_joints)
+                  / 3600 / 1000)
+    backlash = np.asarray(config["backlash_arcsec"], float) * rng.uniform(0.8, 1.2, n_joints) / 3600
     hidden = dict(hidden or {})
     if hidden:
         true = effect_class(hidden["effect"]).inject_truth(hidden, true, compliance, backlash)
@@ -199,7 +263,8 @@ def cell_truth(cell: VirtualCell) -> dict:
             **to_resolution({"mdh_errors": geo,
             "transmission": [{"joint": i + 1, "orders": [1, 2, 3],
                               "amplitude_arcsec": (cell.trans_amp_deg[i] * 3600).tolist(),
-                              "phase_deg": np.rad2deg(cell.trans_phase[i]).tolist()} for i in range(6)],
+                              "phase_deg": np.rad2deg(cell.trans_phase[i]).tolist()}
+                             for i in range(cell.robot.n_joints)],
             "compliance_arcsec_per_knm": (cell.compliance_deg_per_nm * 3600 * 1000).tolist(),
             "backlash_arcsec": (cell.backlash_deg * 3600).tolist(),
             "tool_xyz_mm": list(cell.true_robot.tool_xyz_mm),
@@ -217,13 +282,13 @@ def reference_pose(robot: Robot, model=None):
 
 
 def draw_poses(robot: Robot, n: int, rng, box_mm, orientation_deg, model=None, batch=4000):
-    """Joint angles (n, 6) deg uniform in the ranges, SMR inside the box, orientation within +-limit."""
+    """Joint angles (n, N) deg uniform in the ranges, SMR inside the box, orientation within +-limit."""
     model = model or build_model(robot)
     _, R0, c = reference_pose(robot, model)
     half = np.asarray(box_mm, float) / 2
     out = []
     while sum(len(o) for o in out) < n:
-        Q = rng.uniform(robot.lower_deg, robot.upper_deg, (batch, 6))
+        Q = rng.uniform(robot.lower_deg, robot.upper_deg, (batch, robot.n_joints))
         R, P = placements(model, np.deg2rad(Q), "smr")
         rel = np.einsum("ji,njk->nik", R0, R)
         abc = np.rad2deg(np.array([pin.rpy.matrixToRpy(r) for r in rel]))
@@ -235,7 +300,7 @@ def draw_poses(robot: Robot, n: int, rng, box_mm, orientation_deg, model=None, b
 def repeat_poses(robot: Robot, config: dict, model=None):
     """ISO 9283 poses P1..P3 on the box diagonal and the start points of the three approaches.
 
-    Returns dict label -> {"q": (6,), "starts": {approach: (6,)}} (deg). Approach ``+x`` ends
+    Returns dict label -> {"q": (N,), "starts": {approach: (N,)}} (deg). Approach ``+x`` ends
     with a 100 mm move in +x (it starts 100 mm in -x of the pose).
     """
     model = model or build_model(robot)
@@ -258,8 +323,8 @@ def directions_from_sequence(q_deg, start_deg=None, start_dir=None):
 
     Parameters
     ----------
-    q_deg : ndarray, shape (n, 6), deg, in visiting order
-    start_deg : ndarray, shape (6,), optional
+    q_deg : ndarray, shape (n, N), deg, in visiting order
+    start_deg : ndarray, shape (N,), optional
         Where the robot was before the first pose (first pose gets +1 when absent).
     """
     q = np.atleast_2d(q_deg)
@@ -291,7 +356,7 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     rows = [{"point_id": ids[k], "set": sets[k], "q": Q[k], "pose": "", "approach": "", "cycle": None}
             for k in order]
     visits = [r["q"] for r in rows]
-    rep = repeat_poses(robot, config, model)
+    rep = repeat_poses(robot, config, model) if config.get("iso_poses", True) else {}
     for c in range(1, config["repeat_cycles"] + 1):
         for label, P in rep.items():
             for a, qs in P["starts"].items():
@@ -320,9 +385,9 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     g = cell.gratings(q_true)
     start = dt.datetime.fromisoformat(config["start_time"].replace("Z", "+00:00"))
     poses = pd.DataFrame({"point_id": [r["point_id"] for r in rows], "set": [r["set"] for r in rows]})
-    for j in range(6):
+    for j in range(robot.n_joints):
         poses[f"q{j + 1}"] = q_cmd[:, j]
-    for j in range(6):
+    for j in range(robot.n_joints):
         poses[f"dir{j + 1}"] = dirs[:, j]
     poses["payload_kg"] = payload
     poses["temperature_c"] = temperature
@@ -330,7 +395,7 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     poses["pose"] = [r["pose"] for r in rows]
     poses["approach"] = [r["approach"] for r in rows]
     poses["cycle"] = [r["cycle"] for r in rows]
-    for j in range(3):
+    for j in range(3 if config.get("gratings", True) else 0):
         poses[f"grating{j + 1}_deg"] = g[:, j]
     tracker = pd.DataFrame({"point_id": poses["point_id"], "x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
                             "sigma_mm": config["tracker_sigma_mm"]})
@@ -343,8 +408,10 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
 
 def format_poses_csv(poses: pd.DataFrame) -> str:
     out = poses.copy()
-    for j in range(1, 7):
+    j = 1
+    while f"q{j}" in out:
         out[f"q{j}"] = out[f"q{j}"].map(lambda v: f"{v:.6f}")
+        j += 1
     for j in range(1, 4):
         if f"grating{j}_deg" in out:
             out[f"grating{j}_deg"] = out[f"grating{j}_deg"].map(lambda v: f"{v:.7f}")
@@ -362,7 +429,7 @@ def format_tracker_csv(tracker: pd.DataFrame) -> str:
     return out.to_csv(index=False, lineterminator="\n")
 
 
-def hidden_robot_effect(text: str, seed: int) -> dict:
+def hidden_robot_effect(text: str, seed: int, n_joints: int = 6) -> dict:
     """Parse ``EFFECT[:TARGET]`` and draw a realistic size (seeded) for a hidden effect.
 
     Sizes are drawn by the effect's class (:meth:`~pipeline.robot.effects.RobotEffect.hidden`):
@@ -373,7 +440,9 @@ def hidden_robot_effect(text: str, seed: int) -> dict:
     """
     rng = np.random.default_rng([seed, 99])
     name, _, target = text.partition(":")
-    joint = int(target) if target else int(rng.integers(1, 7))  # drawn first, whatever the effect
+    joint = int(target) if target else int(rng.integers(1, n_joints + 1))  # drawn first, whatever the effect
+    if not 1 <= joint <= n_joints:
+        raise ValueError(f"joint {joint} of --hidden {text}: the robot has joints 1..{n_joints}")
     try:
         cls = effect_class(name)
     except KeyError:

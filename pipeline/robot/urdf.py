@@ -18,10 +18,11 @@ joint axes at q = 0:
   common normal through O_{i-1} is taken (d_i = 0, the offset moves on to d_{i+1});
 * of the two directions of x_i the one nearer x_{i-1} is kept (a_i changes sign instead), so
   theta_offset is 0 wherever the geometry allows - UR's published DH comes out as published;
-* frame {6} has z along joint 6's axis with its origin where the tip link's origin projects
-  onto it (d_6) and x along the tip link's x axis when the tip's z is joint 6's axis;
-  ``[tool] xyz_mm`` is the tip link's origin (or ``tool_mm`` given in the tip link's
-  frame) in frame {6};
+* frame {N} (N the chain's revolute joints, 4 to 7; fixed joints folded in, a prismatic or
+  continuous joint refused, naming it) has z along joint N's axis with its origin where the
+  tip link's origin projects onto it (d_N) and x along the tip link's x axis when the tip's z
+  is joint N's axis; ``[tool] xyz_mm`` is the tip link's origin (or ``tool_mm`` given in the
+  tip link's frame) in frame {N};
 * beta_i = 0 (nominal parallel axes are exactly parallel; beta is for the identified errors);
 * mass and centre of mass of link i: the URDF inertias of everything rigidly attached to
   joint i (pinocchio lumps fixed links), centre expressed in DH frame {i}; joint limits from
@@ -46,7 +47,7 @@ import pinocchio as pin
 
 from ..core.errors import InputError
 from ..core.files import read_text_input
-from .kinematics import Joint, Robot, build_model, positions
+from .kinematics import MAX_JOINTS, MIN_JOINTS, Joint, Robot, build_model, positions
 
 FK_TOLERANCE_MM = 1e-6
 FK_CHECKS = 64
@@ -126,7 +127,7 @@ def _body_frame(path, text, root, model, name, option):
 
 
 def _chain(path, text, model, tip_fid, base_fid):
-    """Joint ids from the base to the tip (6 revolute joints) and their local axes."""
+    """Joint ids from the base to the tip (N revolute joints, 4 to 7) and their local axes."""
     jid = model.frames[tip_fid].parentJoint
     chain = []
     while jid != 0:
@@ -150,11 +151,11 @@ def _chain(path, text, model, tip_fid, base_fid):
                     else "a prismatic joint" if "Prismatic" in kind or kind.startswith("JointModelP")
                     else f"a {kind.replace('JointModel', '')} joint")
             _fail(path, text, f"joint '{model.names[j]}' on the chain to the tip is {what}; the contract's robot has "
-                  "6 revolute joints with limits", "joint", model.names[j])
-    if len(chain) != 6:
+                  f"{MIN_JOINTS} to {MAX_JOINTS} revolute joints with limits", "joint", model.names[j])
+    if not MIN_JOINTS <= len(chain) <= MAX_JOINTS:
         names = ", ".join(model.names[j] for j in chain) or "none"
         _fail(path, text, f"the chain from the base to the tip has {len(chain)} revolute joints ({names}); "
-              "the contract's robot has 6")
+              f"the contract's robot has {MIN_JOINTS} to {MAX_JOINTS}")
     return chain, axes
 
 
@@ -164,16 +165,17 @@ def _angle(u, v, axis) -> float:
 
 
 def _dh(points, dirs, tip_p, tip_R):
-    """Classic DH parameters from the 6 joint axes (points, unit directions; base frame, mm).
+    """Classic DH parameters from the N joint axes (points, unit directions; base frame, mm).
 
-    Returns a list of 6 dicts (a, alpha, d, theta in mm / rad) and the frames {0..6}
+    Returns a list of N dicts (a, alpha, d, theta in mm / rad) and the frames {0..N}
     (origin, x, z) at q = 0.
     """
     O, x, z = np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     frames = [(O, x, z)]
     params = []
-    for i in range(6):
-        if i < 5:
+    n_joints = len(points)
+    for i in range(n_joints):
+        if i < n_joints - 1:
             zn, pn = dirs[i + 1], points[i + 1]
             c = np.cross(z, zn)
             s = np.linalg.norm(c)
@@ -296,8 +298,8 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
         T = np.eye(4)
         T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, O
         Ts.append(T)
-    T6 = Ts[6]
-    tool = T6[:3, :3].T @ (smr - T6[:3, 3])
+    TN = Ts[len(chain)]
+    tool = TN[:3, :3].T @ (smr - TN[:3, 3])
     joints = []
     for i, (j, p) in enumerate(zip(chain, params)):
         inertia = model.inertias[j]
@@ -330,7 +332,7 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
 def fk_agreement(robot: Robot, model, chain, base_fid, tip_fid, tool_local_mm, n=FK_CHECKS, seed=0) -> float:
     """Largest distance (mm) between the robot's SMR and the URDF's at ``n`` random configurations."""
     rng = np.random.default_rng(seed)
-    Q = rng.uniform(np.deg2rad(robot.lower_deg), np.deg2rad(robot.upper_deg), size=(n, 6))
+    Q = rng.uniform(np.deg2rad(robot.lower_deg), np.deg2rad(robot.upper_deg), size=(n, robot.n_joints))
     mine = positions(build_model(robot), Q, "smr")
     data = model.createData()
     theirs = np.empty((n, 3))

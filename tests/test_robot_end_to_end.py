@@ -77,7 +77,8 @@ def test_pipeline_never_reads_the_truth(tmp_path, monkeypatch, table2):
     assert again["max_reduction_pct"] == table2["max_reduction_pct"]
 
 
-def test_fixtures_regenerate_byte_for_byte(tmp_path):
+def _regenerates_byte_for_byte(tmp_path):
+    """`jointcal simulate robot` in ``tmp_path`` writes the shipped poses, tracker readings and truth."""
     camp = tmp_path / "kr210"
     camp.mkdir()
     shutil.copy(ROOT / "raw/robot/kr210/robot.toml", camp / "robot.toml")
@@ -86,6 +87,10 @@ def test_fixtures_regenerate_byte_for_byte(tmp_path):
     for name in ("poses.csv", "tracker.csv"):
         assert (camp / name).read_bytes() == (ROOT / "raw/robot/kr210" / name).read_bytes()
     assert (tmp_path / "truth.json").read_bytes() == (ROOT / "raw/truth/robot/kr210.json").read_bytes()
+
+
+def test_fixtures_regenerate_byte_for_byte(tmp_path):
+    _regenerates_byte_for_byte(tmp_path)
 
 
 def test_fixtures_regenerate_byte_for_byte_under_rounding_noise(tmp_path, monkeypatch):
@@ -104,14 +109,7 @@ def test_fixtures_regenerate_byte_for_byte_under_rounding_noise(tmp_path, monkey
 
     monkeypatch.setattr(np.linalg, "svd", lambda *a, **k: tuple(noisy(v) for v in svd(*a, **k)))
     monkeypatch.setattr(np.linalg, "solve", lambda *a, **k: noisy(solve(*a, **k)))
-    camp = tmp_path / "kr210"
-    camp.mkdir()
-    shutil.copy(ROOT / "raw/robot/kr210/robot.toml", camp / "robot.toml")
-    cli.main(args=["simulate", "robot", "--campaign", str(camp), "--truth", str(tmp_path / "truth.json")],
-             prog_name="jointcal", standalone_mode=False)
-    for name in ("poses.csv", "tracker.csv"):
-        assert (camp / name).read_bytes() == (ROOT / "raw/robot/kr210" / name).read_bytes()
-    assert (tmp_path / "truth.json").read_bytes() == (ROOT / "raw/truth/robot/kr210.json").read_bytes()
+    _regenerates_byte_for_byte(tmp_path)
 
 
 def test_to_resolution_writes_noise_as_zero():

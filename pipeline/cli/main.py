@@ -43,6 +43,9 @@ def cli():
       ingest -> harmonic -> aliasing -> select -> fit -> compensate -> report
     Robot chain (laser tracker): see `jointcal robot --help`.
     Diagnosis: `jointcal diagnose` ranks the physical effects a model lacks.
+    Before measuring: `jointcal plan` chooses the poses (any arm of 4 to 7 joints).
+    On the robot: `jointcal correct` (corrected programs), `jointcal export` (URDF,
+    UR calibration, per-joint drive tables); `jointcal simulate measure` stands in for it.
 
     Units: angles in degrees, angle errors in arcseconds, lengths in millimetres.
     `make all` runs every stage on the shipped fixtures; `make help` lists the targets.

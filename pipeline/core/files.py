@@ -96,17 +96,10 @@ def to_resolution(obj, decimals: int):
     that is zero comes out as +-1e-14. Written with 12 *significant* digits such noise is written
     too; rounded to a fixed absolute resolution far above the noise (and far below anything that
     matters: 1e-9 deg is 4 micro-arcseconds, 1e-6 mm a nanometre) it is the same number everywhere.
-    Lists, tuples, dicts and arrays are followed; -0.0 becomes 0.0; other values are left alone.
+    The JSON writer's own rounding (:func:`_jsonable`) with ``decimals`` for every number: a key whose
+    unit has a resolution of its own (:data:`RESOLUTION_DECIMALS`) keeps that one, as it will in the file.
     """
-    if isinstance(obj, dict):
-        return {k: to_resolution(v, decimals) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_resolution(v, decimals) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_resolution(obj.tolist(), decimals)
-    if isinstance(obj, (float, np.floating)) and math.isfinite(float(obj)):
-        return round(float(obj), decimals) + 0.0
-    return obj
+    return _jsonable(obj, decimals)
 
 
 def write_json(path, obj) -> None:

@@ -91,3 +91,13 @@ def test_real_diagnosis_loop_ends_and_carries_over(two_runs, name):
         refused = {c["label"]: c["reason"] for c in rounds[0]["refused"]}
         assert "joint_map joint 2" in [c["label"] for c in rounds[0]["recommended"]]
         assert refused["chebyshev joint 2"].startswith("overlaps joint_map joint 2"), refused.get("chebyshev joint 2")
+
+
+def test_quoted_numbers_are_what_make_all_wrote(two_runs):
+    """Issue 26: every number the README and docs/ quote from the pipeline's results (registered in
+    docs/quoted-numbers.toml) equals the file this suite's own `make all` wrote."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("quotes", ROOT / "mk" / "quotes.py")
+    quotes = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(quotes)
+    assert quotes.check(ROOT, two_runs[0]) == []

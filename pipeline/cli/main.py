@@ -23,8 +23,35 @@ class BadInput(click.ClickException):
         click.echo(f"jointcal: error: {self.message}", err=True)
 
 
+#: ``jointcal --help`` lists the commands in the order of the job, under these headings.
+WORKFLOW = (
+    ("Before measuring", ("plan", "simulate")),
+    ("Measurements in", ("import", "validate", "ingest")),
+    ("Joint module (paper 1)", ("harmonic", "aliasing", "select")),
+    ("Fit and judge on other poses", ("fit", "predict")),
+    ("Diagnose: what is the model missing", ("diagnose", "diagnose-all", "robot")),
+    ("On the robot", ("correct", "compensate", "export")),
+    ("Reports and many units", ("report", "summary", "fleet")),
+)
+
+
 class JointcalGroup(click.Group):
-    """Turns :class:`InputError` raised anywhere in a command into exit 2 with one line."""
+    """Turns :class:`InputError` raised anywhere in a command into exit 2 with one line; lists the
+    commands in the order of the job (:data:`WORKFLOW`)."""
+
+    def list_commands(self, ctx):
+        ordered = [name for _, names in WORKFLOW for name in names if name in self.commands]
+        return ordered + sorted(set(self.commands) - set(ordered))
+
+    def format_commands(self, ctx, formatter):
+        listed = set()
+        for heading, names in WORKFLOW + (("Other", tuple(self.list_commands(ctx))),):
+            rows = [(n, self.commands[n].get_short_help_str(formatter.width - 6 - max(map(len, names))))
+                    for n in names if n in self.commands and n not in listed]
+            listed.update(n for n, _ in rows)
+            if rows:
+                with formatter.section(heading):
+                    formatter.write_dl(rows)
 
     def invoke(self, ctx):
         try:
@@ -39,13 +66,12 @@ def cli():
     """jointcal: calibrate robot joints and robots.
 
     \b
-    Encoder chain (one joint module, polygon + autocollimator):
+    A robot (laser tracker), any serial arm of 4 to 7 joints:
+      plan -> (measure) -> import -> fit -> robot diagnose-loop -> correct / export
+      (`jointcal simulate robot` and `simulate measure` stand in for a cell and its tracker)
+    A joint module (polygon + autocollimator), the first paper:
       ingest -> harmonic -> aliasing -> select -> fit -> compensate -> report
-    Robot chain (laser tracker): see `jointcal robot --help`.
-    Diagnosis: `jointcal diagnose` ranks the physical effects a model lacks.
-    Before measuring: `jointcal plan` chooses the poses (any arm of 4 to 7 joints).
-    On the robot: `jointcal correct` (corrected programs), `jointcal export` (URDF,
-    UR calibration, per-joint drive tables); `jointcal simulate measure` stands in for it.
+    The second paper's chain: `jointcal robot --help`.
 
     Units: angles in degrees, angle errors in arcseconds, lengths in millimetres.
     `make all` runs every stage on the shipped fixtures; `make help` lists the targets.

@@ -108,3 +108,12 @@ def test_jointcal_help_lists_the_job_in_order():
                              text=True).stdout
     order = [out.index(f"\n  {c} ") for c in ("plan", "import", "fit", "diagnose", "correct", "export")]
     assert order == sorted(order)
+
+
+def test_every_module_path_the_pages_name_exists():
+    """A page that names `pipeline/....py` names a file that is there (raw/README.md named two modules
+    that had moved)."""
+    pages = [ROOT / "README.md", ROOT / "raw" / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    missing = [(p.name, m) for p in pages for m in re.findall(r"pipeline/[\w/]+\.py", p.read_text())
+               if not (ROOT / m).is_file()]
+    assert missing == []

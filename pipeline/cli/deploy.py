@@ -260,26 +260,29 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, table_csv(table, [note]))
         click.echo(f"{out}: {len(table)} angles; {note}", err=True)
         return
-    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, folded_chain, leftover_cost
+    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, assumptions, export_chain, folded_chain, leftover_cost
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
-    cost = leftover_cost(robot, model, sampled, carried)
+    chain_model, chain_how = export_chain(robot, model, doc, sampled)
+    cost = leftover_cost(robot, model, sampled, carried, chain=chain_model, payloads=doc.get("payloads_kg"))
     what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
             "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
             "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
-                     "backlash); with the chain in a URDF or UR's parameters"}[fmt]
+                     "backlash); with the model's own geometry, base and tool"}[fmt]
     if cost["left_out"]:
-        note = (f"{what}; it cannot carry {', '.join(cost['left_out'])}: leaving that out moves the model's "
-                f"prediction by {cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max ({cost['n']} poses: "
+        what += f"; the chain written is {chain_how}" if fmt != "table" else ""
+        note = (f"{what}; it cannot carry the rest of {', '.join(cost['left_out'])}: the model's prediction moves by "
+                f"{cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max without it ({cost['n']} poses: "
                 f"{cost['conditions']})")
     else:
         note = f"{what}; the model has nothing else: it is carried whole"
-    comments = [f"jointcal export, format {fmt}, of {model_path}", note]
+    assumed = assumptions(doc, len(robot.joints))
+    comments = [f"jointcal export, format {fmt}, of {model_path}", note, assumed]
     if fmt == "urdf":
         from ..export.urdf import chain_urdf, rewrite_urdf
 
-        chain = folded_chain(robot, model)
+        chain = folded_chain(robot, chain_model)
         if urdf_path:
             if not tip:
                 raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
@@ -298,7 +301,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
         from ..robot.calibrate import RobotErrorModel
 
-        chain = folded_chain(robot, model)
+        chain = folded_chain(robot, chain_model)
         nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
         nominal = standard_dh(folded_chain(robot, nominal_model))
         fitted = standard_dh(chain, reference=nominal)
@@ -315,6 +318,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, table_csv(table, comments))
         written = [out]
     click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)
+    click.echo(f"  {assumed}", err=True)
     if heldout_campaign:
         from ..core.files import write_json
         from ..export.chain import heldout_by_carrier
@@ -328,10 +332,11 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         if target.n == 0:
             raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
                              1, "set")
-        h = heldout_by_carrier(robot, model, target)
+        h = heldout_by_carrier(robot, model, target, chain_model)
         h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
         click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
-                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (leaves out "
+                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
+                   f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
                    f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
                    f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
                    err=True)

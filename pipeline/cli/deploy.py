@@ -29,6 +29,27 @@ def _load_robot_model(path, doc):
     return load_model_document(doc, path)
 
 
+def _joint_list(text, n_joints: int, option: str) -> list[int]:
+    """Joint numbers given as ``"1 2 3"`` or ``"1,2,3"`` (1-based, each within the robot's joints)."""
+    out = []
+    for part in " ".join(text or ()).replace(",", " ").split():
+        if not part.isdigit() or not 1 <= int(part) <= n_joints:
+            raise click.BadParameter(f"'{part}' is not a joint number 1..{n_joints}", param_hint=option)
+        out.append(int(part))
+    return sorted(set(out))
+
+
+def _json_line(path, key: str):
+    """1-based line of ``"key":`` in a JSON file (None when absent)."""
+    try:
+        for k, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+            if f'"{key}"' in line:
+                return k
+    except OSError:
+        pass
+    return None
+
+
 @click.command("correct")
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="A fitted model: a robot fit JSON (jointcal fit --campaign) or an encoder model (jointcal fit).")
@@ -42,13 +63,17 @@ def _load_robot_model(path, doc):
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Robot model: a row needing a larger correction of any joint is left as given (status "
                    "correction_too_large).")
+@click.option("--closed-loop-joints", "closed_loop", multiple=True, metavar="J...",
+              help="Robot model: joints that follow their secondary encoders (e.g. gratings) in a closed loop on the "
+                   "robot, as \"1 2 3\" or 1,2,3. A model fitted on those encoders' angles is refused for a "
+                   "program that runs them open loop; a model fitted on commanded angles for joints run closed loop.")
 @click.option("--input", "input_path", default="-", show_default=True, type=click.Path(),
               help="Encoder model: CSV with a column of joint readings, or - for standard input.")
 @click.option("--column", default="encoder_deg", show_default=True, help="Encoder model: column of readings (deg).")
 @click.option("--output", "output_path", default="-", show_default=True, type=click.Path(),
               help="Encoder model: where to write the CSV with corrected_deg and correction_arcsec added.")
 @click.pass_context
-def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_path, column, output_path):
+def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_loop, input_path, column, output_path):
     """Correct with a fitted model: a robot program's commands, or an encoder's readings.
 
     \b
@@ -60,6 +85,12 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     determines it; the correction is the smallest that does both. Rows outside the joint ranges
     the model was fitted on, beyond --max-correction-deg, or without a solution are left as
     given, and the status and reason columns say why.
+    \b
+    What the model was made for travels with it (the fit JSON's joint_angles and payloads_kg): a
+    row without payload_kg is corrected at the payload the model was fitted at (when it was one,
+    else 0 kg); a model fitted on secondary encoders' angles (the KR210 cell's gratings on joints
+    1-3) is refused for joints run open loop unless --closed-loop-joints names them. The console
+    says what was assumed.
       jointcal correct --model results/real/C_diagnosed.json --targets program.csv --out corrected.csv
     \b
     Encoder model: corrected = reading - error(reading) (see --input, --column, --output).
@@ -77,15 +108,23 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     import time
 
     from ..core.files import write_text
-    from ..correct.robot import ModelKinematics, correct_commands
+    from ..correct.robot import ModelKinematics, angle_mismatch, correct_commands
     from ..correct.targets import read_targets
     from ..correct.write import corrected_csv
 
     _need_file(targets_path, "the targets: point_id, q1 … qN, one row per point")
+    from ..robot.rigid import assumptions, model_payload
+
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
+    problem = angle_mismatch(doc.get("joint_angles"), closed)
+    if problem:
+        raise InputError(model_path, problem, _json_line(model_path, "joint_angles"), "joint_angles")
+    payload = model_payload(doc.get("payloads_kg"))
     kin = ModelKinematics(robot, model)
     t0 = time.perf_counter()
-    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1])
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
+                      default_payload_kg=payload or 0.0)
     res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
                            max_correction_deg)
     write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
@@ -100,6 +139,12 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     if (~ok).any():
         k = int(((~ok).nonzero())[0][0])
         click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
+    missing = int((~tg.payload_given).sum())
+    click.echo(f"  {assumptions(doc, len(robot.joints))}"
+               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+               + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
+                  + ("" if payload is not None else " (the model was not fitted at one payload)") if missing else ""),
+               err=True)
 
 
 # ------------------------------------------------------------------------------ simulate measure
@@ -131,13 +176,19 @@ def _measure_robot(truth_path, campaign, robot_path):
 @click.option("--robot", "robot_path", default=None, type=click.Path(dir_okay=False),
               help="The cell's nominal robot.toml (default: the truth's, the campaign folder's, or raw/robot/<name>).")
 @click.option("--seed", type=int, default=None, help="Seed of the jitter and tracker noise (default: the cell's).")
-def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
+@click.option("--closed-loop-joints", "closed_loop", multiple=True, metavar="J...",
+              help="Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the "
+                   "grating reads the command), as \"1 2 3\" or 1,2,3; the campaign then has the grating readings. "
+                   "Default: every joint open loop. The paper's cell has gratings on joints 1-3, a user's cell none.")
+def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop):
     """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
 
     The cell whose truth `jointcal simulate robot` wrote moves to each pose in the file's order -
     true geometry and tool, transmission error, compliance under the row's payload, backlash by the
     row's approach direction, jitter, any hidden effect - and its tracker (same noise) measures the
     SMR in the robot base frame. Writes a campaign folder: every pose `target` unless `set` says.
+    Open loop by default; --closed-loop-joints runs those joints on their gratings (the cell's
+    transmission error, compliance and backlash of those joints are then taken out by the loop).
     A simulator: it reads the truth, which the pipeline never does.
 
     \b
@@ -186,14 +237,20 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
         dirs = frame[dcols].to_numpy(int)
     payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
     temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
-    dirs, xyz = measure_poses(cell, q, dirs, payload, temp, seed)
+    closed = _joint_list(closed_loop, nj, "--closed-loop-joints")
+    try:
+        dirs, xyz, gratings = measure_poses(cell, q, dirs, payload, temp, seed, closed)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
     poses_csv, tracker_csv = campaign_tables(frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)))
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
     write_text(Path(campaign) / "robot.toml", robot.to_toml())
     write_text(Path(campaign) / "poses.csv", poses_csv)
     write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    loop = (f"joints {' '.join(map(str, closed))} closed loop on their gratings, the others open loop" if closed
+            else "every joint open loop")
     click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
-               f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target)", err=True)
+               f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target; {loop})", err=True)
 
 
 # ------------------------------------------------------------------------------ export
@@ -260,7 +317,8 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, table_csv(table, [note]))
         click.echo(f"{out}: {len(table)} angles; {note}", err=True)
         return
-    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, assumptions, export_chain, folded_chain, leftover_cost
+    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, export_chain, folded_chain, leftover_cost
+    from ..robot.rigid import assumptions
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS

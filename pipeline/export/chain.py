@@ -20,7 +20,7 @@ from ..core.units import REFERENCE_TEMPERATURE_C
 from ..robot.calibrate import Design
 from ..robot.effects import RobotData
 from ..robot.kinematics import build_error_model, build_model, gravity_torques
-from ..robot.rigid import CHAIN_EFFECTS, fit_rigid_chain, load_chain, model_payload, secondary_joints
+from ..robot.rigid import CHAIN_EFFECTS, fit_rigid_chain, load_chain
 
 #: the effects a per-joint compensation table carries (functions of the joint's own angle)
 TABLE_EFFECTS = ("joint_map", "joint_harmonic", "backlash")
@@ -141,26 +141,6 @@ def export_chain(robot, model, doc: dict, sampled: dict) -> tuple[object, str]:
            f"in the sampled joint ranges (the fit JSON records no rigid chain), {info['rms_to_model_mm']:.4f} mm RMS "
            "from the model there")
     return chain, how
-
-
-def assumptions(doc: dict, n_joints: int) -> str:
-    """What the model assumes of the robot it is applied to, in words (the fit JSON's ``joint_angles``
-    and ``payloads_kg``)."""
-    sec = secondary_joints(doc.get("joint_angles"))
-    if sec:
-        angles = (f"joints {', '.join(map(str, sec))} at their secondary encoders' angles "
-                  f"({', '.join(doc['joint_angles'][j - 1] for j in sec)}: run them closed loop on those encoders), "
-                  "the others at their commanded angles")
-    elif doc.get("joint_angles"):
-        angles = "every joint at its commanded angle"
-    else:
-        angles = "every joint at its commanded angle (the model does not record which angles it was fitted on)"
-    pays = doc.get("payloads_kg")
-    one = model_payload(pays)
-    payload = (f"payload {one:g} kg (as fitted)" if one is not None else
-               f"fitted at payloads {', '.join(f'{p:g}' for p in pays)} kg" if pays else
-               "payload not recorded (0 kg assumed)")
-    return f"the model assumes {angles}; {payload}; 20 degC"
 
 
 def folded_chain(robot, model) -> dict:

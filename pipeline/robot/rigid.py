@@ -132,3 +132,23 @@ def load_chain(robot, doc: dict) -> RobotErrorModel:
     if sorted(e.name for e in effects) != sorted(CHAIN_EFFECTS):
         raise ValueError("rigid_chain must have the effects geometry, base and tool")
     return RobotErrorModel.from_parameters(robot, effects, doc["parameters"])
+
+
+def assumptions(doc: dict, n_joints: int) -> str:
+    """What the model assumes of the robot it is applied to, in words (the fit JSON's ``joint_angles``
+    and ``payloads_kg``)."""
+    sec = secondary_joints(doc.get("joint_angles"))
+    if sec:
+        angles = (f"joints {', '.join(map(str, sec))} at their secondary encoders' angles "
+                  f"({', '.join(doc['joint_angles'][j - 1] for j in sec)}: run them closed loop on those encoders), "
+                  "the others at their commanded angles")
+    elif doc.get("joint_angles"):
+        angles = "every joint at its commanded angle"
+    else:
+        angles = "every joint at its commanded angle (the model does not record which angles it was fitted on)"
+    pays = doc.get("payloads_kg")
+    one = model_payload(pays)
+    payload = (f"payload {one:g} kg (as fitted)" if one is not None else
+               f"fitted at payloads {', '.join(f'{p:g}' for p in pays)} kg" if pays else
+               "payload not recorded (0 kg assumed)")
+    return f"the model assumes {angles}; {payload}; 20 degC"

@@ -285,15 +285,22 @@ def _ur_paths(out):
               help="With --heldout: write those numbers (mm) and what each leaves out as JSON.")
 @click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
               help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
-def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg):
+@click.option("--with-tables", is_flag=True,
+              help="urdf, ur: write the chain for a robot whose drives also apply the model's joint tables "
+                   "(--format table): fitted with the tables applied. Default: the chain alone, nearest the whole model.")
+def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg, with_tables):
     """Write a fitted model in a form a robot or its drives take (contract section 8).
 
     \b
     Each format says here, and in the file as comments, which fitted effects it cannot carry and
     what leaving them out costs: how far the model's prediction moves without them (RMS and max,
-    mm, over the joint ranges the model was fitted on). A URDF and UR's parameters carry the rigid
-    chain (geometry, base, tool); the joint tables carry joint maps, joint harmonics and backlash;
-    none carries compliance, thermal expansion or Chebyshev error transfer.
+    mm, over the joint ranges the model was fitted on), and what the model assumes (which angle
+    each joint takes, the payload it was fitted at). A URDF and UR's parameters carry a rigid
+    chain: the one nearest the whole model (fitted by jointcal fit to the model's own predictions
+    at the poses it was fitted on; for geometry + base + tool alone, that geometry exactly); with
+    --with-tables the one for drives that also apply the joint tables. The joint tables carry
+    joint maps, joint harmonics and backlash; none carries compliance, thermal expansion or
+    Chebyshev error transfer.
       jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
     """
     from ..core.files import write_text
@@ -323,11 +330,20 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
     chain_model, chain_how = export_chain(robot, model, doc, sampled)
-    cost = leftover_cost(robot, model, sampled, carried, chain=chain_model, payloads=doc.get("payloads_kg"))
+    tables_model, tables_how = export_chain(robot, model, doc, sampled, with_tables=True)
+    if with_tables:
+        chain_model, chain_how = tables_model, tables_how
+    tabled = with_tables or fmt == "table"
+    if tabled:
+        carried = CHAIN_EFFECTS + TABLE_EFFECTS
+    cost = leftover_cost(robot, model, sampled, carried, chain=tables_model if tabled else chain_model,
+                         payloads=doc.get("payloads_kg"))
     what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
             "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
             "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
-                     "backlash); with the model's own geometry, base and tool"}[fmt]
+                     "backlash); with the chain `jointcal export --with-tables` writes"}[fmt]
+    if with_tables:
+        what += " for drives that apply the joint tables (--format table)"
     if cost["left_out"]:
         what += f"; the chain written is {chain_how}" if fmt != "table" else ""
         note = (f"{what}; it cannot carry the rest of {', '.join(cost['left_out'])}: the model's prediction moves by "
@@ -390,12 +406,13 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         if target.n == 0:
             raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
                              1, "set")
-        h = heldout_by_carrier(robot, model, target, chain_model)
+        h = heldout_by_carrier(robot, model, target, export_chain(robot, model, doc, sampled)[0], tables_model)
         h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
         click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
                    f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
                    f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
                    f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
+                   f"(the model's own geometry with them {h['model_geometry_tables_rms_mm']:.3f} mm) "
                    f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
                    err=True)
         if json_out:

@@ -20,10 +20,8 @@ from ..core.units import REFERENCE_TEMPERATURE_C
 from ..robot.calibrate import Design
 from ..robot.effects import RobotData
 from ..robot.kinematics import build_error_model, build_model, gravity_torques
-from ..robot.rigid import CHAIN_EFFECTS, fit_rigid_chain, load_chain
+from ..robot.rigid import CHAIN_EFFECTS, TABLE_EFFECTS, chain_predict, fit_rigid_chain, has_tables, load_chain
 
-#: the effects a per-joint compensation table carries (functions of the joint's own angle)
-TABLE_EFFECTS = ("joint_map", "joint_harmonic", "backlash")
 #: poses over the sampled joint box on which the cost of what is left out is measured
 COST_POSES = 2000
 
@@ -94,7 +92,8 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
 
     Poses from :func:`box_poses`. ``chain``: the rigid chain the export writes (a model of geometry,
     base and tool, :func:`export_chain`) is what is carried of ``CHAIN_EFFECTS``: with ``keep`` just
-    the chain effects, its prediction; else the model's own parameters of the effects in ``keep``.
+    the chain effects, its prediction; with the table effects too, its prediction at the angles the
+    tables turn the joints to; without ``chain`` the model's own parameters of the effects in ``keep``.
     Seeded: same model, same numbers.
 
     Returns
@@ -104,8 +103,8 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
     data = box_poses(robot, model, sampled, payloads, n, seed)
     names = {e.name for e, _ in effect_slices(robot, model)}
     full = predict_with(robot, model, data)
-    if chain is not None and set(keep) == set(CHAIN_EFFECTS):
-        part = chain.predict(data)
+    if chain is not None and set(keep) in (set(CHAIN_EFFECTS), set(CHAIN_EFFECTS + TABLE_EFFECTS)):
+        part = chain_predict(robot, model, chain, data, with_tables=set(keep) != set(CHAIN_EFFECTS))
     else:
         part = predict_with(robot, model, data, keep)
     e = np.linalg.norm(full - part, axis=1)
@@ -116,30 +115,33 @@ def leftover_cost(robot, model, sampled: dict, keep, n: int = COST_POSES, seed: 
                            + (", 15-25 degC" if "thermal" in names else ""))}
 
 
-def export_chain(robot, model, doc: dict, sampled: dict) -> tuple[object, str]:
+def export_chain(robot, model, doc: dict, sampled: dict, with_tables: bool = False) -> tuple[object, str]:
     """The rigid chain an export writes (a fitted model of geometry, base and tool) and how it was made.
 
     The fit JSON's ``rigid_chain`` (fitted by ``jointcal fit`` to the whole model at the poses it was
-    fitted on, :func:`pipeline.robot.rigid.fit_rigid_chain`); for a fit JSON written before it was
-    recorded, the chain fitted to the whole model here, over poses uniform in the sampled joint box
-    at the payload the model was fitted at (0 kg when not recorded).
+    fitted on, :func:`pipeline.robot.rigid.fit_rigid_chain`), or with ``with_tables`` its
+    ``rigid_chain_with_tables`` (the chain for drives that apply the model's joint tables); for a fit
+    JSON written before they were recorded, the chain fitted to the whole model here, over poses
+    uniform in the sampled joint box at the payload the model was fitted at (0 kg when not recorded).
     """
-    rec = doc.get("rigid_chain") if isinstance(doc, dict) else None
+    with_tables = with_tables and has_tables(robot, model)
+    rec = doc.get("rigid_chain_with_tables" if with_tables else "rigid_chain") if isinstance(doc, dict) else None
     if isinstance(rec, dict):
         try:
+            chain = load_chain(robot, rec)
             how = str(rec.get("fitted_to", "the fit's rigid chain"))
             if not rec.get("exact") and "rms_to_model_mm" in rec:
                 how += f", {float(rec['rms_to_model_mm']):.4f} mm RMS from the model there"
-            return load_chain(robot, rec), how
+            return chain, how
         except (KeyError, TypeError, ValueError):
             pass
     payloads = doc.get("payloads_kg") if isinstance(doc, dict) else None
     data = box_poses(robot, model, sampled, payloads)
-    chain, info = fit_rigid_chain(robot, model, data)
+    chain, info = fit_rigid_chain(robot, model, data, with_tables)
     how = ("the model's own geometry, base and tool (the model has no other effect)" if info["exact"] else
-           f"geometry, base and tool fitted here to the whole model's predictions at {info['n_poses']} poses uniform "
-           f"in the sampled joint ranges (the fit JSON records no rigid chain), {info['rms_to_model_mm']:.4f} mm RMS "
-           "from the model there")
+           f"geometry, base and tool fitted here{' with the joint tables applied' if with_tables else ''} to the whole "
+           f"model's predictions at {info['n_poses']} poses uniform in the sampled joint ranges (the fit JSON records "
+           f"no rigid chain), {info['rms_to_model_mm']:.4f} mm RMS from the model there")
     return chain, how
 
 
@@ -187,22 +189,23 @@ def nominal_model(robot):
     return build_model(robot)
 
 
-def heldout_by_carrier(robot, model, data, chain=None) -> dict:
+def heldout_by_carrier(robot, model, data, chain=None, chain_tables=None) -> dict:
     """Held-out RMS (mm) on measured poses of the full model and of what each export carries.
 
     Parameters
     ----------
     data : RobotData
         Poses the model was not fitted on, with ``measured_mm`` (n, 3) in the model's base frame.
-    chain : RobotErrorModel, optional
-        The rigid chain a URDF / UR's parameters carry (:func:`export_chain`); default the model's own
-        geometry, base and tool.
+    chain, chain_tables : RobotErrorModel, optional
+        The rigid chain a URDF / UR's parameters carry alone, and the one for drives that apply the
+        joint tables (:func:`export_chain`); default the model's own geometry, base and tool.
 
     Returns
     -------
-    dict ``{"n", "full_rms_mm", "chain_rms_mm" (URDF / UR: the exported chain), "model_geometry_rms_mm"
-    (the model's own geometry, base and tool alone), "chain_tables_rms_mm" (the model's own geometry,
-    base and tool + joint tables), "nominal_rms_mm", "chain_left_out", "chain_tables_left_out"}``
+    dict ``{"n", "full_rms_mm", "chain_rms_mm" (URDF / UR: the exported chain), "chain_tables_rms_mm"
+    (its chain for the tables + the joint tables), "model_geometry_rms_mm", "model_geometry_tables_rms_mm"
+    (the model's own geometry, base and tool, alone and with the tables), "nominal_rms_mm",
+    "chain_left_out", "chain_tables_left_out"}``
     """
     meas = np.asarray(data.measured_mm, float)
 
@@ -211,10 +214,12 @@ def heldout_by_carrier(robot, model, data, chain=None) -> dict:
         return float(np.sqrt(np.mean(e ** 2)))
 
     own = rms(predict_with(robot, model, data, CHAIN_EFFECTS))
+    own_tables = rms(predict_with(robot, model, data, CHAIN_EFFECTS + TABLE_EFFECTS))
     return {"n": int(data.n), "full_rms_mm": rms(predict_with(robot, model, data)),
             "chain_rms_mm": own if chain is None else rms(chain.predict(data)),
-            "model_geometry_rms_mm": own,
-            "chain_tables_rms_mm": rms(predict_with(robot, model, data, CHAIN_EFFECTS + TABLE_EFFECTS)),
+            "chain_tables_rms_mm": own_tables if chain_tables is None else
+            rms(chain_predict(robot, model, chain_tables, data, with_tables=True)),
+            "model_geometry_rms_mm": own, "model_geometry_tables_rms_mm": own_tables,
             "nominal_rms_mm": rms(predict_with(robot, model, data, ())),
             "chain_left_out": left_out(robot, model, CHAIN_EFFECTS),
             "chain_tables_left_out": left_out(robot, model, CHAIN_EFFECTS + TABLE_EFFECTS)}

@@ -13,7 +13,7 @@ from .evaluate import cross_validate, fit_effects, fold_description, heldout_fit
 from .ingest import robot_data_sets
 from .lm import describe_implausible
 from .predict import model_document, outside_range, sampled_range
-from .rigid import chain_document, fit_rigid_chain
+from .rigid import chain_document, fit_rigid_chain, has_tables
 
 
 def check_spec_joints(spec, robot) -> None:
@@ -81,6 +81,10 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
     # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
     chain, info = fit_rigid_chain(robot, model, sample)
     out["rigid_chain"] = chain_document(chain, info, out["payloads_kg"])
+    if has_tables(robot, model):
+        # and the chain for drives that apply the joint tables (jointcal export --format table)
+        chain, info = fit_rigid_chain(robot, model, sample, with_tables=True)
+        out["rigid_chain_with_tables"] = chain_document(chain, info, out["payloads_kg"], with_tables=True)
     out["not_identified"] = out["identification"]["fixed"]
     out["converged"] = bool(getattr(model, "converged_", True))
     out["convergence"] = getattr(model, "convergence_", "")

@@ -26,6 +26,8 @@ from .effects import REFERENCE_TEMPERATURE_C, RobotData, effect_class
 
 #: the effects a rigid chain (URDF, UR's DH, the ROS driver's YAML) carries
 CHAIN_EFFECTS = ("geometry", "base", "tool")
+#: the effects a per-joint compensation table carries (functions of the joint's own angle)
+TABLE_EFFECTS = ("joint_map", "joint_harmonic", "backlash")
 #: the word for a joint whose model takes the commanded angle
 COMMANDED = "commanded"
 
@@ -58,16 +60,51 @@ def chain_effects(effects) -> list:
     return [own.get(n) or effect_class(n)() for n in CHAIN_EFFECTS]
 
 
-def carries_only_chain(robot, model) -> bool:
-    """Whether every effect of the model with a parameter not zero is geometry, base or tool."""
+def carries_only(robot, model, keep=CHAIN_EFFECTS) -> bool:
+    """Whether every effect of the model with a parameter not zero is one of ``keep``."""
     k = 0
     coef = np.asarray(model.coef_, float)
     for e in getattr(model, "effects_", model.effects):
         n = len(e.parameter_names(robot))
-        if e.name not in CHAIN_EFFECTS and np.any(coef[k:k + n] != 0):
+        if e.name not in keep and np.any(coef[k:k + n] != 0):
             return False
         k += n
     return True
+
+
+def has_tables(robot, model) -> bool:
+    """Whether the model has a table effect (:data:`TABLE_EFFECTS`) with a parameter not zero."""
+    k = 0
+    coef = np.asarray(model.coef_, float)
+    for e in getattr(model, "effects_", model.effects):
+        n = len(e.parameter_names(robot))
+        if e.name in TABLE_EFFECTS and np.any(coef[k:k + n] != 0):
+            return True
+        k += n
+    return False
+
+
+def table_angles_deg(robot, model, data: RobotData) -> np.ndarray:
+    """Joint angles (n, N) deg that the drives' compensation tables (``jointcal export --format
+    table``: the model's joint_map, joint_harmonic and backlash) turn each joint to at the poses of
+    ``data``: the commanded angle plus those effects' angle error."""
+    effects = list(getattr(model, "effects_", model.effects))
+    d = Design(robot, effects, data)
+    coef = np.array(model.coef_, float)
+    k = 0
+    for e in effects:
+        n = len(e.parameter_names(robot))
+        if e.name not in TABLE_EFFECTS:
+            coef[k:k + n] = 0.0
+        k += n
+    dq = d.configurations(coef)[:, d.idx.joints] - d.Q0[:, d.idx.joints]
+    return np.asarray(data.q_deg, float) + np.rad2deg(dq)
+
+
+def with_angles(data: RobotData, q_deg) -> RobotData:
+    """``data`` at other joint angles (everything else as it is)."""
+    return RobotData(np.asarray(q_deg, float), data.dir, data.payload_kg, data.temperature_c, data.torque_nm,
+                     data.lower_deg, data.upper_deg, data.measured_mm, data.point_id)
 
 
 def own_chain(robot, model) -> RobotErrorModel:
@@ -79,7 +116,7 @@ def own_chain(robot, model) -> RobotErrorModel:
     return RobotErrorModel.from_parameters(robot, effects, params)
 
 
-def fit_rigid_chain(robot, model, data: RobotData) -> tuple[RobotErrorModel, dict]:
+def fit_rigid_chain(robot, model, data: RobotData, with_tables: bool = False) -> tuple[RobotErrorModel, dict]:
     """The rigid chain nearest the whole model at the poses of ``data`` (module docstring).
 
     Parameters
@@ -90,19 +127,25 @@ def fit_rigid_chain(robot, model, data: RobotData) -> tuple[RobotErrorModel, dic
     data : RobotData
         Poses in the model's own joint angles, with their approach directions and payloads (the
         poses the model was fitted on); temperatures are taken at the nominal 20 degC.
+    with_tables : bool
+        The chain for a robot whose drives also apply the model's per-joint compensation tables
+        (:data:`TABLE_EFFECTS`): fitted at the joint angles the tables turn each joint to
+        (:func:`table_angles_deg`), so that chain + tables reproduce the model; else the chain alone.
 
     Returns
     -------
     chain : RobotErrorModel (geometry, base, tool)
-    info : dict ``{"n_poses", "rms_to_model_mm", "max_to_model_mm", "exact"}``: how far the chain is
-        from the model on those poses.
+    info : dict ``{"n_poses", "rms_to_model_mm", "max_to_model_mm", "exact"}``: how far the chain
+        (with the tables) is from the model on those poses.
     """
     n = data.n
     at = RobotData(np.asarray(data.q_deg, float), np.asarray(data.dir, int), np.asarray(data.payload_kg, float),
                    np.full(n, REFERENCE_TEMPERATURE_C), np.asarray(data.torque_nm, float), data.lower_deg,
                    data.upper_deg)
     full = model.predict(at)
-    if carries_only_chain(robot, model):
+    if with_tables:
+        at = with_angles(at, table_angles_deg(robot, model, at))
+    if carries_only(robot, model, CHAIN_EFFECTS + (TABLE_EFFECTS if with_tables else ())):
         chain, exact = own_chain(robot, model), True
     else:
         at.measured_mm = full
@@ -113,12 +156,14 @@ def fit_rigid_chain(robot, model, data: RobotData) -> tuple[RobotErrorModel, dic
                    "max_to_model_mm": float(e.max()) if n else 0.0, "exact": bool(exact)}
 
 
-def chain_document(chain: RobotErrorModel, info: dict, payloads) -> dict:
-    """The ``rigid_chain`` entry of a fit JSON."""
+def chain_document(chain: RobotErrorModel, info: dict, payloads, with_tables: bool = False) -> dict:
+    """The ``rigid_chain`` (``rigid_chain_with_tables``) entry of a fit JSON."""
     pay = ", ".join(f"{p:g}" for p in payloads) if payloads else "as measured"
-    how = ("the model's own geometry, base and tool (the model has no other effect)" if info.get("exact") else
-           f"geometry, base and tool fitted to the whole model's predictions at the {info['n_poses']} poses it was "
-           f"fitted on (their joint angles, approach directions and payloads: {pay} kg; 20 degC)")
+    tables = " with the joint tables applied" if with_tables else ""
+    how = (f"the model's own geometry, base and tool (the model has no other effect{' than the tables' if with_tables else ''})"
+           if info.get("exact") else
+           f"geometry, base and tool fitted{tables} to the whole model's predictions at the {info['n_poses']} poses it "
+           f"was fitted on (their joint angles, approach directions and payloads: {pay} kg; 20 degC)")
     return {"spec_effects": [e.spec_lines() for e in getattr(chain, "effects_", chain.effects)],
             "parameters": chain.parameters(), "fitted_to": how, **info}
 
@@ -132,6 +177,12 @@ def load_chain(robot, doc: dict) -> RobotErrorModel:
     if sorted(e.name for e in effects) != sorted(CHAIN_EFFECTS):
         raise ValueError("rigid_chain must have the effects geometry, base and tool")
     return RobotErrorModel.from_parameters(robot, effects, doc["parameters"])
+
+
+def chain_predict(robot, model, chain, data: RobotData, with_tables: bool = False) -> np.ndarray:
+    """SMR positions (n, 3) mm of a rigid chain at the poses of ``data`` (model angles); ``with_tables``:
+    at the angles the model's joint tables turn the joints to."""
+    return chain.predict(with_angles(data, table_angles_deg(robot, model, data)) if with_tables else data)
 
 
 def assumptions(doc: dict, n_joints: int) -> str:

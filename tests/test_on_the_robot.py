@@ -114,6 +114,18 @@ def test_export_chain_is_nearest_the_whole_model(cells):
     _, (target,) = robot_data_sets(tmp / "open", ("target",))
     urdf = urdf_positions((tmp / "full.urdf").read_text(), "smr", target.q_deg)
     assert np.abs(urdf - chain.predict(target)).max() < 1e-3        # mm
+    # --with-tables: that URDF at the angles the joint tables turn the joints to is the model's chain for them
+    from pipeline.robot.predict import load_model_document
+    from pipeline.robot.rigid import table_angles_deg, with_angles
+
+    r = run("export", "--model", tmp / "full_fit.json", "--format", "urdf", "--with-tables", "--out", tmp / "t.urdf")
+    assert r.exit_code == 0, r.output
+    _, _, model, _, _ = load_model_document(cells["fits"]["full"], "fit.json")
+    tabled = load_chain(robot, cells["fits"]["full"]["rigid_chain_with_tables"])
+    q = table_angles_deg(robot, model, target)
+    urdf = urdf_positions((tmp / "t.urdf").read_text(), "smr", q)
+    assert np.abs(urdf - tabled.predict(with_angles(target, q))).max() < 1e-3            # mm
+    assert np.abs(urdf - chain.predict(target)).max() > 0.01        # another chain
 
 
 def test_row_without_payload_is_corrected_at_the_models_payload(cells, tmp_path):

@@ -328,14 +328,11 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
     from ..robot.rigid import assumptions
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
-    chain_model, chain_how = export_chain(robot, model, doc, sampled)
+    plain_model, plain_how = export_chain(robot, model, doc, sampled)
     tables_model, tables_how = export_chain(robot, model, doc, sampled, with_tables=True)
-    if with_tables:
-        chain_model, chain_how = tables_model, tables_how
+    chain_model, chain_how = (tables_model, tables_how) if with_tables else (plain_model, plain_how)
     tabled = with_tables or fmt == "table"
-    if tabled:
-        carried = CHAIN_EFFECTS + TABLE_EFFECTS
+    carried = CHAIN_EFFECTS + TABLE_EFFECTS if tabled else CHAIN_EFFECTS
     cost = leftover_cost(robot, model, sampled, carried, chain=tables_model if tabled else chain_model,
                          payloads=doc.get("payloads_kg"))
     what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
@@ -406,7 +403,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         if target.n == 0:
             raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
                              1, "set")
-        h = heldout_by_carrier(robot, model, target, export_chain(robot, model, doc, sampled)[0], tables_model)
+        h = heldout_by_carrier(robot, model, target, plain_model, tables_model)
         h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
         click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
                    f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "

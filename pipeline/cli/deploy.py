@@ -29,6 +29,27 @@ def _load_robot_model(path, doc):
     return load_model_document(doc, path)
 
 
+def _joint_list(text, n_joints: int, option: str) -> list[int]:
+    """Joint numbers given as ``"1 2 3"`` or ``"1,2,3"`` (1-based, each within the robot's joints)."""
+    out = []
+    for part in " ".join(text or ()).replace(",", " ").split():
+        if not part.isdigit() or not 1 <= int(part) <= n_joints:
+            raise click.BadParameter(f"'{part}' is not a joint number 1..{n_joints}", param_hint=option)
+        out.append(int(part))
+    return sorted(set(out))
+
+
+def _json_line(path, key: str):
+    """1-based line of ``"key":`` in a JSON file (None when absent)."""
+    try:
+        for k, line in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), 1):
+            if f'"{key}"' in line:
+                return k
+    except OSError:
+        pass
+    return None
+
+
 @click.command("correct")
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="A fitted model: a robot fit JSON (jointcal fit --campaign) or an encoder model (jointcal fit).")
@@ -42,13 +63,17 @@ def _load_robot_model(path, doc):
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Robot model: a row needing a larger correction of any joint is left as given (status "
                    "correction_too_large).")
+@click.option("--closed-loop-joints", "closed_loop", multiple=True, metavar="J...",
+              help="Robot model: joints that follow their secondary encoders (e.g. gratings) in a closed loop on the "
+                   "robot, as \"1 2 3\" or 1,2,3. A model fitted on those encoders' angles is refused for a "
+                   "program that runs them open loop; a model fitted on commanded angles for joints run closed loop.")
 @click.option("--input", "input_path", default="-", show_default=True, type=click.Path(),
               help="Encoder model: CSV with a column of joint readings, or - for standard input.")
 @click.option("--column", default="encoder_deg", show_default=True, help="Encoder model: column of readings (deg).")
 @click.option("--output", "output_path", default="-", show_default=True, type=click.Path(),
               help="Encoder model: where to write the CSV with corrected_deg and correction_arcsec added.")
 @click.pass_context
-def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_path, column, output_path):
+def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_loop, input_path, column, output_path):
     """Correct with a fitted model: a robot program's commands, or an encoder's readings.
 
     \b
@@ -60,6 +85,12 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     determines it; the correction is the smallest that does both. Rows outside the joint ranges
     the model was fitted on, beyond --max-correction-deg, or without a solution are left as
     given, and the status and reason columns say why.
+    \b
+    What the model was made for travels with it (the fit JSON's joint_angles and payloads_kg): a
+    row without payload_kg is corrected at the payload the model was fitted at (when it was one,
+    else 0 kg); a model fitted on secondary encoders' angles (the KR210 cell's gratings on joints
+    1-3) is refused for joints run open loop unless --closed-loop-joints names them. The console
+    says what was assumed.
       jointcal correct --model results/real/C_diagnosed.json --targets program.csv --out corrected.csv
     \b
     Encoder model: corrected = reading - error(reading) (see --input, --column, --output).
@@ -77,15 +108,23 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     import time
 
     from ..core.files import write_text
-    from ..correct.robot import ModelKinematics, correct_commands
+    from ..correct.robot import ModelKinematics, angle_mismatch, correct_commands
     from ..correct.targets import read_targets
     from ..correct.write import corrected_csv
 
     _need_file(targets_path, "the targets: point_id, q1 … qN, one row per point")
+    from ..robot.rigid import assumptions, model_payload
+
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
+    problem = angle_mismatch(doc.get("joint_angles"), closed)
+    if problem:
+        raise InputError(model_path, problem, _json_line(model_path, "joint_angles"), "joint_angles")
+    payload = model_payload(doc.get("payloads_kg"))
     kin = ModelKinematics(robot, model)
     t0 = time.perf_counter()
-    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1])
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
+                      default_payload_kg=payload or 0.0)
     res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
                            max_correction_deg)
     write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
@@ -100,6 +139,12 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, input_p
     if (~ok).any():
         k = int(((~ok).nonzero())[0][0])
         click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
+    missing = int((~tg.payload_given).sum())
+    click.echo(f"  {assumptions(doc, len(robot.joints))}"
+               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+               + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
+                  + ("" if payload is not None else " (the model was not fitted at one payload)") if missing else ""),
+               err=True)
 
 
 # ------------------------------------------------------------------------------ simulate measure
@@ -131,13 +176,19 @@ def _measure_robot(truth_path, campaign, robot_path):
 @click.option("--robot", "robot_path", default=None, type=click.Path(dir_okay=False),
               help="The cell's nominal robot.toml (default: the truth's, the campaign folder's, or raw/robot/<name>).")
 @click.option("--seed", type=int, default=None, help="Seed of the jitter and tracker noise (default: the cell's).")
-def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
+@click.option("--closed-loop-joints", "closed_loop", multiple=True, metavar="J...",
+              help="Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the "
+                   "grating reads the command), as \"1 2 3\" or 1,2,3; the campaign then has the grating readings. "
+                   "Default: every joint open loop. The paper's cell has gratings on joints 1-3, a user's cell none.")
+def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop):
     """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
 
     The cell whose truth `jointcal simulate robot` wrote moves to each pose in the file's order -
     true geometry and tool, transmission error, compliance under the row's payload, backlash by the
     row's approach direction, jitter, any hidden effect - and its tracker (same noise) measures the
     SMR in the robot base frame. Writes a campaign folder: every pose `target` unless `set` says.
+    Open loop by default; --closed-loop-joints runs those joints on their gratings (the cell's
+    transmission error, compliance and backlash of those joints are then taken out by the loop).
     A simulator: it reads the truth, which the pipeline never does.
 
     \b
@@ -186,14 +237,20 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed):
         dirs = frame[dcols].to_numpy(int)
     payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
     temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
-    dirs, xyz = measure_poses(cell, q, dirs, payload, temp, seed)
+    closed = _joint_list(closed_loop, nj, "--closed-loop-joints")
+    try:
+        dirs, xyz, gratings = measure_poses(cell, q, dirs, payload, temp, seed, closed)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
     poses_csv, tracker_csv = campaign_tables(frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)))
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
     write_text(Path(campaign) / "robot.toml", robot.to_toml())
     write_text(Path(campaign) / "poses.csv", poses_csv)
     write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    loop = (f"joints {' '.join(map(str, closed))} closed loop on their gratings, the others open loop" if closed
+            else "every joint open loop")
     click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
-               f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target)", err=True)
+               f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target; {loop})", err=True)
 
 
 # ------------------------------------------------------------------------------ export
@@ -228,15 +285,22 @@ def _ur_paths(out):
               help="With --heldout: write those numbers (mm) and what each leaves out as JSON.")
 @click.option("--step-deg", default=1.0, show_default=True, type=click.FloatRange(min=0.001),
               help="table: angle step of the tables (deg), over each joint's sampled range (encoder: 0-360).")
-def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg):
+@click.option("--with-tables", is_flag=True,
+              help="urdf, ur: write the chain for a robot whose drives also apply the model's joint tables "
+                   "(--format table): fitted with the tables applied. Default: the chain alone, nearest the whole model.")
+def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg, with_tables):
     """Write a fitted model in a form a robot or its drives take (contract section 8).
 
     \b
     Each format says here, and in the file as comments, which fitted effects it cannot carry and
     what leaving them out costs: how far the model's prediction moves without them (RMS and max,
-    mm, over the joint ranges the model was fitted on). A URDF and UR's parameters carry the rigid
-    chain (geometry, base, tool); the joint tables carry joint maps, joint harmonics and backlash;
-    none carries compliance, thermal expansion or Chebyshev error transfer.
+    mm, over the joint ranges the model was fitted on), and what the model assumes (which angle
+    each joint takes, the payload it was fitted at). A URDF and UR's parameters carry a rigid
+    chain: the one nearest the whole model (fitted by jointcal fit to the model's own predictions
+    at the poses it was fitted on; for geometry + base + tool alone, that geometry exactly); with
+    --with-tables the one for drives that also apply the joint tables. The joint tables carry
+    joint maps, joint harmonics and backlash; none carries compliance, thermal expansion or
+    Chebyshev error transfer.
       jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
     """
     from ..core.files import write_text
@@ -260,26 +324,36 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, table_csv(table, [note]))
         click.echo(f"{out}: {len(table)} angles; {note}", err=True)
         return
-    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, folded_chain, leftover_cost
+    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, export_chain, folded_chain, leftover_cost
+    from ..robot.rigid import assumptions
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    carried = CHAIN_EFFECTS + TABLE_EFFECTS if fmt == "table" else CHAIN_EFFECTS
-    cost = leftover_cost(robot, model, sampled, carried)
+    plain_model, plain_how = export_chain(robot, model, doc, sampled)
+    tables_model, tables_how = export_chain(robot, model, doc, sampled, with_tables=True)
+    chain_model, chain_how = (tables_model, tables_how) if with_tables else (plain_model, plain_how)
+    tabled = with_tables or fmt == "table"
+    carried = CHAIN_EFFECTS + TABLE_EFFECTS if tabled else CHAIN_EFFECTS
+    cost = leftover_cost(robot, model, sampled, carried, chain=tables_model if tabled else chain_model,
+                         payloads=doc.get("payloads_kg"))
     what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
             "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
             "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
-                     "backlash); with the chain in a URDF or UR's parameters"}[fmt]
+                     "backlash); with the chain `jointcal export --with-tables` writes"}[fmt]
+    if with_tables:
+        what += " for drives that apply the joint tables (--format table)"
     if cost["left_out"]:
-        note = (f"{what}; it cannot carry {', '.join(cost['left_out'])}: leaving that out moves the model's "
-                f"prediction by {cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max ({cost['n']} poses: "
+        what += f"; the chain written is {chain_how}" if fmt != "table" else ""
+        note = (f"{what}; it cannot carry the rest of {', '.join(cost['left_out'])}: the model's prediction moves by "
+                f"{cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max without it ({cost['n']} poses: "
                 f"{cost['conditions']})")
     else:
         note = f"{what}; the model has nothing else: it is carried whole"
-    comments = [f"jointcal export, format {fmt}, of {model_path}", note]
+    assumed = assumptions(doc, len(robot.joints))
+    comments = [f"jointcal export, format {fmt}, of {model_path}", note, assumed]
     if fmt == "urdf":
         from ..export.urdf import chain_urdf, rewrite_urdf
 
-        chain = folded_chain(robot, model)
+        chain = folded_chain(robot, chain_model)
         if urdf_path:
             if not tip:
                 raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
@@ -298,7 +372,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
         from ..robot.calibrate import RobotErrorModel
 
-        chain = folded_chain(robot, model)
+        chain = folded_chain(robot, chain_model)
         nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
         nominal = standard_dh(folded_chain(robot, nominal_model))
         fitted = standard_dh(chain, reference=nominal)
@@ -315,6 +389,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, table_csv(table, comments))
         written = [out]
     click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)
+    click.echo(f"  {assumed}", err=True)
     if heldout_campaign:
         from ..core.files import write_json
         from ..export.chain import heldout_by_carrier
@@ -328,11 +403,13 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         if target.n == 0:
             raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
                              1, "set")
-        h = heldout_by_carrier(robot, model, target)
+        h = heldout_by_carrier(robot, model, target, plain_model, tables_model)
         h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
         click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
-                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (leaves out "
+                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
+                   f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
                    f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
+                   f"(the model's own geometry with them {h['model_geometry_tables_rms_mm']:.3f} mm) "
                    f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
                    err=True)
         if json_out:

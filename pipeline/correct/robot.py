@@ -34,6 +34,7 @@ from ..robot.calibrate import Design
 from ..robot.effects import RobotData
 from ..robot.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
 from ..robot.predict import outside_range
+from ..robot.rigid import secondary_joints
 
 #: A row is ``ok`` when the model's prediction at its corrected commands is within this of the point (um).
 RESIDUAL_TOL_UM = 1.0
@@ -273,3 +274,32 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         orient[left] = np.nan
     _, xyz = kin.nominal(q)
     return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs)
+
+
+def angle_mismatch(sources, closed) -> str:
+    """Why a model does not apply to a robot whose joints ``closed`` (1-based) follow their secondary
+    encoders in a closed loop and whose other joints run open loop on their commands ('' when it does).
+
+    ``sources``: the fit JSON's ``joint_angles`` (:func:`pipeline.robot.rigid.joint_angle_sources`;
+    None: every joint commanded). A joint whose model takes a secondary encoder's angle (a grating)
+    has its transmission error, compliance and backlash hidden from the model: open loop they are
+    all there (0.64 mm on the KR210 cell against its model's 0.07 mm held out). A joint whose model
+    takes the commanded angle carries those errors in the model: closed loop they are gone.
+    """
+    sources = list(sources or [])
+    sec = secondary_joints(sources)
+    open_sec = [j for j in sec if j not in closed]
+    if open_sec:
+        js = " ".join(map(str, open_sec))
+        return (f"the model was fitted on the secondary encoders' angles of joints {js} "
+                f"({', '.join(sources[j - 1] for j in open_sec)}), and the program runs them open loop on their "
+                f"commands, where their transmission, compliance and backlash are not in the model: give "
+                f"--closed-loop-joints {js} if those joints follow their encoders (closed loop), or fit the model "
+                "on a campaign without those encoder readings")
+    extra = [j for j in closed if j not in sec]
+    if extra:
+        js = " ".join(map(str, extra))
+        return (f"--closed-loop-joints names joint(s) {js}, which the model takes at their commanded angles "
+                f"(fitted open loop: their errors are in the model, and a closed loop would remove them twice); "
+                f"name only joints the model was fitted on encoders of ({' '.join(map(str, sec)) or 'none'})")
+    return ""

@@ -27,12 +27,13 @@ class Targets:
     q_deg: np.ndarray         # (n, N) deg
     target_mm: np.ndarray     # (n, 3) mm, NaN rows: the nominal kinematics' position
     dirs: np.ndarray | None   # (n, N) +1/-1, or None: from the visiting order
-    payload_kg: np.ndarray    # (n,) kg
+    payload_kg: np.ndarray    # (n,) kg (``default_payload_kg`` where the row gives none)
     temperature_c: np.ndarray  # (n,) degC
     lines: np.ndarray         # (n,) 1-based file lines
+    payload_given: np.ndarray = None  # (n,) bool: the row gives its payload_kg
 
 
-def read_targets(path, n_joints: int, nominal_xyz=None) -> Targets:
+def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: float = 0.0) -> Targets:
     """Read and check a targets file; the first problem raises an InputError (file, line, column).
 
     Parameters
@@ -42,6 +43,9 @@ def read_targets(path, n_joints: int, nominal_xyz=None) -> Targets:
     nominal_xyz : callable, optional
         ``q_deg (n, N) -> (n, 3) mm``: the nominal SMR position, to refuse points that are not the
         pose's (beyond :data:`MAX_TARGET_OFFSET_MM`).
+    default_payload_kg : float, kg
+        Payload of a row without ``payload_kg`` (``jointcal correct``: the payload the model was
+        fitted at, when it was one).
     """
     import pandas as pd
 
@@ -88,7 +92,9 @@ def read_targets(path, n_joints: int, nominal_xyz=None) -> Targets:
             k, j = np.argwhere(np.isnan(d))[0]
             raise InputError(path, "empty direction: give +1 or -1", lines[k], dir_cols[j])
         dirs = d.astype(int)
-    payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(n)
+    given = frame["payload_kg"].notna().to_numpy(bool) if "payload_kg" in frame else np.zeros(n, bool)
+    payload = (frame["payload_kg"].fillna(default_payload_kg).to_numpy(float) if "payload_kg" in frame
+               else np.full(n, float(default_payload_kg)))
     if (payload < 0).any():
         k = int(np.argmax(payload < 0))
         raise InputError(path, f"payload_kg {payload[k]:g} is negative", lines[k], "payload_kg")
@@ -106,4 +112,4 @@ def read_targets(path, n_joints: int, nominal_xyz=None) -> Targets:
                                  f"put q1 … q{n_joints} (more than a robot's errors, {MAX_TARGET_OFFSET_MM:g} mm): "
                                  "x_mm/y_mm/z_mm must be that pose's point in the robot base frame, in mm (not "
                                  "metres, not the tracker's frame), and q in degrees", lines[k], "x_mm")
-    return Targets(frame["point_id"].astype(str).to_numpy(), q, target, dirs, payload, temp, lines)
+    return Targets(frame["point_id"].astype(str).to_numpy(), q, target, dirs, payload, temp, lines, given)

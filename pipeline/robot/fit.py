@@ -13,6 +13,7 @@ from .evaluate import cross_validate, fit_effects, fold_description, heldout_fit
 from .ingest import robot_data_sets
 from .lm import describe_implausible
 from .predict import model_document, outside_range, sampled_range
+from .rigid import chain_document, fit_rigid_chain, has_tables
 
 
 def check_spec_joints(spec, robot) -> None:
@@ -76,7 +77,14 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
         out["heldout"]["outside_sampled_range"] = int(outside_range(target.q_deg, rng).sum())
     out["cv_rms_mm"] = cross_validate(robot, effects, sample).rms
     out["cv_folds"] = fold_description(sample)
-    out.update(model_document(robot, effects, model, sample.q_deg, frame_info))
+    out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))
+    # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
+    chain, info = fit_rigid_chain(robot, model, sample)
+    out["rigid_chain"] = chain_document(chain, info, out["payloads_kg"])
+    if has_tables(robot, model):
+        # and the chain for drives that apply the joint tables (jointcal export --format table)
+        chain, info = fit_rigid_chain(robot, model, sample, with_tables=True)
+        out["rigid_chain_with_tables"] = chain_document(chain, info, out["payloads_kg"], with_tables=True)
     out["not_identified"] = out["identification"]["fixed"]
     out["converged"] = bool(getattr(model, "converged_", True))
     out["convergence"] = getattr(model, "convergence_", "")

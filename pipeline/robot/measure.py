@@ -61,7 +61,8 @@ def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
                        np.asarray(fr["rotation"], float), np.asarray(fr["translation_mm"], float))
 
 
-def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temperature_c=None, seed=None):
+def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temperature_c=None, seed=None,
+                  closed_loop_joints=()):
     """Move the cell to commanded poses (in visiting order) and measure the SMR.
 
     Parameters
@@ -74,11 +75,18 @@ def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temp
     temperature_c : ndarray, shape (n,), degC, optional (default 20)
     seed : int, optional
         Seed of the jitter and tracker noise (default the cell's).
+    closed_loop_joints : sequence of int (1-based)
+        Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the
+        grating reads the command); the others run open loop (the command, with the joint's
+        transmission error, compliance, backlash and jitter). Each must have a grating
+        (:meth:`VirtualCell.grating_joints`; ValueError otherwise).
 
     Returns
     -------
     dirs : ndarray, shape (n, N), int
     xyz_mm : ndarray, shape (n, 3), mm, robot base frame
+    gratings : ndarray, shape (n, G), deg, or None
+        With ``closed_loop_joints``: the readings of the cell's G gratings at the measured poses.
     """
     q = np.atleast_2d(np.asarray(q_cmd_deg, float))
     n = len(q)
@@ -87,12 +95,24 @@ def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temp
     payload = np.zeros(n) if payload_kg is None else np.asarray(payload_kg, float)
     temp = np.full(n, REFERENCE_TEMPERATURE_C) if temperature_c is None else np.asarray(temperature_c, float)
     rng = rng_for(cell.config["seed"] if seed is None else seed, PROGRAM)
-    q_true = cell.open_loop(q, dirs, payload, rng)
-    return np.asarray(dirs, int), cell.measure(q_true, rng, temp)
+    closed = sorted({int(j) for j in closed_loop_joints})
+    have = cell.grating_joints()
+    missing = [j for j in closed if j - 1 not in have]
+    if missing:
+        raise ValueError(f"joint {missing[0]} has no grating on this cell (gratings on joints "
+                         f"{', '.join(str(j + 1) for j in have) or 'none'}): it cannot run closed loop")
+    if closed:
+        J = [j - 1 for j in closed]
+        q_true, _ = cell.closed_loop(q, dirs, q[:, J], payload, rng, joints=J)
+        g = cell.gratings(q_true)[:, :len(have)]
+    else:
+        q_true, g = cell.open_loop(q, dirs, payload, rng), None
+    return np.asarray(dirs, int), cell.measure(q_true, rng, temp), g
 
 
-def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz_mm, sigma_mm):
-    """``poses.csv`` and ``tracker.csv`` text of a measured program (contract section 2)."""
+def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz_mm, sigma_mm, gratings=None):
+    """``poses.csv`` and ``tracker.csv`` text of a measured program (contract section 2); with
+    ``gratings`` (n, G) deg also the grating readings ``grating1_deg …`` (a closed-loop campaign)."""
     q = np.asarray(q_cmd_deg, float)
     poses = pd.DataFrame({"point_id": np.asarray(point_id, str), "set": np.asarray(sets, str)})
     for j in range(q.shape[1]):
@@ -101,6 +121,9 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
         poses[f"dir{j + 1}"] = np.asarray(dirs, int)[:, j]
     poses["payload_kg"] = [f"{v:g}" for v in payload_kg]
     poses["temperature_c"] = [f"{v:g}" for v in temperature_c]
+    if gratings is not None:
+        for j in range(np.asarray(gratings).shape[1]):
+            poses[f"grating{j + 1}_deg"] = [f"{v:.7f}" for v in np.asarray(gratings)[:, j]]
     tracker = pd.DataFrame({"point_id": poses["point_id"]})
     for k, c in enumerate(("x_mm", "y_mm", "z_mm")):
         tracker[c] = [f"{v:.6f}" for v in np.asarray(xyz_mm)[:, k]]

@@ -66,7 +66,7 @@ def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
     return np.any((q < lo - tol_deg) | (q > hi + tol_deg), axis=1)
 
 
-def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | None = None) -> dict:
+def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | None = None, sample=None) -> dict:
     """The JSON-ready description of a fitted robot model (the part of ``fit.json`` that predict reads).
 
     Parameters
@@ -80,6 +80,11 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
         Joint angles of the poses the model was fitted on.
     frame : dict, optional
         ``{"frame": "base" | "tracker", "tracker_to_base": 4x4 list (mm)}`` of the fit's campaign.
+    sample : RobotData, optional
+        The poses the model was fitted on: then the document also says which angle each joint's
+        model takes (``joint_angles``: ``"commanded"`` or the secondary encoder's column, e.g.
+        ``"grating1_deg"``) and the payloads it was fitted at (``payloads_kg``), which ``jointcal
+        correct`` and ``jointcal export`` assume (:mod:`pipeline.robot.rigid`).
     """
     ident = getattr(model, "identifiability_", None) or {}
     reasons = ident.get("fixed_reasons", {})
@@ -89,12 +94,19 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
         if p["fixed"]:
             entry["why_fixed"] = reasons.get(p["name"], {}).get("reason", "not identifiable on these poses")
         params.append(entry)
+    made_for = {}
+    if sample is not None:
+        from .rigid import fitted_payloads, joint_angle_sources
+
+        made_for = {"joint_angles": joint_angle_sources(robot.n_joints, getattr(sample, "grating_joints", ())),
+                    "payloads_kg": fitted_payloads(sample.payload_kg)}
     return {"version": DOCUMENT_VERSION,
             "robot_toml": robot.to_toml(),
             "spec_effects": [e.spec_lines() for e in getattr(model, "effects_", effects)],
             "parameters": params,
             "sampled_range": sampled_range(sample_q_deg),
             "frame": frame or {"frame": "base", "tracker_to_base": np.eye(4).tolist()},
+            **made_for,
             "identification": {"rank_tol": ident.get("rank_tol"), "condition_number": ident.get("condition_number"),
                                "fixed": {n: r.get("reason") for n, r in reasons.items()}}}
 

@@ -180,13 +180,17 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                 kin = results[s]["self"].get("kinematic", {}).get("rms_mm", float("nan"))
                 lines.append(f"{s:8s}{h['nominal_rms_mm']:9.3f}{kin:11.3f}{h['full_rms_mm']:12.3f}{h['chain_rms_mm']:11.3f}"
                              f"{h['chain_tables_rms_mm']:10.3f}  {', '.join(h['chain_tables_left_out']) or 'nothing'}")
-            lines += ["", "URDF / UR: the model's geometry, base and tool (jointcal export --format urdf or ur);",
-                      "+ tables: and the per-joint compensation tables (joint maps, backlash) in the drives",
-                      "(--format table). Only jointcal correct, which filters the program through the whole",
-                      "model, carries compliance: its commands land at the full model's error.",
-                      "kinematic: a geometry + base + tool fit on its own. The full model's chain alone is worse",
-                      "than that: its geometry was fitted together with the joint maps and compliance, which",
-                      "take part of the error; for a robot that takes only a URDF, export the kinematic fit."]
+            lines += ["", "URDF / UR: the rigid chain nearest the whole model (geometry, base and tool fitted to",
+                      "the model's own predictions at the poses it was fitted on; jointcal export --format urdf",
+                      "or ur); + tables: the chain fitted with the per-joint compensation tables (joint maps,",
+                      "backlash) applied in the drives (--format table, export --with-tables). Only jointcal",
+                      "correct, which filters the program through the whole model, carries compliance: its",
+                      "commands land at the full model's error. kinematic: a geometry + base + tool fit on its",
+                      "own; the URDF's chain is as good as it, the model's own geometry alone (fitted together",
+                      "with the joint maps and compliance) is not:"]
+            lines += [f"  {s}: the model's own geometry {h['model_geometry_rms_mm']:.3f} mm, with the tables "
+                      f"{h['model_geometry_tables_rms_mm']:.3f} mm" for s, h in exported.items()
+                      if "model_geometry_rms_mm" in h]
             text_page(pdf, "What reaches the robot: exports judged on held-out poses", lines)
 
         # the diagnosis loop: what was added each round, and the error it left (own, other series)

@@ -198,23 +198,34 @@ class VirtualCell:
         res = self.config["grating_resolution_deg"]
         return np.round(np.atleast_2d(q_true_deg)[:, :3] / res) * res
 
-    def closed_loop(self, q_cmd_deg, dirs, target123_deg, payload_kg, rng, trace=False):
+    #: joints (0-based) with an absolute grating on the paper's cell
+    GRATING_JOINTS = (0, 1, 2)
+
+    def grating_joints(self) -> tuple:
+        """0-based joints read by a grating: joints 1-3 on the paper's cell, none on a user's cell."""
+        return self.GRATING_JOINTS if self.config.get("gratings", True) else ()
+
+    def closed_loop(self, q_cmd_deg, dirs, target123_deg, payload_kg, rng, trace=False, joints=None):
         """Command ``q_cmd``, then run the grating loop on joints 1-3 to ``target123``.
 
-        Returns true joint angles (n, 6) deg and the loop's result (cycles, final errors).
+        ``joints``: the 0-based grating joints to run closed loop (default 1-3, in which case
+        ``target123_deg`` holds their targets, shape (n, len(joints))); the others stay open loop.
+        Returns true joint angles (n, N) deg and the loop's result (cycles, final errors).
         """
+        J = slice(0, 3) if joints is None else np.asarray(joints, int)
         q_cmd_deg = np.atleast_2d(q_cmd_deg)
         n = len(q_cmd_deg)
+        k = 3 if joints is None else len(J)
         q_true = self.open_loop(q_cmd_deg, dirs, payload_kg, rng)
-        offset = self.repeatable_offset_deg(q_cmd_deg, payload_kg)[:, :3]
-        jitter = q_true[:, :3] - (q_cmd_deg[:, :3] + offset - np.asarray(dirs)[:, :3] * self.backlash_deg[:3] / 2)
-        play = np.broadcast_to(self.backlash_deg[:3], (n, 3))
-        plant = JointPlant(q_cmd_deg[:, :3].ravel().copy(), play.ravel().copy(),
-                           (q_cmd_deg[:, :3] - np.asarray(dirs)[:, :3] * play / 2).ravel(),
+        offset = self.repeatable_offset_deg(q_cmd_deg, payload_kg)[:, J]
+        jitter = q_true[:, J] - (q_cmd_deg[:, J] + offset - np.asarray(dirs)[:, J] * self.backlash_deg[J] / 2)
+        play = np.broadcast_to(self.backlash_deg[J], (n, k))
+        plant = JointPlant(q_cmd_deg[:, J].ravel().copy(), play.ravel().copy(),
+                           (q_cmd_deg[:, J] - np.asarray(dirs)[:, J] * play / 2).ravel(),
                            (offset + jitter).ravel(), self.config["grating_resolution_deg"])
         res = run_loop(plant, np.asarray(target123_deg, float).ravel(), trace=trace)
         q_true = q_true.copy()
-        q_true[:, :3] = plant.output_deg.reshape(n, 3)
+        q_true[:, J] = plant.output_deg.reshape(n, k)
         return q_true, res
 
 

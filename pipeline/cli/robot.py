@@ -681,11 +681,13 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     click.echo(f"{json_out}: {result['done']}; the spec of round {result['final_round']} is the result", err=True)
 
 
-def fit_robot(campaign, spec, spec_path, out):
-    """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
+def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
+    """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`); wild measurements
+    named and left out (:mod:`pipeline.robot.outliers`) unless ``keep_outliers``."""
     from ..core.files import provenance, write_json
-    from ..robot.fit import fit_problems, robot_fit_result
+    from ..robot.fit import check_spec_joints, fit_problems, robot_fit_result
     from ..robot.ingest import robot_data_sets
+    from ..robot.outliers import describe, find_wild
 
     _edge()
     spec.require_kind("robot", campaign)
@@ -693,7 +695,11 @@ def fit_robot(campaign, spec, spec_path, out):
     outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if sample.n and target.n else []
     if outside:
         click.echo(f"jointcal: warning: {outside_message(outside, worst=True)}", err=True)
-    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info))
+    check_spec_joints(spec, robot)
+    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    if wild.outliers:
+        click.echo(f"jointcal: {describe(wild)}", err=True)
+    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild)
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
     files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]
     result["provenance"] = provenance(files, spec_path)
@@ -704,6 +710,10 @@ def fit_robot(campaign, spec, spec_path, out):
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
             f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "
+    hw = result.get("heldout_with_outliers")
+    if hw:
+        held += (f"with the {hw['n_target'] - h['n_target']} wild target(s): max {hw['after']['max_mm']:.3f} mm, "
+                 f"RMS {hw['rms_after_mm']:.3f} mm; ")
     fixed = result["not_identified"]
     weak = [n for n, why in fixed.items() if why.startswith("weakly")]
     click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "

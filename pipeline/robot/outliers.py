@@ -207,7 +207,7 @@ def describe(wild: Wild) -> str:
     """One console line naming the wild poses ('' when there are none)."""
     if not wild.outliers:
         return ""
-    what = "kept (--keep-outliers)" if wild.kept else "left out of the fit and of the held-out errors"
+    what = "kept (--keep-outliers)" if wild.kept else "left out (of fitting, registering and the errors)"
     names = ", ".join(f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm)"
                       for o in wild.outliers)
     return f"{len(wild.outliers)} wild measurement(s), {what}: {names}"

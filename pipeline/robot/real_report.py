@@ -68,9 +68,16 @@ def transfer_table(results: dict) -> dict:
             for other, pred in sorted(r["on"].get(spec, {}).items()):
                 row[f"{spec}_on_{other}"] = {**_stats(pred), "n": pred["n"],
                                              "outside_sampled_range": pred["outside_sampled_range"]}
+        wild = {o["point_id"]: o for fit in r["fits"].values() for o in fit.get("outliers", [])}
+        if wild:   # issue 23: the wild measurements the fits named and left out
+            row["outliers"] = [wild[k] for k in sorted(wild)]
         if "loop" in r:
             row["loop"] = [{"round": x["round"], "own": x["own"], "other": x["other"], "cv_rms_mm": x["cv_rms_mm"],
-                            "added": [a["label"] for a in x["recommended"]]} for x in r["loop"]["rounds"]]
+                            "added": [a["label"] for a in x["recommended"]],
+                            **({"own_with_outliers": x["own_with_outliers"]} if x.get("own_with_outliers") else {}),
+                            **({"swapped": f"{x['swap']['from']} -> {x['swap']['to']}"}
+                               if (x.get("swap") or {}).get("made") else {})}
+                           for x in r["loop"]["rounds"]]
         out[s] = row
     return out
 
@@ -202,12 +209,31 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                      f"{'round':>5}  {'CV RMS':>8}  {'own RMS / max':>15}  {'other RMS / max':>17}  added after this round"]
             for x in loop["rounds"]:
                 own, far = x["own"], x["other"]
-                added = ", ".join(a["label"] for a in x["recommended"]) or "nothing: the loop ends"
+                sw = x.get("swap") or {}
+                added = ", ".join(a["label"] for a in x["recommended"] if a["label"] not in x.get("dropped_for_swap", []))
+                if sw.get("made"):
+                    added = f"swap {sw['from']} -> {sw['to']}" + (f"; {added}" if added else "")
+                added = added or "nothing: the loop ends"
                 lines.append(f"{x['round']:>5}  {x['cv_rms_mm']:>8.3f}  {own['rms_mm']:>6.3f} / {own['max_mm']:>6.3f}  "
                              f"{(far or {}).get('rms_mm', float('nan')):>7.3f} / {(far or {}).get('max_mm', float('nan')):>6.3f}"
                              f"  {added}")
             # issue 16: each round's set verified by refitting it; rounds rolled back; the words it ends with
             lines.append("")
+            for key, where in (("outliers", s), ("other_outliers", ", ".join(o))):
+                wild = loop.get(key) or []
+                if wild:   # issue 23: named, left out of every fit and error above
+                    lines += _wrap(f"Wild measurements of series {where}, left out of the loop (own / other errors "
+                                   "above are without them): " + ", ".join(
+                                       f"{w['point_id']} ({w['set']}, tracker.csv line {w['line']}, {w['error_mm']:.2f} mm)"
+                                       for w in wild) + ".")
+            for x in loop["rounds"]:
+                if x.get("own_with_outliers"):
+                    w = x["own_with_outliers"]
+                    lines += _wrap(f"round {x['round']}: with the wild targets, own RMS {w['rms_mm']:.3f} mm, max "
+                                   f"{w['max_mm']:.3f} mm")
+                sw = x.get("swap") or {}
+                if sw.get("from"):
+                    lines += _wrap(f"round {x['round']}: swap {sw['why']}")
             for x in loop["rounds"]:
                 v = x.get("verified_set") or {}
                 if v.get("checked"):

@@ -12,8 +12,8 @@ NEIGHBOURS = 8
 #: More than this fraction of a campaign's poses wild: refused.
 MAX_WILD_FRACTION = 0.02
 
-RULE = (f"a pose is wild when its 3-D residual from a robust fit of a flexible model (the spec's effects + "
-        f"geometry, base, tool, a joint map on every joint, compliance, backlash) exceeds {WILD_SIGMAS:g} robust "
+RULE = (f"a pose is wild when its 3-D residual from a robust fit of a flexible model (geometry, base, "
+        f"tool, a joint map and compliance on every joint, backlash, the spec's other effects) exceeds {WILD_SIGMAS:g} robust "
         f"standard deviations (sigma = sqrt(median |r|^2 / 2.366)) and is not shared by its {NEIGHBOURS} nearest "
         f"sample poses in joint space; wild sample poses are refitted without until none changes; more than "
         f"{100 * MAX_WILD_FRACTION:g} % of the poses wild is refused")

@@ -6,9 +6,9 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
 ``robot diagnose-loop`` and ``predict``:
 
 1. **A model flexible enough that physics is not mistaken for a wild point** (:func:`flexible_effects`):
-   the spec's effects, plus geometry, base and tool, a joint map (an angle error of any shape over
-   the joint's angle) on every joint the spec has no angle-error effect on, compliance on every
-   joint and, when the poses approach from both sides, backlash. A missing effect of the kind
+   geometry, base and tool, a joint map (an angle error of any shape over the joint's angle) and
+   compliance on every joint, backlash on every joint approached from both sides, and the spec's
+   other effects (thermal, ...). A missing effect of the kind
    diagnosis can recommend is in it, so what it leaves is noise, the effects no model here has,
    and wild points.
 2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
@@ -72,24 +72,23 @@ class Wild:
                 target.subset(~self.target) if self.target.any() else target)
 
 
+#: Effects the flexible model has on every joint (a spec's own, on some joints or with other settings,
+#: are replaced by them): a joint map contains a joint's harmonics and curves of any shape.
+FLEXIBLE_PER_JOINT = ("joint_map", "joint_harmonic", "chebyshev", "compliance", "backlash")
+
+
 def flexible_effects(robot, effects, data) -> list:
-    """The spec's effects and what :mod:`pipeline.robot.outliers` adds to them (see the module docstring)."""
-    lines = [e.spec_lines() for e in effects]
-    names = {e.name for e in effects}
-    for name in ("geometry", "base", "tool"):
-        if name not in names:
-            lines.append(f'[[effect]]\nname = "{name}"')
-    covered = set()
-    for e in effects:
-        if e.name in ("joint_map", "joint_harmonic", "chebyshev"):
-            covered |= set(e.joints(robot))
-    free = [j for j in range(1, robot.n_joints + 1) if j not in covered]
-    if free:
-        lines.append(f'[[effect]]\nname = "joint_map"\njoints = {free}')
-    if "compliance" not in names:
-        lines.append('[[effect]]\nname = "compliance"')
-    if "backlash" not in names and all(np.unique(data.dir[:, j]).size > 1 for j in range(data.dir.shape[1])):
-        lines.append('[[effect]]\nname = "backlash"')
+    """The flexible model (see the module docstring): geometry, base, tool, a joint map and compliance on
+    every joint, backlash on every joint approached from both sides, and the spec's other effects
+    (thermal, ...). The same for every spec without such other effects, so that ``fit`` with any spec,
+    ``diagnose``, the loop and ``predict`` name the same points of a campaign."""
+    lines = ['[[effect]]\nname = "geometry"', '[[effect]]\nname = "base"', '[[effect]]\nname = "tool"']
+    lines += [e.spec_lines() for e in effects if e.name not in FLEXIBLE_PER_JOINT + ("geometry", "base", "tool")]
+    lines.append('[[effect]]\nname = "joint_map"')
+    lines.append('[[effect]]\nname = "compliance"')
+    both = [j + 1 for j in range(data.dir.shape[1]) if np.unique(data.dir[:, j]).size > 1]
+    if both:
+        lines.append(f'[[effect]]\nname = "backlash"\njoints = {both}')
     return list(parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(lines) + "\n", "<flexible model>").effects)
 
 

@@ -73,6 +73,10 @@ def diagnose_all(pairs, report_out):
         result, (adapter, spec, data) = run_diagnosis(campaign, spec_path)
         write_json(json_out, result)
         best = [c for c in result["candidates"] if c["meaningful"]]
+        if result.get("outliers"):
+            click.echo(f"  {json_out}: wild measurements left out: " + ", ".join(
+                f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm)"
+                for o in result["outliers"]), err=True)
         click.echo(f"  {json_out}: baseline CV RMS {result['baseline']['cv_rms']:.4g} {result['baseline']['unit']}; "
                    + (f"missing: {', '.join(c['effect'] + ('' if c['target'] is None else ' ' + str(c['target'])) for c in best)}"
                       if best else "nothing meaningful missing"), err=True)

@@ -15,6 +15,7 @@ import click
 
 from ..core.campaign import campaign_kind
 from ..core.errors import InputError
+from ..core.wild import HELP as WILD_HELP
 from .common import fail_spec, load_spec, read_interim, read_json
 from .robot import fit_robot, ingest_robot_to, validate_robot
 
@@ -72,7 +73,8 @@ def validate(campaign):
               help="Selection JSON (jointcal select). Without it, orders the spec leaves open are chosen by "
                    "the spec's [select] rule on the modelling runs.")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Model JSON to write.")
-def fit(interim, campaign, spec_path, orders_path, out):
+@click.option("--keep-outliers", is_flag=True, help="Robot campaign: " + WILD_HELP)
+def fit(interim, campaign, spec_path, orders_path, out, keep_outliers):
     """Fit the spec's model and judge it on data it was not fitted on (encoder or robot).
 
     \b
@@ -96,7 +98,7 @@ def fit(interim, campaign, spec_path, orders_path, out):
         raise click.UsageError("give exactly one of --interim or --campaign")
     if campaign is not None:
         if campaign_kind(campaign) == "robot":
-            fit_robot(campaign, spec, spec_path, out)
+            fit_robot(campaign, spec, spec_path, out, keep_outliers)
             return
         frame = ingest_encoder(campaign)
     else:

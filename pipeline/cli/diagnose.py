@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import click
 
+from ..core.wild import HELP as WILD_HELP
 
 
 @click.command()
@@ -20,7 +21,8 @@ import click
 @click.option("--workers", type=click.IntRange(1, 64), default=1, show_default=True,
               help="Processes for the candidates' fits (robot: each candidate is a linear correction to one "
                    "shared fit, so 1 is usually as fast).")
-def diagnose(campaign, spec_path, json_out, report_out, quiet, workers):
+@click.option("--keep-outliers", is_flag=True, help="Robot campaign: " + WILD_HELP)
+def diagnose(campaign, spec_path, json_out, report_out, quiet, workers, keep_outliers):
     """Find where the spec's model fails and which physical effect is missing.
 
     Fits the spec's model with cross-validation (folds by run for an encoder, by pose
@@ -44,7 +46,7 @@ def diagnose(campaign, spec_path, json_out, report_out, quiet, workers):
         if not quiet:
             click.echo(f"  {msg}", err=True)
 
-    result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress, workers)
+    result, (adapter, spec, data) = run_diagnosis(campaign, spec_path, progress, workers, keep_outliers)
     write_json(json_out, result)
     if report_out:
         from ..diagnosis.report import diagnosis_report  # matplotlib (0.4 s): only with --report
@@ -71,6 +73,10 @@ def diagnose_all(pairs, report_out):
         result, (adapter, spec, data) = run_diagnosis(campaign, spec_path)
         write_json(json_out, result)
         best = [c for c in result["candidates"] if c["meaningful"]]
+        if result.get("outliers"):
+            click.echo(f"  {json_out}: wild measurements left out: " + ", ".join(
+                f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm)"
+                for o in result["outliers"]), err=True)
         click.echo(f"  {json_out}: baseline CV RMS {result['baseline']['cv_rms']:.4g} {result['baseline']['unit']}; "
                    + (f"missing: {', '.join(c['effect'] + ('' if c['target'] is None else ' ' + str(c['target'])) for c in best)}"
                       if best else "nothing meaningful missing"), err=True)

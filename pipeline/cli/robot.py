@@ -17,6 +17,7 @@ from pathlib import Path
 import click
 
 from ..core.errors import InputError
+from ..core.wild import HELP as WILD_HELP
 from .common import HiddenOption, load_spec
 
 DEFAULT_SPEC = "specs/robot_paper.toml"
@@ -633,19 +634,25 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
                    "and refused.")
 @click.option("--spec-out", default=None, type=click.Path(dir_okay=False), help="The spec the loop ends with.")
 @click.option("--rounds", type=click.IntRange(1, 10), default=5, show_default=True, help="Rounds at most.")
-def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, rounds):
+@click.option("--keep-outliers", is_flag=True, help=WILD_HELP)
+def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, rounds, keep_outliers):
     """The user's loop, run for you: diagnose, add every recommended effect, diagnose again, until
     nothing is recommended. Prints each round's held-out error (mm) on the campaign's own target
     poses and, with --other, on the other series' target poses (jointcal predict --register).
 
     Each round's recommended set is verified by refitting it (by pose and by region); a round whose
     cross-validated RMS is not below the round before's is rolled back and its candidates added one
-    at a time, best first, each kept only if it helps. The loop never ends worse than it started."""
+    at a time, best first, each kept only if it helps. The loop never ends worse than it started.
+
+    A round may also swap a member of the model for the effect that overlaps it (joint_harmonic j,
+    joint_map j, chebyshev j) when the model with the swap verifies better, every fold refitted, by
+    pose and by region (rounds 1-2). Wild measurements of both series are named and left out."""
     from ..core.files import read_text_input, write_json, write_text
     from ..core.spec import load_spec
     from ..diagnosis.engine import verified_text
     from ..diagnosis.loop import diagnosis_loop
     from ..robot.ingest import robot_data_sets
+    from ..robot.outliers import describe, find_wild
 
     _edge()
     spec = load_spec(spec_path)
@@ -654,14 +661,28 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     from ..robot.fit import check_spec_joints
 
     check_spec_joints(spec, robot)
-    other = robot_data_sets(other_campaign, ("sample",), ("target",))[1] if other_campaign else None
+    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    if wild.outliers:
+        click.echo(f"jointcal: {campaign}: {describe(wild)}", err=True)
+    target_all = target if (wild.target.any() and not wild.kept) else None
+    sample, target = wild.clean(sample, target)
+    other, wild_other = None, None
+    if other_campaign:
+        robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
+        wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
+        if wild_other.outliers:
+            click.echo(f"jointcal: {other_campaign}: {describe(wild_other)}", err=True)
+        other = wild_other.clean(os_, ot)
 
     def say(msg):
         click.echo(f"  {msg}", err=True)
 
     result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, rounds, say,
-                            repeat=repeat)
+                            repeat=repeat, target_all=target_all)
     result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
+    result.update(wild.document())
+    if wild_other is not None:
+        result["other_outliers"] = wild_other.outliers
     write_json(json_out, result)
     if spec_out:
         write_text(spec_out, result["final_spec"])
@@ -674,6 +695,11 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
         v = r.get("verified_set") or {}
         if v.get("checked"):
             click.echo(f"  {verified_text(v, 'mm')}", err=True)
+        if r.get("own_with_outliers"):
+            w = r["own_with_outliers"]
+            click.echo(f"  with the wild targets: held-out RMS {w['rms_mm']:.3f} mm (max {w['max_mm']:.3f})", err=True)
+        if (r.get("swap") or {}).get("from"):
+            click.echo(f"  round {r['round']}: swap {r['swap']['why']}", err=True)
         if r.get("rolled_back"):
             click.echo(f"  round {r['round']}: {r['rolled_back']}; one at a time: "
                        + ", ".join(f"{t['label']} {'kept' if t['kept'] else 'left out'}" for t in r["one_at_a_time"]),
@@ -681,11 +707,13 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     click.echo(f"{json_out}: {result['done']}; the spec of round {result['final_round']} is the result", err=True)
 
 
-def fit_robot(campaign, spec, spec_path, out):
-    """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`)."""
+def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
+    """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`); wild measurements
+    named and left out (:mod:`pipeline.robot.outliers`) unless ``keep_outliers``."""
     from ..core.files import provenance, write_json
-    from ..robot.fit import fit_problems, robot_fit_result
+    from ..robot.fit import check_spec_joints, fit_problems, robot_fit_result
     from ..robot.ingest import robot_data_sets
+    from ..robot.outliers import describe, find_wild
 
     _edge()
     spec.require_kind("robot", campaign)
@@ -693,7 +721,11 @@ def fit_robot(campaign, spec, spec_path, out):
     outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if sample.n and target.n else []
     if outside:
         click.echo(f"jointcal: warning: {outside_message(outside, worst=True)}", err=True)
-    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info))
+    check_spec_joints(spec, robot)
+    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    if wild.outliers:
+        click.echo(f"jointcal: {describe(wild)}", err=True)
+    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild)
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
     files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]
     result["provenance"] = provenance(files, spec_path)
@@ -704,6 +736,10 @@ def fit_robot(campaign, spec, spec_path, out):
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
             f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "
+    hw = result.get("heldout_with_outliers")
+    if hw:
+        held += (f"with the {hw['n_target'] - h['n_target']} wild target(s): max {hw['after']['max_mm']:.3f} mm, "
+                 f"RMS {hw['rms_after_mm']:.3f} mm; ")
     fixed = result["not_identified"]
     weak = [n for n, why in fixed.items() if why.startswith("weakly")]
     click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "
@@ -721,18 +757,22 @@ def fit_robot(campaign, spec, spec_path, out):
 @click.option("--register", is_flag=True,
               help="Estimate the rigid tracker-to-base transform again on the campaign's sample poses first "
                    "(the tracker was moved); every other parameter is the model's.")
-def predict_cmd(campaign, model_path, json_out, register):
+@click.option("--keep-outliers", is_flag=True, help=WILD_HELP)
+def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
     """Predict every pose of another campaign with a fitted model and compare with its tracker points.
 
     Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
     none): n, rms_mm, max_mm, mean_mm, std_mm, outside_sampled_range (poses outside the joint
-    ranges the model was fitted on, where it extrapolates) and one line per point.
+    ranges the model was fitted on, where it extrapolates) and one line per point. Wild measurements
+    of the campaign are named and left out of the registration and of those errors (``with_outliers``:
+    the errors with the wild targets beside); see --keep-outliers.
     """
     import numpy as np
 
     from ..core.files import provenance, write_json
     from ..robot.frame import apply, from_matrix
     from ..robot.ingest import robot_data_sets
+    from ..robot.outliers import describe, find_wild
     from ..robot.predict import load_model_document, predict_campaign, same_robot_problem
 
     _edge()
@@ -747,10 +787,24 @@ def predict_cmd(campaign, model_path, json_out, register):
         # the tracker has not moved: its points go through the fit campaign's transform
         raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
         meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
+    sets = table["set"].to_numpy().astype(object)
+    wild = find_wild(robot, effects, data.subset(sets == "sample"), data.subset(sets == "target"), campaign,
+                     keep_outliers)
+    if wild.outliers:
+        click.echo(f"jointcal: {describe(wild)}", err=True)
+    if not wild.kept:
+        sets[np.flatnonzero(sets == "sample")[wild.sample]] = "wild"
+    clean = sets.copy()
+    if not wild.kept:
+        clean[np.flatnonzero(sets == "target")[wild.target]] = "wild"
     try:
-        result = predict_campaign(model, data, table["set"].to_numpy(), meas, sampled, register)
+        result = predict_campaign(model, data, clean, meas, sampled, register)
+        if wild.target.any() and not wild.kept:
+            full = predict_campaign(model, data, sets, meas, sampled, register)
+            result["with_outliers"] = {k: full[k] for k in ("n", "rms_mm", "max_mm", "mean_mm", "std_mm")}
     except ValueError as exc:
         raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
+    result.update(wild.document())
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
     result["provenance"] = provenance([f for f in files if f.exists()] + [model_path])
     write_json(json_out, result)
@@ -758,5 +812,7 @@ def predict_cmd(campaign, model_path, json_out, register):
     click.echo(f"{json_out}: {result['n']} {result['evaluated_on']} poses: RMS {result['rms_mm']:.3f} mm, max "
                f"{result['max_mm']:.3f} mm; {result['outside_sampled_range']} outside the sampled joint ranges"
                + (f"; re-registered on {reg['n']} sample poses ({reg['rotation_deg']:.3f} deg, "
-                  f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else ""), err=True)
+                  f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else "")
+               + (f"; with the wild targets: RMS {result['with_outliers']['rms_mm']:.3f} mm, max "
+                  f"{result['with_outliers']['max_mm']:.3f} mm" if "with_outliers" in result else ""), err=True)
 

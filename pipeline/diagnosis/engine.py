@@ -374,6 +374,10 @@ def format_table(result: dict, width: int = 110) -> str:
     unit = result["baseline"]["unit"]
     lines = [f"baseline ({' + '.join(result['baseline']['effects']) or 'nothing'}): cross-validated RMS "
              f"{result['baseline']['cv_rms']:.4g} {unit}  [{result['baseline'].get('folds', '')}]", ""]
+    for o in result.get("outliers") or []:
+        lines.insert(-1, f"wild measurement: {o['point_id']} ({o['set']}, tracker.csv line {o['line']}): "
+                         f"{o['error_mm']:.3f} mm off" + (" (kept)" if result["outlier_rule"].get("kept") else
+                                                            " (left out)"))
     region = "cv_rms_region" in result["baseline"]
     head = (f"{'#':>2}  {'effect':<15}{'target':>7}  {'cv_rms_with':>11}  {'gain':>7}"
             + (f"  {'regions':>8}" if region else "") + f"  {'p':>8}  meaningful")

@@ -5,21 +5,37 @@ on the campaign's own held-out target poses and, when another measurement series
 is given, on that series' target poses after re-estimating only the tracker-to-base transform on
 its sample poses (as ``jointcal predict --register`` does); then diagnoses the spec and adds every
 recommended candidate's ``[[effect]]`` lines (a set diagnosis verified by refitting it). It stops
-when nothing is recommended; a round that does not lower the cross-validated error is rolled back.
+when nothing is recommended and no swap helps; a round that does not lower the cross-validated error
+is rolled back.
+
+A round may also **swap**: a member of the model that has an overlapping effect (``joint_harmonic`` j,
+``joint_map`` j, ``chebyshev`` j model the same joint's angle error, and a round never adds one beside
+the other) is replaced by it when the model with the replacement verifies better - every fold
+refitted, lower by pose by at least diagnosis' ``min_gain`` and lower by region (:func:`try_swap`).
+Without it the first pick of a pair would be permanent.
 """
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from ..core.spec import parse_spec
+from ..robot.effects import jh_orders
 from ..robot.evaluate import fit_effects
 from ..robot.frame import apply, rigid_fit
-from .engine import diagnose, done_text, label
+from .engine import MIN_GAIN, diagnose, done_text, label
 from .robot import RobotAdapter
 
 #: Rounds at most (the loop is expected to end within three).
 MAX_ROUNDS = 5
+#: Effects that model the same joint's angle error (``overlaps_with`` of each other): a swap replaces
+#: one of them on a joint by another.
+SWAPPABLE = ("joint_map", "joint_harmonic", "chebyshev")
+#: Swaps are tried in the first rounds only (a swap needs the next round to measure it: the loop
+#: still ends within three rounds).
+SWAP_ROUNDS = 2
 
 
 def _stats(err) -> dict:
@@ -44,8 +60,102 @@ def model_cv(robot, effects, sample) -> tuple[float, float]:
             adapter.cross_validate(list(effects), sample, folds="region").rms)
 
 
+def refit_cv(robot, effects, sample, cache=None) -> tuple[float, float]:
+    """Cross-validated RMS (mm) of a model with every fold refitted, by pose and by region (how
+    diagnosis verifies a set): how a swap is verified."""
+    a, b = RobotAdapter(robot, refit_cache=cache).refit_cv(list(effects), sample)
+    return a.rms, b.rms
+
+
+def _one_joint(name: str, j: int, sample) -> str:
+    """The ``[[effect]]`` lines of effect ``name`` on joint ``j`` alone (a joint harmonic: every order
+    diagnosis tries on the joint's sampled range, :func:`pipeline.robot.effects.jh_orders`)."""
+    if name == "joint_harmonic":
+        return f'[[effect]]\nname = "joint_harmonic"\njoints = [{j}]\norders = {jh_orders(sample.q_deg[:, j - 1])}'
+    return f'[[effect]]\nname = "{name}"\njoints = [{j}]'
+
+
+def _member_label(e, j) -> str:
+    text = f"{e.name} joint {j}"
+    if e.name == "joint_harmonic":
+        text += f" order {', '.join(map(str, e.orders()))}"
+    return text
+
+
+def swap_options(robot, effects, sample) -> list[dict]:
+    """Every model one swap away: a member of :data:`SWAPPABLE` replaced on one of its joints by each
+    other effect of :data:`SWAPPABLE` the model does not have on that joint. Each: ``from``, ``to``
+    (labels) and ``lines`` (the new model's ``[[effect]]`` lines, the replacement in the member's place)."""
+    out = []
+    for i, e in enumerate(effects):
+        if e.name not in SWAPPABLE:
+            continue
+        joints = list(e.joints(robot))
+        for j in joints:
+            for alt in SWAPPABLE:
+                if alt == e.name or any(o.name == alt and j in o.joints(robot) for o in effects):
+                    continue
+                rest = [j2 for j2 in joints if j2 != j]
+                keep = [type(e)(**{**e.params, "joints": rest}).spec_lines()] if rest else []
+                lines = ([x.spec_lines() for x in effects[:i]] + [_one_joint(alt, j, sample)] + keep
+                         + [x.spec_lines() for x in effects[i + 1:]])
+                out.append({"from": _member_label(e, j), "to": f"{alt} joint {j}", "lines": lines})
+    return out
+
+
+def _with_effects(text: str, lines: list[str]) -> str:
+    """``text`` (a spec) with its ``[[effect]]`` tables replaced by ``lines`` (its header kept)."""
+    m = re.search(r"^\s*\[\[effect\]\]", text, re.M)
+    head = text[:m.start()] if m else text
+    return head.rstrip() + "\n\n" + "\n\n".join(x.rstrip() for x in lines) + "\n"
+
+
+def try_swap(robot, text: str, sample, cache=None, say=None, min_gain: float = MIN_GAIN) -> dict | None:
+    """The best swap of the model ``text`` if one verifies better (see the module docstring); None
+    when the model has nothing to swap.
+
+    Each swap is screened as diagnosis screens a candidate (:func:`model_cv`: one shared fit,
+    corrected linearly fold by fold); the best one below the model by pose and by region is verified
+    with every fold refitted (:func:`refit_cv`). Returns ``made``, ``from``, ``to``, the numbers and
+    ``text`` (the swapped spec, when made)."""
+    say = say or (lambda s: None)
+    effects = list(parse_spec(text, "<loop spec>").effects)
+    options = swap_options(robot, effects, sample)
+    if not options:
+        return None
+    base = model_cv(robot, effects, sample)
+    screened = []
+    for o in options:
+        trial = _with_effects(text, o["lines"])
+        cv, cv_r = model_cv(robot, list(parse_spec(trial, "<loop spec>").effects), sample)
+        screened.append({"from": o["from"], "to": o["to"], "cv_rms_mm": cv, "cv_rms_region_mm": cv_r, "text": trial})
+        say(f"  swap {o['from']} -> {o['to']}: {cv:.4g} mm by pose, {cv_r:.4g} mm by region "
+            f"(the model: {base[0]:.4g} / {base[1]:.4g})")
+    out = {"made": False, "baseline_cv_rms_mm": base[0], "baseline_cv_rms_region_mm": base[1],
+           "screened": [{k: v for k, v in x.items() if k != "text"} for x in screened]}
+    better = [x for x in screened if x["cv_rms_mm"] < base[0] * (1.0 - min_gain) and x["cv_rms_region_mm"] < base[1]]
+    if not better:
+        out["why"] = "no swap lowers the error by pose and by region"
+        return out
+    best = min(better, key=lambda x: (x["cv_rms_mm"], x["cv_rms_region_mm"]))
+    b, br = refit_cv(robot, effects, sample, cache)
+    s, sr = refit_cv(robot, list(parse_spec(best["text"], "<loop spec>").effects), sample, cache)
+    made = s < b * (1.0 - min_gain) and sr < br
+    out.update({"from": best["from"], "to": best["to"], "made": bool(made),
+                "verified": {"cv_rms_mm": s, "cv_rms_region_mm": sr, "baseline_cv_rms_mm": b,
+                             "baseline_cv_rms_region_mm": br,
+                             "method": "each fold refitted (nonlinear least squares from the start), by pose and "
+                                       "by region"}})
+    out["why"] = (f"{best['from']} -> {best['to']}, every fold refitted: {b:.4g} -> {s:.4g} mm by pose, "
+                  f"{br:.4g} -> {sr:.4g} mm by region: " + ("swapped" if made else "not better: kept as it was"))
+    say(f"swap {out['why']}")
+    if made:
+        out["text"] = best["text"]
+    return out
+
+
 def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds: int = MAX_ROUNDS,
-                   progress=None, repeat=None) -> dict:
+                   progress=None, repeat=None, target_all=None) -> dict:
     """Run the loop (see the module docstring).
 
     A round is kept only when its cross-validated RMS, by pose and by region, is lower than the
@@ -64,12 +174,16 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         Sample and target poses of another series of the same robot.
     repeat : RobotData, optional
         The campaign's repeat poses (the noise estimate).
+    target_all : RobotData, optional
+        The target poses with the wild ones (``target`` is without them): each round's error on them
+        too, ``own_with_outliers``.
 
     Returns
     -------
     dict with ``rounds`` (each: ``effects``, ``own`` and ``other`` error statistics in mm, the
     diagnosis' ``cv_rms_mm`` and ``cv_rms_region_mm``, ``recommended``, ``refused``, ``verified_set``,
-    ``kept`` and, for a round rolled back, ``rolled_back`` and ``one_at_a_time``), ``final_spec``
+    ``kept``, ``swap`` (:func:`try_swap`, when the model had something to swap) and, for a round rolled
+    back, ``rolled_back`` and ``one_at_a_time``), ``final_spec``
     (TOML text of the last round kept), ``final_round``, ``ended`` and ``done`` (in words).
     """
     say = progress or (lambda s: None)
@@ -83,6 +197,8 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         row = {"round": k, "effects": [e.spec_lines() for e in spec.effects],
                "own": _stats(target.measured_mm - model.predict(target)) if target.n else None,
                "other": _stats(errors_elsewhere(model, *other)) if other is not None else None,
+               **({"own_with_outliers": _stats(target_all.measured_mm - model.predict(target_all))}
+                  if target_all is not None and target_all.n else {}),
                "converged": bool(model.converged_), "plausible": bool(model.plausible_)}
         result = diagnose(RobotAdapter(robot, repeat=repeat, refit_cache=refits), spec, sample, progress=say)
         best = [c for c in result["candidates"] if c["meaningful"]]
@@ -122,10 +238,25 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         row["kept"] = True
         prev = {"round": k, "cv": row["cv_rms_mm"], "cv_region": row["cv_rms_region_mm"], "text": text,
                 "recommended": row["recommended"]}
-        if not best:
-            done = f"nothing recommended: {done_text(result)}"
+        swap = try_swap(robot, text, sample, refits, say) if (k <= SWAP_ROUNDS and k < max_rounds) else None
+        if swap is not None:
+            row["swap"] = {x: v for x, v in swap.items() if x != "text"}
+        if not best and not (swap and swap["made"]):
+            done = f"nothing recommended: {done_text(result)}" + ("; no swap verifies better" if swap else "")
             break
-        text += "\n" + "\n\n".join(c["spec_line"] for c in best) + "\n"
+        if swap and swap["made"]:
+            text = swap["text"]
+            alt = [e for e in parse_spec(text, "<loop spec>").effects if e.name == swap["to"].split()[0]]
+            added = []
+            for c in best:
+                obj = parse_spec(f"[model]\nkind = \"robot\"\n\n{c['spec_line']}\n", "<candidate>").effects[0]
+                if any(obj.overlaps(a, robot) for a in alt):
+                    row.setdefault("dropped_for_swap", []).append(label(c))
+                else:
+                    added.append(c)
+            best = added
+        if best:
+            text += "\n" + "\n\n".join(c["spec_line"] for c in best) + "\n"
     final = max((r for r in rounds if r.get("kept")), key=lambda r: r["round"])
     return {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
             "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}

@@ -135,6 +135,22 @@ def residual_spectrum(angle_deg, residuals, max_order=MAX_ORDER, noise=False):
 
 
 # ------------------------------------------------------------------------------ page 1
+def wild_lines(result, wrap) -> list[str]:
+    """The wild measurements named (contract section 12), one line each; [] when there are none."""
+    wild = result.get("outliers") or []
+    if not wild:
+        return []
+    kept = (result.get("outlier_rule") or {}).get("kept")
+    out = [f"Wild measurements ({len(wild)}): " + ("kept in the fit (--keep-outliers)" if kept else
+                                                   "left out of the fit and of every cross-validation")]
+    for o in wild:
+        out += wrap(f"- {o['point_id']} ({o['set']}, tracker.csv line {o['line']}): {o['error_mm']:.3f} mm off")
+    rule = (result.get("outlier_rule") or {}).get("rule")
+    if rule:
+        out += wrap(f"rule: {rule}")
+    return out + [""]
+
+
 def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     """The summary page's lines (plain text, wrapped to ``width``)."""
     b = result["baseline"]
@@ -148,6 +164,7 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     else:
         lines += wrap(" + ".join(b["effects"]) or "nothing")
     lines += [f"Cross-validated RMS: {b['cv_rms']:.4g} {unit}   ({b.get('folds', 'held-out folds')})", ""]
+    lines += wild_lines(result, wrap)
     if th:
         lines += wrap(f"A candidate is meaningful when its gain >= {100 * th['min_gain']:.3g} % and "
                       f"p <= alpha / N = {th['alpha']:g} / {len(result['candidates'])} = {th['p_max']:.2g} "

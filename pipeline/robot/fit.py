@@ -47,7 +47,7 @@ def stage_effects(spec, stage: str):
     return [e for e in spec.effects if e.name in names]
 
 
-def robot_fit_result(campaign, spec, loaded=None) -> dict:
+def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
@@ -56,6 +56,8 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
     reads it: robot, effects, every parameter with its unit and why it was left at nominal if it
     was, the sampled joint ranges, the tracker-to-base transform). ``loaded``: the campaign
     already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
+    ``wild``: the campaign's wild poses (:func:`pipeline.robot.outliers.find_wild`), left out of the
+    fit, the cross-validation and the held-out errors (given with them beside, ``heldout_with_outliers``).
     """
     frame_info = None
     if loaded is None:
@@ -64,6 +66,9 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
         robot, sample, target, *rest = loaded
         frame_info = rest[0] if rest else None
     check_spec_joints(spec, robot)
+    target_all = target
+    if wild is not None:
+        sample, target = wild.clean(sample, target)
     if sample.n == 0:
         raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on "
                          "(to check a fitted model on these poses, use jointcal predict)", 1, "set")
@@ -75,6 +80,11 @@ def robot_fit_result(campaign, spec, loaded=None) -> dict:
         out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
         rng = sampled_range(sample.q_deg)
         out["heldout"]["outside_sampled_range"] = int(outside_range(target.q_deg, rng).sum())
+    if wild is not None:
+        out.update(wild.document())
+        if target_all.n > target.n:
+            out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
+            out["heldout_with_outliers"].pop("parameters", None)
     out["cv_rms_mm"] = cross_validate(robot, effects, sample).rms
     out["cv_folds"] = fold_description(sample)
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))

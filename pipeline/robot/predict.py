@@ -179,7 +179,8 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     data : RobotData
         Every pose of the other campaign (joint angles deg, directions, torques N m).
     sets : ndarray of str, shape (n,)
-        ``sample`` / ``target`` / ``repeat`` of each pose.
+        ``sample`` / ``target`` / ``repeat`` of each pose; ``wild`` for a pose left out of the
+        registration and of the errors (:mod:`pipeline.robot.outliers`).
     measured_mm : ndarray, shape (n, 3), mm
         Tracker points in the model's base frame (without ``register``), or in any frame
         (with ``register``: only a rigid transform onto the predictions is estimated).
@@ -211,7 +212,7 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
                         "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
     ev = sets == "target"
     if not ev.any():
-        ev = np.ones(len(sets), bool)
+        ev = sets != "wild"     # every pose but the wild ones (pipeline.robot.outliers)
     err = meas[ev] - pred[ev]
     out = error_summary(err)
     out["outside_sampled_range"] = int(outside_range(data.q_deg[ev], sampled).sum())

@@ -63,14 +63,25 @@ def transfer_table(results: dict) -> dict:
             row[spec] = {"rms_mm": h["rms_after_mm"], "max_mm": h["after"]["max_mm"], "mean_mm": h["after"]["mean_mm"],
                          "std_mm": h["after"]["std_mm"]}
             row[f"{spec}_cv_rms_mm"] = fit.get("cv_rms_mm")
+            hw = fit.get("heldout_with_outliers")
+            if hw:   # issue 23: the own held-out error with the wild targets, beside the one without them
+                row[f"{spec}_with_outliers"] = {"rms_mm": hw["rms_after_mm"], "max_mm": hw["after"]["max_mm"],
+                                                "mean_mm": hw["after"]["mean_mm"], "n": hw["n_target"]}
             row[f"{spec}_left_at_nominal"] = sorted(n for n, why in fit.get("not_identified", {}).items()
                                                     if str(why).startswith("weakly"))
             for other, pred in sorted(r["on"].get(spec, {}).items()):
                 row[f"{spec}_on_{other}"] = {**_stats(pred), "n": pred["n"],
                                              "outside_sampled_range": pred["outside_sampled_range"]}
+        wild = {o["point_id"]: o for fit in r["fits"].values() for o in fit.get("outliers", [])}
+        if wild:   # issue 23: the wild measurements the fits named and left out
+            row["outliers"] = [wild[k] for k in sorted(wild)]
         if "loop" in r:
             row["loop"] = [{"round": x["round"], "own": x["own"], "other": x["other"], "cv_rms_mm": x["cv_rms_mm"],
-                            "added": [a["label"] for a in x["recommended"]]} for x in r["loop"]["rounds"]]
+                            "added": [a["label"] for a in x["recommended"]],
+                            **({"own_with_outliers": x["own_with_outliers"]} if x.get("own_with_outliers") else {}),
+                            **({"swapped": f"{x['swap']['from']} -> {x['swap']['to']}"}
+                               if (x.get("swap") or {}).get("made") else {})}
+                           for x in r["loop"]["rounds"]]
         out[s] = row
     return out
 
@@ -142,7 +153,12 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
         head = f"{'series / model':44s}{'RMS':>8s}{'max':>8s}{'mean':>8s}"
         for s in series:
             t = table[s]
-            lines += [f"Series {s}: {t['n_sample']} sample, {t['n_target']} target poses", head]
+            lines += [f"Series {s}: {t['n_sample']} sample, {t['n_target']} target poses"]
+            if t.get("outliers"):
+                lines += _wrap(f"  wild measurements, left out of every fit and error below (docs/wild-points.md): "
+                               + ", ".join(f"{w['point_id']} ({w['set']}, tracker.csv line {w['line']}, "
+                                           f"{w['error_mm']:.2f} mm)" for w in t["outliers"]))
+            lines.append(head)
             lines.append(f"  {'nominal kinematics':42s}{t['nominal']['rms_mm']:8.3f}{t['nominal']['max_mm']:8.3f}"
                          f"{t['nominal']['mean_mm']:8.3f}")
             for spec in SPECS:
@@ -150,6 +166,9 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                     continue
                 e = t[spec]
                 lines.append(f"  {spec + ' (own held-out poses)':42s}{e['rms_mm']:8.3f}{e['max_mm']:8.3f}{e['mean_mm']:8.3f}")
+                w = t.get(f"{spec}_with_outliers")
+                if w:
+                    lines.append(f"  {'  with the wild targets':42s}{w['rms_mm']:8.3f}{w['max_mm']:8.3f}{w['mean_mm']:8.3f}")
                 for k in sorted(t):
                     if k.startswith(f"{spec}_on_"):
                         o = t[k]
@@ -206,12 +225,31 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                      f"{'round':>5}  {'CV RMS':>8}  {'own RMS / max':>15}  {'other RMS / max':>17}  added after this round"]
             for x in loop["rounds"]:
                 own, far = x["own"], x["other"]
-                added = ", ".join(a["label"] for a in x["recommended"]) or "nothing: the loop ends"
+                sw = x.get("swap") or {}
+                added = ", ".join(a["label"] for a in x["recommended"] if a["label"] not in x.get("dropped_for_swap", []))
+                if sw.get("made"):
+                    added = f"swap {sw['from']} -> {sw['to']}" + (f"; {added}" if added else "")
+                added = added or "nothing: the loop ends"
                 lines.append(f"{x['round']:>5}  {x['cv_rms_mm']:>8.3f}  {own['rms_mm']:>6.3f} / {own['max_mm']:>6.3f}  "
                              f"{(far or {}).get('rms_mm', float('nan')):>7.3f} / {(far or {}).get('max_mm', float('nan')):>6.3f}"
                              f"  {added}")
             # issue 16: each round's set verified by refitting it; rounds rolled back; the words it ends with
             lines.append("")
+            for key, where in (("outliers", s), ("other_outliers", ", ".join(o))):
+                wild = loop.get(key) or []
+                if wild:   # issue 23: named, left out of every fit and error above
+                    lines += _wrap(f"Wild measurements of series {where}, left out of the loop (own / other errors "
+                                   "above are without them): " + ", ".join(
+                                       f"{w['point_id']} ({w['set']}, tracker.csv line {w['line']}, {w['error_mm']:.2f} mm)"
+                                       for w in wild) + ".")
+            for x in loop["rounds"]:
+                if x.get("own_with_outliers"):
+                    w = x["own_with_outliers"]
+                    lines += _wrap(f"round {x['round']}: with the wild targets, own RMS {w['rms_mm']:.3f} mm, max "
+                                   f"{w['max_mm']:.3f} mm")
+                sw = x.get("swap") or {}
+                if sw.get("from"):
+                    lines += _wrap(f"round {x['round']}: swap {sw['why']}")
             for x in loop["rounds"]:
                 v = x.get("verified_set") or {}
                 if v.get("checked"):

@@ -1,0 +1,24 @@
+"""The rule that names wild measurements (contract section 12), as numbers and words: kept free of
+the library so that the commands' ``--help`` can state it (:mod:`pipeline.robot.outliers` applies it)."""
+
+#: A pose is wild beyond this many robust standard deviations (per axis) of a flexible model's
+#: residuals. Gaussian noise passes 6 sigma (3-D) once in 10^7 poses; real residuals are heavier
+#: tailed (what no model here has: the real UR10 series' clean poses reach 9.4 sigma), so the
+#: threshold is twice the Gaussian bound: a point 12 sigma off is not the tail of anything smooth.
+WILD_SIGMAS = 12.0
+#: The nearest sample poses (joint space, each joint scaled by its sampled range) a wild pose's
+#: residual is compared with.
+NEIGHBOURS = 8
+#: More than this fraction of a campaign's poses wild: refused.
+MAX_WILD_FRACTION = 0.02
+
+RULE = (f"a pose is wild when its 3-D residual from a robust fit of a flexible model (geometry, base, "
+        f"tool, a joint map and compliance on every joint, backlash, the spec's other effects) exceeds {WILD_SIGMAS:g} robust "
+        f"standard deviations (sigma = sqrt(median |r|^2 / 2.366)) and is not shared by its {NEIGHBOURS} nearest "
+        f"sample poses in joint space; wild sample poses are refitted without until none changes; more than "
+        f"{100 * MAX_WILD_FRACTION:g} % of the poses wild is refused")
+
+HELP = (f"Keep the wild measurements in the fit (they are still named). Wild measurements (contract section 12): "
+        f"{RULE}. Each is named (point_id, set, tracker.csv line, size in mm) and, by default, left out of the fit "
+        "and of every cross-validation; held-out errors are given without the wild targets and, beside them, "
+        "with them. See docs/wild-points.md.")

@@ -1,0 +1,212 @@
+"""Wild measurements: the poses no plausible model explains, named and left out (contract section 12).
+
+An SMR reseated, a broken beam, a swapped row: one such point among a thousand moves every number
+a fit or a diagnosis decides on (3 points of 3-8 mm among 1,664 poses put 0.24 mm into a
+cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fit``, ``diagnose``,
+``robot diagnose-loop`` and ``predict``:
+
+1. **A model flexible enough that physics is not mistaken for a wild point** (:func:`flexible_effects`):
+   geometry, base and tool, a joint map (an angle error of any shape over the joint's angle) and
+   compliance on every joint, backlash on every joint approached from both sides, and the spec's
+   other effects (thermal, ...). A missing effect of the kind
+   diagnosis can recommend is in it, so what it leaves is noise, the effects no model here has,
+   and wild points.
+2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
+   fitted again, until the set named no longer changes (a redescending M-estimator with hard
+   rejection: a wild pose gets weight 0, every other weight 1). Each pose's residual is its 3-D
+   distance from that model (for a pose left out, a prediction).
+3. **A robust scale** of the residuals: ``sigma = sqrt(median(|r|^2) / 2.366)``, the per-axis
+   standard deviation the median of the squared 3-D residual gives for Gaussian noise (2.366 is
+   the median of chi-square with 3 degrees of freedom); the median is not moved by a handful of
+   wild points. Targets are scaled by the targets' own residuals (they are predictions), samples
+   by the samples'.
+4. **The rule**: a pose is wild when its residual exceeds :data:`WILD_SIGMAS` sigma AND is not
+   shared by its :data:`NEIGHBOURS` nearest sample poses in joint space (its residual less the
+   neighbours' median residual also exceeds WILD_SIGMAS sigma). The second test is the local,
+   nonparametric check that a pose is not the edge of a physical effect the flexible model lacks:
+   physics is smooth in the joint angles, a wild point is alone.
+
+More than :data:`MAX_WILD_FRACTION` of a campaign's poses wild: refused with one line (a wrong
+frame, unit or robot is not a handful of outliers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..core.errors import InputError
+from ..core.spec import parse_spec
+from ..core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
+
+#: Refits of the robust fit at most (it stops earlier when the set named no longer changes).
+MAX_REFITS = 5
+#: median of chi-square with 3 degrees of freedom (the squared 3-D norm of unit Gaussian noise)
+CHI2_3_MEDIAN = 2.365974
+
+
+@dataclass
+class Wild:
+    """What :func:`find_wild` found: masks of the wild sample and target poses, and the JSON list."""
+
+    sample: np.ndarray
+    target: np.ndarray
+    outliers: list = field(default_factory=list)
+    sigma_mm: dict = field(default_factory=dict)
+    kept: bool = False
+
+    def document(self) -> dict:
+        """The JSON keys (contract section 12): ``outliers``, and how they were found."""
+        return {"outliers": self.outliers,
+                "outlier_rule": {"rule": RULE, "sigma_mm": self.sigma_mm, "threshold_sigmas": WILD_SIGMAS,
+                                 "kept": self.kept}}
+
+    def clean(self, sample, target):
+        """The sample and target poses without the wild ones (all of them with ``kept``)."""
+        if self.kept:
+            return sample, target
+        return (sample.subset(~self.sample) if self.sample.any() else sample,
+                target.subset(~self.target) if self.target.any() else target)
+
+
+#: Effects the flexible model has on every joint (a spec's own, on some joints or with other settings,
+#: are replaced by them): a joint map contains a joint's harmonics and curves of any shape.
+FLEXIBLE_PER_JOINT = ("joint_map", "joint_harmonic", "chebyshev", "compliance", "backlash")
+
+
+def flexible_effects(robot, effects, data) -> list:
+    """The flexible model (see the module docstring): geometry, base, tool, a joint map and compliance on
+    every joint, backlash on every joint approached from both sides, and the spec's other effects
+    (thermal, ...). The same for every spec without such other effects, so that ``fit`` with any spec,
+    ``diagnose``, the loop and ``predict`` name the same points of a campaign."""
+    lines = ['[[effect]]\nname = "geometry"', '[[effect]]\nname = "base"', '[[effect]]\nname = "tool"']
+    lines += [e.spec_lines() for e in effects if e.name not in FLEXIBLE_PER_JOINT + ("geometry", "base", "tool")]
+    lines.append('[[effect]]\nname = "joint_map"')
+    lines.append('[[effect]]\nname = "compliance"')
+    both = [j + 1 for j in range(data.dir.shape[1]) if np.unique(data.dir[:, j]).size > 1]
+    if both:
+        lines.append(f'[[effect]]\nname = "backlash"\njoints = {both}')
+    return list(parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(lines) + "\n", "<flexible model>").effects)
+
+
+def robust_sigma(res) -> float:
+    """Per-axis standard deviation (mm) from the median squared 3-D residual (Gaussian-consistent)."""
+    r2 = np.sum(np.asarray(res, float) ** 2, axis=1)
+    return float(np.sqrt(np.median(r2) / CHI2_3_MEDIAN)) if r2.size else 0.0
+
+
+def _scaled(q, lo, span):
+    return (np.asarray(q, float) - lo) / span
+
+
+def _flag(res, sigma, q, q_ref, res_ref, valid_ref, own=None) -> np.ndarray:
+    """Poses whose residual exceeds WILD_SIGMAS sigma and is not shared by their nearest reference poses.
+
+    ``own``: each pose's index among the reference poses (itself is not its own neighbour), or None.
+    Reference poses not ``valid_ref`` (named wild already) are no one's neighbours."""
+    from scipy.spatial import cKDTree
+
+    size = np.linalg.norm(res, axis=1)
+    big = size > WILD_SIGMAS * sigma
+    ref = np.flatnonzero(valid_ref)
+    if not big.any() or ref.size < 2:
+        return big
+    k = min(NEIGHBOURS + 1, ref.size)
+    _, nb = cKDTree(q_ref[ref]).query(q[big], k=k)
+    nb = ref[np.atleast_2d(nb)]
+    out = big.copy()
+    for row, i in enumerate(np.flatnonzero(big)):
+        others = [n for n in nb[row] if own is None or n != own[i]][:NEIGHBOURS]
+        local = np.median(res_ref[others], axis=0)
+        out[i] = np.linalg.norm(res[i] - local) > WILD_SIGMAS * sigma
+    return out
+
+
+def tracker_lines(campaign) -> dict:
+    """point_id -> line of its row in the campaign's tracker.csv (the header is line 1)."""
+    path = Path(campaign) / "tracker.csv"
+    try:
+        ids = pd.read_csv(path, dtype=str, usecols=["point_id"], skipinitialspace=True)["point_id"].str.strip()
+    except (OSError, ValueError):
+        return {}
+    return {p: k + 2 for k, p in enumerate(ids)}
+
+
+def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False) -> Wild:
+    """The wild sample and target poses of a campaign (see the module docstring).
+
+    Parameters
+    ----------
+    robot : Robot
+    effects : list of RobotEffect
+        The spec's (or the fitted model's) effects: the flexible model contains them.
+    sample, target : RobotData
+        The campaign's sample poses (fitted) and target poses (judged on the fit), mm.
+    campaign : path, optional
+        The campaign folder: each wild pose's tracker.csv line (0 when unknown).
+    keep : bool
+        ``--keep-outliers``: they are named, not left out, and never refused.
+
+    Raises
+    ------
+    InputError
+        More than :data:`MAX_WILD_FRACTION` of the poses wild (not with ``keep``).
+    """
+    from .evaluate import fit_effects
+
+    ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
+    if sample.n < max(20, 2 * NEIGHBOURS) or sample.measured_mm is None:
+        return Wild(ws, wt, [], {}, keep)
+    flex = flexible_effects(robot, effects, sample)
+    lo = np.min(sample.q_deg, axis=0)
+    span = np.maximum(np.ptp(sample.q_deg, axis=0), 1e-9)
+    qs = _scaled(sample.q_deg, lo, span)
+    rs = rt = None
+    for _ in range(MAX_REFITS):
+        fitted = sample.subset(~ws) if ws.any() else sample
+        try:
+            model = fit_effects(robot, flex, fitted)
+        except np.linalg.LinAlgError:
+            model = fit_effects(robot, list(effects), fitted)
+        rs = sample.measured_mm - model.predict(sample)
+        sig_s = robust_sigma(rs)
+        new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))
+        if np.array_equal(new, ws):
+            break
+        ws = new
+    sigma = {"sample": sig_s}
+    if target.n:
+        rt = target.measured_mm - model.predict(target)
+        sig_t = robust_sigma(rt) if target.n >= 20 else sig_s
+        sigma["target"] = sig_t
+        wt = _flag(rt, sig_t, _scaled(target.q_deg, lo, span), qs, rs, ~ws)
+    lines = tracker_lines(campaign) if campaign is not None else {}
+    outliers = []
+    for name, mask, res, data in (("sample", ws, rs, sample), ("target", wt, rt, target)):
+        for i in np.flatnonzero(mask):
+            pid = str(data.point_id[i])
+            outliers.append({"point_id": pid, "set": name, "error_mm": float(np.linalg.norm(res[i])),
+                             "line": int(lines.get(pid, 0))})
+    wild = Wild(ws, wt, outliers, sigma, keep)
+    n_all = sample.n + target.n
+    if not keep and len(outliers) > MAX_WILD_FRACTION * n_all:
+        worst = max(outliers, key=lambda o: o["error_mm"])
+        raise InputError(Path(campaign or ".") / "tracker.csv",
+                         f"{len(outliers)} of {n_all} poses ({100 * len(outliers) / n_all:.1f} %) look wild (more than "
+                         f"{100 * MAX_WILD_FRACTION:g} %; the worst, {worst['point_id']}, {worst['error_mm']:.3g} mm off "
+                         f"a flexible model, sigma {sig_s:.3g} mm): a wrong frame, unit or robot is not a handful of "
+                         "outliers; check the campaign (or --keep-outliers)", worst["line"] or None, "x_mm")
+    return wild
+
+
+def describe(wild: Wild) -> str:
+    """One console line naming the wild poses ('' when there are none)."""
+    if not wild.outliers:
+        return ""
+    what = "kept (--keep-outliers)" if wild.kept else "left out (of fitting, registering and the errors)"
+    names = ", ".join(f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm)"
+                      for o in wild.outliers)
+    return f"{len(wild.outliers)} wild measurement(s), {what}: {names}"

@@ -1,0 +1,89 @@
+"""The loop may swap as well as add (issue 23): a member of the model is replaced by the effect that
+overlaps it (joint_harmonic j <-> joint_map j <-> chebyshev j) when the swap verifies better, every fold
+refitted, by pose and by region; otherwise the first pick stays. The control logic, with diagnosis and
+the fits replaced by stand-ins whose numbers the test chooses (as tests/test_diagnose_loop_rollback.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.diagnosis import loop as loop_mod
+
+START = ('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n'
+         '[[effect]]\nname = "joint_harmonic"\njoints = [2]\norders = [14, 5]\n')
+
+
+class _Data:
+    n = 3
+    measured_mm = np.zeros((3, 3))
+    q_deg = np.array([[0.0] * 6, [90.0] * 6, [180.0] * 6])
+
+
+class _Model:
+    converged_ = plausible_ = True
+
+    def predict(self, data):
+        return np.zeros((data.n, 3))
+
+
+def _kind(effects):
+    """Which of the overlapping effects models joint 2."""
+    names = [e.name for e in effects if e.name in loop_mod.SWAPPABLE and 2 in e.joints(6)]
+    assert len(names) == 1, names
+    return names[0]
+
+
+def _run(monkeypatch, screen, refit):
+    calls = []
+
+    def fake_diagnose(adapter, spec, data, progress=None):
+        k = _kind(spec.effects)
+        return {"baseline": {"cv_rms": screen[k][0], "cv_rms_region": screen[k][1], "unit": "mm"}, "candidates": []}
+
+    def fake_refit(robot, effects, data, cache=None):
+        calls.append(_kind(effects))
+        return refit[_kind(effects)]
+
+    monkeypatch.setattr(loop_mod, "diagnose", fake_diagnose)
+    monkeypatch.setattr(loop_mod, "fit_effects", lambda robot, effects, data: _Model())
+    monkeypatch.setattr(loop_mod, "model_cv", lambda robot, effects, data: screen[_kind(effects)])
+    monkeypatch.setattr(loop_mod, "refit_cv", fake_refit)
+    return loop_mod.diagnosis_loop(None, START, _Data(), _Data()), calls
+
+
+def test_a_swap_is_made_when_the_overlapping_effect_verifies_better(monkeypatch):
+    screen = {"joint_harmonic": (1.0, 1.0), "joint_map": (0.8, 0.85), "chebyshev": (0.9, 1.1)}
+    refit = {"joint_harmonic": (1.0, 1.0), "joint_map": (0.82, 0.9), "chebyshev": (0.95, 1.2)}
+    out, calls = _run(monkeypatch, screen, refit)
+    r1 = out["rounds"][0]
+    assert r1["swap"]["made"] and r1["swap"]["from"] == "joint_harmonic joint 2 order 5, 14"
+    assert r1["swap"]["to"] == "joint_map joint 2"
+    assert {(s["to"]) for s in r1["swap"]["screened"]} == {"joint_map joint 2", "chebyshev joint 2"}
+    final = loop_mod.parse_spec(out["final_spec"]).effects
+    assert _kind(final) == "joint_map" and out["ended"] and len(out["rounds"]) == 2
+    assert out["rounds"][1]["cv_rms_mm"] == 0.8 and out["rounds"][1]["kept"]
+    assert "no swap verifies better" in out["done"]
+    assert calls[:2] == ["joint_harmonic", "joint_map"]          # verified by refitting both
+
+
+def test_no_swap_when_it_does_not_verify(monkeypatch):
+    # the screening likes the joint map, every fold refitted it is worse by region: the first pick stays
+    screen = {"joint_harmonic": (1.0, 1.0), "joint_map": (0.8, 0.85), "chebyshev": (1.1, 1.1)}
+    refit = {"joint_harmonic": (1.0, 1.0), "joint_map": (0.9, 1.05), "chebyshev": (1.1, 1.1)}
+    out, _ = _run(monkeypatch, screen, refit)
+    assert len(out["rounds"]) == 1 and not out["rounds"][0]["swap"]["made"]
+    assert _kind(loop_mod.parse_spec(out["final_spec"]).effects) == "joint_harmonic"
+    assert out["final_spec"] == START
+
+
+def test_swap_options_replace_one_joint_in_place():
+    spec = loop_mod.parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n'
+                               '[[effect]]\nname = "joint_map"\njoints = [1, 2]\n\n[[effect]]\nname = "tool"\n')
+    opts = loop_mod.swap_options(6, list(spec.effects), _Data())
+    assert [(o["from"], o["to"]) for o in opts] == [("joint_map joint 1", "joint_harmonic joint 1"),
+                                                   ("joint_map joint 1", "chebyshev joint 1"),
+                                                   ("joint_map joint 2", "joint_harmonic joint 2"),
+                                                   ("joint_map joint 2", "chebyshev joint 2")]
+    lines = opts[3]["lines"]
+    assert lines[1] == '[[effect]]\nname = "chebyshev"\njoints = [2]' and 'joints = [1]' in lines[2]
+    assert lines[0].endswith('"geometry"') and lines[-1].endswith('"tool"')

@@ -114,3 +114,22 @@ def test_a_missing_effect_is_not_named(tmp_path):
     assert moved.max() > 0.8
     wild = find_wild(robot, list(load_spec(SPEC).effects), s, tg, dst)
     assert wild.outliers == []
+
+
+def test_export_heldout_leaves_the_wild_targets_out(tmp_path):
+    """`export --heldout` judges the chain on the same targets as fit and predict: a wild target is named
+    and left out, and the errors with it stand beside (a 5 mm point in a held-out RMS of 0.1 mm would
+    decide which carrier looks better)."""
+    thrown = _throw(tmp_path / "c", 0, 1, 4)
+    fit = tmp_path / "fit.json"
+    assert cli_invoker()("fit", "--campaign", tmp_path / "c", "--spec", SPEC, "--out", fit).exit_code == 0
+    out = tmp_path / "export.json"
+    r = cli_invoker()("export", "--model", fit, "--format", "urdf", "--out", tmp_path / "r.urdf",
+                      "--heldout", tmp_path / "c", "--json", out)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert {o["point_id"] for o in doc["outliers"]} == set(thrown)
+    assert doc["n"] == 103 and doc["with_outliers"]["n"] == 104
+    assert doc["with_outliers"]["full_rms_mm"] > 3 * doc["full_rms_mm"]
+    # the model is geometry + base + tool: its chain is that geometry, and judged as fit judges it
+    assert doc["chain_rms_mm"] == pytest.approx(json.loads(fit.read_text())["heldout"]["rms_after_mm"], abs=2e-6)

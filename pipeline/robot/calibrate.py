@@ -233,6 +233,66 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
             "fixed_reasons": reasons, "zero": zero}
 
 
+def frame_deviations(model, idx, Q, Q0) -> list[dict]:
+    """How far the model's frames move and turn from the nominal robot's over the sampled poses, as
+    ``{name, value, unit}`` for the plausibility bounds (:data:`pipeline.robot.lm.PLAUSIBLE_BOUNDS`).
+
+    Per frame, the largest over the poses of the shift (mm) and the turn (arcsec) of its placement
+    relative to the frame before it (the base relative to the world; joint i's link frame relative
+    to joint i-1's, joint angle errors included; the SMR relative to the flange), and of the flange
+    and the SMR in the base frame (everything before them together). Exact (pinocchio), every effect
+    of the model included: what a real robot's frames do, whatever parameters carry it.
+
+    Parameters
+    ----------
+    model : pin.Model, the error model (:func:`pipeline.robot.kinematics.build_error_model`)
+    Q, Q0 : ndarray, shape (n, nq)
+        Error-model configurations with the fitted parameters and with none (nominal).
+    """
+    import pinocchio as pin
+
+    N = idx.joints.size
+    names = [f"link{i}" for i in range(1, N + 1)] + ["smr"]
+    fids = [model.getFrameId(nm) for nm in names]
+    base_joint = int(idx.base[-1]) + 1                      # the last base error joint (pinocchio joint id)
+
+    def frames(q):
+        data = model.createData()
+        pin.forwardKinematics(model, data, q)
+        out = [data.oMi[base_joint]]
+        for f in fids:
+            out.append(pin.updateFramePlacement(model, data, f))
+        return out
+
+    n_frames = N + 2
+    shift, turn = np.zeros(n_frames), np.zeros(n_frames)
+    flange_turn, smr_shift = 0.0, 0.0
+    for q, q0 in zip(np.asarray(Q, float), np.asarray(Q0, float)):
+        F, F0 = frames(q), frames(q0)
+        for k in range(n_frames):
+            rel = F[k] if k == 0 else F[k - 1].actInv(F[k])
+            rel0 = F0[k] if k == 0 else F0[k - 1].actInv(F0[k])
+            E = rel0.actInv(rel)
+            shift[k] = max(shift[k], float(np.linalg.norm(E.translation)) * 1000.0)
+            turn[k] = max(turn[k], float(np.linalg.norm(pin.log3(E.rotation))))
+        flange_turn = max(flange_turn, float(np.linalg.norm(pin.log3(F0[N].rotation.T @ F[N].rotation))))
+        smr_shift = max(smr_shift, float(np.linalg.norm(F[-1].translation - F0[-1].translation)) * 1000.0)
+    arcsec = 180.0 / np.pi * 3600.0
+    label = ["the base frame"] + [f"joint {i}'s link frame" for i in range(1, N + 1)] + ["the SMR on the flange"]
+    out = []
+    for k in range(n_frames):
+        out.append({"name": f"{label[k]}: shift from nominal (largest over the sampled poses)",
+                    "value": shift[k], "unit": "mm"})
+        if k < n_frames - 1:
+            out.append({"name": f"{label[k]}: turn from nominal (largest over the sampled poses)",
+                        "value": turn[k] * arcsec, "unit": "arcsec"})
+    out.append({"name": "the flange: turn from nominal in the base frame (largest over the sampled poses)",
+                "value": flange_turn * arcsec, "unit": "arcsec"})
+    out.append({"name": "the SMR: distance from its nominal position (largest over the sampled poses)",
+                "value": smr_shift, "unit": "mm"})
+    return out
+
+
 def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = RANK_TOL):
     """What the measurements determine, represented nearest the nominal robot (contract section 8).
 
@@ -625,6 +685,9 @@ class RobotErrorModel:
             n = len(e.parameter_names(self.robot))
             checked += e.checked_values(self.robot, params[k:k + n], data.q_deg)
             k += n
+        # the frames judged by how far they move and turn (contract section 8: physical deviations, not
+        # a parameter that carried a direction the measurements cannot see)
+        checked += frame_deviations(d.model, d.idx, d.configurations(self.coef_), d.Q0)
         # and whether a joint's angle error varies beyond the robot's own error budget in the sampled
         # joint box (the yardstick diagnosis uses: pipeline.robot.budget)
         self.implausible_ = implausible_parameters(checked) + self._over_budget(d, data)

@@ -287,6 +287,12 @@ class Geometry(RobotEffect):
                  "length errors; in residuals, a pattern fully explained by the MDH Jacobian")
     PARAMS = ("dtheta", "dd", "da", "dalpha", "dbeta")
 
+    def checked_values(self, robot, parameters, q_deg):
+        """None one by one: where the measurements cannot tell them apart, a parameter may carry what
+        another would; the fit judges how far the frames move and turn instead
+        (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
+
     def parameter_names(self, robot):
         return [f"{p}{i}" for i in self.joints(robot) for p in self.PARAMS]
 
@@ -331,6 +337,10 @@ class Base(RobotEffect):
     def typical_sizes(self, robot):
         return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
 
+    def checked_values(self, robot, parameters, q_deg):
+        """Judged as the base frame's shift and turn (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
+
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.base]
 
@@ -367,6 +377,10 @@ class Tool(RobotEffect):
 
     def typical_sizes(self, robot):
         return [TOOL_TYPICAL_MM] * 3
+
+    def checked_values(self, robot, parameters, q_deg):
+        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
 
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.tool]

@@ -11,9 +11,14 @@ at ``Q0 + sum_p x_p basis_p`` and fits ``x`` to tracker positions by
 
 Identifiability: the Jacobian at the start is scaled to unit columns and decomposed
 (SVD: rank, condition number; QR with column pivoting: which parameters to keep). With
-``identifiability=True`` the parameters beyond the numerical rank are fixed at 0 and
-reported by name; otherwise they stay free and the solver's damping (L-M) or minimum-norm
-steps (Gauss-Newton via ``lstsq``) keep them at the smallest-norm solution.
+``identifiability=True`` the parameters determined too weakly to hold away from the fitted poses
+are fixed at 0 and reported by name (:data:`WEAK_TOL`). What the measurements cannot see at all
+(combinations of parameters that move the measured point alike: with one SMR, the last joint's
+frame and the tool offset) is not settled by fixing some of them: the fit is the one nearest the
+nominal robot, every parameter counted in units of its typical size
+(:meth:`pipeline.robot.effects.RobotEffect.typical_sizes`, :func:`physical_subspace`); the fit's
+``identifiability_["redundant_groups"]`` says, group by group, what was held and why
+(docs/physical-redundancy.md).
 
 The MDH calibration stage (:func:`calibrate_mdh`) is this estimator with the ``geometry``
 effect on the ``sample`` poses.
@@ -492,8 +497,11 @@ class RobotErrorModel:
 
     @staticmethod
     def _priority(names):
-        """Which parameters to keep first when some are redundant: joint offsets, then link
-        lengths and twists, then d and beta (MDH practice); other effects in their order."""
+        """Order of the parameters in the rank and weak-determination passes of :func:`identifiability`:
+        joint offsets, then link lengths and twists, then d and beta (MDH practice); other effects in
+        their order. It decides which parameters are left at nominal when they are weakly determined
+        (the predictions), never how what the measurements cannot see is represented: redundant
+        parameters stay free and the fit is the one nearest the nominal robot (:func:`physical_subspace`)."""
         order = {"dtheta": 0, "da": 1, "dalpha": 2, "dd": 3, "dbeta": 4}
 
         def key(k):
@@ -769,6 +777,7 @@ def calibrate_mdh(robot: Robot, data: RobotData, effects=None) -> tuple[RobotErr
               "condition_number": ident["condition_number"],
               "condition_number_all": ident["condition_number_all"],
               "not_identifiable": ident["not_identifiable"],
+              "redundant": ident.get("redundant_groups", []),
               "rms_before_mm": float(np.sqrt(np.mean(before**2))), "rms_after_mm": float(np.sqrt(np.mean(after**2))),
               "max_before_mm": float(before.max()), "max_after_mm": float(after.max()),
               "parameters": model.parameters()}

@@ -400,7 +400,8 @@ def unseen_groups(U: np.ndarray, names, units, sizes, tol: float = 1e-9) -> list
         E = _rref(M)[:k]
         dirs = []
         for row in E:
-            dirs.append({names[c]: float(v * sizes[c] * units[c][1])
+            # at a fixed resolution (1e-6 of the reported unit): the last bits of an SVD differ by machine
+            dirs.append({names[c]: round(float(v * sizes[c] * units[c][1]), 6) + 0.0
                          for c, v in zip(g, row) if abs(v) > 1e-9})
         typ = {names[c]: float(sizes[c] * units[c][1]) for c in g}
         out.append({

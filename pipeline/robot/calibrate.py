@@ -351,6 +351,7 @@ def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = R
         # orthonormal basis of the projected span (its dimension is B0's: B0 has no unseen direction)
         Uq, sq, _ = np.linalg.svd(Bu, full_matrices=False)
         Bu = Uq[:, sq > 1e-12 * max(sq[0], 1e-300)] if sq.size else Uq
+    Bu[~np.asarray(free, bool)] = 0.0          # a parameter fixed at nominal stays there (not 1e-16 of a basis)
     return sizes[:, None] * Bu, U
 
 

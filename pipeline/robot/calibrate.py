@@ -325,7 +325,8 @@ def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = R
     Returns
     -------
     B : ndarray, shape (p, k)
-        The directions to fit in (``x = B z``).
+        The directions to fit in (``x = B z``): each column of ``B0`` without its part along the unseen
+        directions (in ``u``).
     U : ndarray, shape (p, r)
         The directions the measurements cannot see (``u`` coordinates, orthonormal; 0 outside ``free``).
     """
@@ -345,13 +346,12 @@ def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = R
             Q = Q[:, np.abs(np.diag(r)) > 1e-12 * np.abs(r[0, 0])]
             U = np.zeros((p, Q.shape[1]))
             U[cols] = Q
+    # each fitted direction without its unseen part: A B = A B0 column by column, so the solver sees the
+    # Jacobian it saw before (same steps, same convergence), and x = B z is the representative nearest
+    # the nominal robot
     Bu = B0 / sizes[:, None]
     Bu = Bu - U @ (U.T @ Bu)
-    if Bu.shape[1]:
-        # orthonormal basis of the projected span (its dimension is B0's: B0 has no unseen direction)
-        Uq, sq, _ = np.linalg.svd(Bu, full_matrices=False)
-        Bu = Uq[:, sq > 1e-12 * max(sq[0], 1e-300)] if sq.size else Uq
-    Bu[~np.asarray(free, bool)] = 0.0          # a parameter fixed at nominal stays there (not 1e-16 of a basis)
+    Bu[~np.asarray(free, bool)] = 0.0          # a parameter fixed at nominal stays there
     return sizes[:, None] * Bu, U
 
 
@@ -612,8 +612,8 @@ class RobotErrorModel:
         z0 = np.zeros(free.size)
         if self.start:
             x0 = np.array([float(self.start.get(nm, 0.0)) for nm in d.names])
-            # the start's part in the fitted directions (B / sizes is orthonormal: counted in typical sizes)
-            z0 = (B / d.sizes[:, None]).T @ (x0 / d.sizes) if B.shape[1] else z0
+            # the start's part in the fitted directions, counted in typical sizes
+            z0 = np.linalg.lstsq(B / d.sizes[:, None], x0 / d.sizes, rcond=None)[0] if B.shape[1] else z0
         if self.solver == "gauss-newton":
             # Gauss-Newton (Eq. 6 iterated) on the column-scaled Jacobian (minimum-norm steps from
             # its SVD), with Levenberg damping only when a full step does not lower the cost: the

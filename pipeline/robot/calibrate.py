@@ -257,31 +257,44 @@ def frame_deviations(model, idx, Q, Q0) -> list[dict]:
     import pinocchio as pin
 
     N = idx.joints.size
-    names = [f"link{i}" for i in range(1, N + 1)] + ["smr"]
-    fids = [model.getFrameId(nm) for nm in names]
+    fids = [model.getFrameId(nm) for nm in [f"link{i}" for i in range(1, N + 1)] + ["smr"]]
     base_joint = int(idx.base[-1]) + 1                      # the last base error joint (pinocchio joint id)
+    data = model.createData()
 
-    def frames(q):
-        data = model.createData()
-        pin.forwardKinematics(model, data, q)
-        out = [data.oMi[base_joint]]
-        for f in fids:
-            out.append(pin.updateFramePlacement(model, data, f))
-        return out
+    def frames(Qs):
+        """Rotations (n, N + 2, 3, 3) and positions (n, N + 2, 3) m: base, link frames 1..N, SMR."""
+        R = np.empty((len(Qs), N + 2, 3, 3))
+        p = np.empty((len(Qs), N + 2, 3))
+        for k, q in enumerate(np.asarray(Qs, float)):
+            pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
+            M = [data.oMi[base_joint]] + [data.oMf[f] for f in fids]
+            R[k] = [m.rotation for m in M]
+            p[k] = [m.translation for m in M]
+        return R, p
 
+    def relative(R, p):
+        """Each frame relative to the one before it (the base relative to the world)."""
+        Rr, pr = R.copy(), p.copy()
+        Rr[:, 1:] = np.einsum("nfji,nfjk->nfik", R[:, :-1], R[:, 1:])
+        pr[:, 1:] = np.einsum("nfji,nfj->nfi", R[:, :-1], p[:, 1:] - p[:, :-1])
+        return Rr, pr
+
+    def angle(Ra, Rb):
+        """Rotation angle (rad) of Ra^T Rb, batched."""
+        c = (np.einsum("...ji,...ji->...", Ra, Rb) - 1.0) / 2.0
+        return np.arccos(np.clip(c, -1.0, 1.0))
+
+    R1, p1 = frames(Q)
+    R0, p0 = frames(Q0)
+    Rr1, pr1 = relative(R1, p1)
+    Rr0, pr0 = relative(R0, p0)
+    # E = rel0^-1 rel: shift rel0.R^T (rel.p - rel0.p), turn angle(rel0.R, rel.R)
+    shift = np.linalg.norm(np.einsum("nfji,nfj->nfi", Rr0, pr1 - pr0), axis=2).max(axis=0) * 1000.0
+    turn = angle(Rr0, Rr1).max(axis=0)
+    flange_turn = float(angle(R0[:, N], R1[:, N]).max())
+    smr_shift = float(np.linalg.norm(p1[:, -1] - p0[:, -1], axis=1).max()) * 1000.0
     n_frames = N + 2
-    shift, turn = np.zeros(n_frames), np.zeros(n_frames)
-    flange_turn, smr_shift = 0.0, 0.0
-    for q, q0 in zip(np.asarray(Q, float), np.asarray(Q0, float)):
-        F, F0 = frames(q), frames(q0)
-        for k in range(n_frames):
-            rel = F[k] if k == 0 else F[k - 1].actInv(F[k])
-            rel0 = F0[k] if k == 0 else F0[k - 1].actInv(F0[k])
-            E = rel0.actInv(rel)
-            shift[k] = max(shift[k], float(np.linalg.norm(E.translation)) * 1000.0)
-            turn[k] = max(turn[k], float(np.linalg.norm(pin.log3(E.rotation))))
-        flange_turn = max(flange_turn, float(np.linalg.norm(pin.log3(F0[N].rotation.T @ F[N].rotation))))
-        smr_shift = max(smr_shift, float(np.linalg.norm(F[-1].translation - F0[-1].translation)) * 1000.0)
     arcsec = 180.0 / np.pi * 3600.0
     label = ["the base frame"] + [f"joint {i}'s link frame" for i in range(1, N + 1)] + ["the SMR on the flange"]
     out = []

@@ -59,7 +59,8 @@ def _json_line(path, key: str):
                    "payload_kg, dir1 … dirN (default from the visiting order), temperature_c (default 20).")
 @click.option("--out", "out_path", type=click.Path(dir_okay=False),
               help="Robot model: the corrected program (CSV: point_id, q1 … qN deg, dq1_arcsec … dqN_arcsec, x_mm, "
-                   "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, status, reason).")
+                   "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, orientation_held, status, "
+                   "reason).")
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Robot model: a row needing a larger correction of any joint is left as given (status "
                    "correction_too_large).")
@@ -81,8 +82,10 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_
     joint maps and harmonics, compliance with the row's payload, backlash with the row's
     approach direction, thermal with the row's temperature. Each row's commands are moved, by
     Newton iterations on the model's own Jacobian, until the model puts the SMR on the point
-    (model_residual_um <= 1); the flange keeps the program's orientation as far as the model
-    determines it; the correction is the smallest that does both. Rows outside the joint ranges
+    (model_residual_um <= 1); the flange keeps the program's orientation in the directions the
+    measurements determine (orientation_held: all, none, "all but about (ux uy uz)" or "about
+    (hx hy hz) only", base frame; with one SMR and a fitted tool offset, none); the correction is
+    the smallest that does both (a redundant arm's self-motion is not used). Rows outside the joint ranges
     the model was fitted on, beyond --max-correction-deg, or without a solution are left as
     given, and the status and reason columns say why.
     \b

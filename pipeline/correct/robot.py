@@ -12,8 +12,10 @@ finds the commands ``q + dq`` at which the model's prediction is the point to re
   dependence on the commanded angle - a joint map's slope, a gravity torque's change - is left out
   of the Jacobian and caught by the next iteration, the prediction itself is always the full model);
 * the position is matched exactly (first priority, minimum-norm); within the joint motions that
-  leave it, the flange keeps the program's orientation (the nominal orientation at ``q``) as far as
-  the model determines it (second priority, least squares with a small Tikhonov term on the whole
+  leave it, the flange keeps the program's orientation (the nominal orientation at ``q``) in the
+  directions the model determines (:func:`held_orientation`: no parameter direction the fit's
+  measurements could not see, and no parameter left at nominal, turns the flange about them; with
+  one SMR and a fitted tool offset, none) (second priority, least squares with a small Tikhonov term on the whole
   correction, :data:`ORIENTATION_DAMPING`, so that near a wrist singularity the correction stays
   small); what is left (a redundant arm's self-motion) is not used: the smallest correction;
 * a row outside the joint ranges the model was fitted on, whose correction exceeds the largest one
@@ -43,6 +45,12 @@ STEP_DONE_DEG = 1e-8
 #: Tikhonov weight (rad of flange rotation per rad of correction) of the orientation stage: joint
 #: motion directions that turn the flange less than this are not used to keep the orientation.
 ORIENTATION_DAMPING = 1e-3
+#: A flange rotation direction is determined by the model unless some direction of its parameters that
+#: the measurements did not determine turns the flange about it by more than this (rad per unit of that
+#: direction: one typical size of each parameter for what no measurement could see, one internal unit,
+#: a mrad or a mm, for a parameter left at nominal). 1e-6 rad = 0.2 arcsec: a hundredth of a parameter's
+#: typical size (100 arcsec) in flange rotation is not an orientation the correction must leave alone.
+UNSEEN_ROTATION_RAD = 1e-6
 #: Newton iterations at most (typically 3-4 reach 1e-6 um).
 MAX_ITER = 20
 #: Default largest correction of any joint (deg), as ``robot map-joints``.
@@ -74,6 +82,9 @@ class Correction:
         Why a row was left as given ('' when ok).
     dirs : ndarray, shape (n, N), int
         Approach directions the correction assumed (given, or from the visiting order).
+    orientation_held : ndarray of str, shape (n,)
+        The flange rotation directions the correction kept as the program has them (the ones the
+        measurements determine, :func:`held_orientation`); '' where the row was left as given.
     """
 
     q_deg: np.ndarray
@@ -85,6 +96,7 @@ class Correction:
     status: np.ndarray
     reason: np.ndarray
     dirs: np.ndarray = None
+    orientation_held: np.ndarray = None
 
     def counts(self) -> dict:
         """Rows per status."""
@@ -133,6 +145,21 @@ class ModelKinematics:
         R, P, J = pose_jacobians(self.error_model_, Q, "smr")
         return R, P, J[:, :, self.index_.joints]
 
+    def unseen_rotations(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
+        """How the model's flange turns along each direction of its parameters that the fit's
+        measurements did not determine (:meth:`pipeline.robot.calibrate.RobotErrorModel.undetermined`),
+        at commanded poses: shape (n, 3, m), rad per unit of the direction, world-aligned."""
+        self._built()
+        D = self.model.undetermined() if hasattr(self.model, "undetermined") else np.zeros((0, 0))
+        n = len(np.atleast_2d(q_deg))
+        if D.size == 0:
+            return np.zeros((n, 3, 0))
+        d = Design(self.robot, list(getattr(self.model, "effects_", self.model.effects)),
+                   self.data(q_deg, dirs, payload_kg, temperature_c), (self.error_model_, self.index_))
+        _, _, J = pose_jacobians(self.error_model_, d.configurations(self.model.coef_), "smr")
+        Jx = np.einsum("nke,ep->nkp", J[:, 3:, d.c_idx] * d.V[:, None, :], d.S, optimize=True)   # rad per unit
+        return Jx @ D
+
     def predict(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
         """Model SMR positions (n, 3) mm."""
         return self.pose(q_deg, dirs, payload_kg, temperature_c)[1]
@@ -143,7 +170,42 @@ class ModelKinematics:
         return placements(self.plain_, np.deg2rad(np.asarray(q_deg, float)), "smr")
 
 
-def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPING):
+def held_orientation(rot_unseen, tol_rad: float = UNSEEN_ROTATION_RAD):
+    """The flange rotation directions the model determines, per row.
+
+    Parameters
+    ----------
+    rot_unseen : ndarray, shape (n, 3, m)
+        Flange rotation along each undetermined parameter direction (:meth:`ModelKinematics.unseen_rotations`).
+
+    Returns
+    -------
+    W : ndarray, shape (n, 3, 3)
+        Projector on the determined rotation directions (world-aligned).
+    held : ndarray of str, shape (n,)
+        In words: ``all``, ``none``, ``all but about (ux uy uz)`` or ``about (hx hy hz) only`` (unit
+        axes in the robot base frame).
+    """
+    n = rot_unseen.shape[0]
+    W = np.repeat(np.eye(3)[None], n, axis=0)
+    held = np.full(n, "all", dtype=object)
+    if rot_unseen.shape[2] == 0:
+        return W, held
+    U, sv, _ = np.linalg.svd(rot_unseen, full_matrices=True)
+    for k in range(n):
+        r = int(np.sum(sv[k] > tol_rad))
+        Uk = U[k, :, :r]
+        W[k] = np.eye(3) - Uk @ Uk.T
+
+        def axis(v):
+            v = v * (1.0 if v[np.argmax(np.abs(v))] > 0 else -1.0)
+            return "(" + " ".join(f"{x:.3f}" for x in v + 0.0) + ")"
+        held[k] = {0: "all", 3: "none"}.get(r) or (f"all but about {axis(U[k, :, 0])}" if r == 1
+                                                  else f"about {axis(U[k, :, 2])} only")
+    return W, held
+
+
+def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPING, W=None):
     """Joint step (rad): position first (minimum norm), orientation in what is left (batched).
 
     The orientation is kept by the joint motions that leave the position alone, in the least-squares
@@ -160,8 +222,15 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
     e_rot : ndarray, shape (n, 3), rad (world-aligned rotation vector)
     dq_so_far : ndarray, shape (n, N), rad, optional
         Correction already made (the Tikhonov term acts on the total).
+    W : ndarray, shape (n, 3, 3), optional
+        Projector on the rotation directions to hold (:func:`held_orientation`); the others are not
+        an aim, and the joint motions that only turn the flange about them are not used (the
+        Tikhonov term keeps the correction there the smallest). Default: all directions.
     """
     Jp, Jr = J[:, :3], J[:, 3:]
+    if W is not None:
+        Jr = W @ Jr
+        e_rot = np.einsum("nij,nj->ni", W, e_rot)
     Jp_pinv = np.linalg.pinv(Jp, rcond=1e-10)
     dq1 = np.einsum("nij,nj->ni", Jp_pinv, e_pos)
     n, _, N = J.shape
@@ -225,6 +294,13 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     q = q0.copy()
     iters = np.zeros(n, int)
     active = status == OK
+    # the orientation is held only in the directions the measurements determine (at the given commands;
+    # the correction is small)
+    W = np.repeat(np.eye(3)[None], n, axis=0)
+    held = np.full(n, "", dtype=object)
+    if active.any():
+        a = np.flatnonzero(active)
+        W[a], held[a] = held_orientation(kin.unseen_rotations(q0[a], dirs[a], payload[a], temp[a]))
     res = np.full(n, np.inf)
     for it in range(max_iter + 1):
         idx = np.flatnonzero(active)
@@ -236,7 +312,7 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         e_rot = Rotation.from_matrix(R_nom[idx] @ np.transpose(R, (0, 2, 1))).as_rotvec()
         if it == max_iter:
             break
-        step = np.rad2deg(_prioritised_step(J, e_pos, e_rot, np.deg2rad(q[idx] - q0[idx])))
+        step = np.rad2deg(_prioritised_step(J, e_pos, e_rot, np.deg2rad(q[idx] - q0[idx]), W=W[idx]))
         bad = ~np.all(np.isfinite(step), axis=1) | (np.abs(step).max(axis=1) > 45.0)
         # a row is done when its position is a thousand times inside the tolerance and the next step
         # would move no joint by more than STEP_DONE_DEG (the orientation has converged as far as it can)
@@ -251,8 +327,8 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     if solved.size:
         R, P, _ = kin.pose(q[solved], dirs[solved], payload[solved], temp[solved])
         res[solved] = np.linalg.norm(target[solved] - P, axis=1) * 1000.0
-        orient[solved] = np.rad2deg(np.linalg.norm(
-            Rotation.from_matrix(R_nom[solved] @ np.transpose(R, (0, 2, 1))).as_rotvec(), axis=1)) * 3600.0
+        rv = Rotation.from_matrix(R_nom[solved] @ np.transpose(R, (0, 2, 1))).as_rotvec()
+        orient[solved] = np.rad2deg(np.linalg.norm(np.einsum("nij,nj->ni", W[solved], rv), axis=1)) * 3600.0
     dq = q - q0
     for k in solved:
         if not np.isfinite(res[k]) or res[k] > tol_um:
@@ -272,8 +348,10 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         P = kin.predict(q0[left], dirs[left], payload[left], temp[left])
         res[left] = np.linalg.norm(target[left] - P, axis=1) * 1000.0
         orient[left] = np.nan
+        held[left] = ""
     _, xyz = kin.nominal(q)
-    return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs)
+    return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs,
+                      held.astype(str))
 
 
 def angle_mismatch(sources, closed) -> str:

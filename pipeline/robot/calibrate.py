@@ -11,9 +11,14 @@ at ``Q0 + sum_p x_p basis_p`` and fits ``x`` to tracker positions by
 
 Identifiability: the Jacobian at the start is scaled to unit columns and decomposed
 (SVD: rank, condition number; QR with column pivoting: which parameters to keep). With
-``identifiability=True`` the parameters beyond the numerical rank are fixed at 0 and
-reported by name; otherwise they stay free and the solver's damping (L-M) or minimum-norm
-steps (Gauss-Newton via ``lstsq``) keep them at the smallest-norm solution.
+``identifiability=True`` the parameters determined too weakly to hold away from the fitted poses
+are fixed at 0 and reported by name (:data:`WEAK_TOL`). What the measurements cannot see at all
+(combinations of parameters that move the measured point alike: with one SMR, the last joint's
+frame and the tool offset) is not settled by fixing some of them: the fit is the one nearest the
+nominal robot, every parameter counted in units of its typical size
+(:meth:`pipeline.robot.effects.RobotEffect.typical_sizes`, :func:`physical_subspace`); the fit's
+``identifiability_["redundant_groups"]`` says, group by group, what was held and why
+(docs/physical-redundancy.md).
 
 The MDH calibration stage (:func:`calibrate_mdh`) is this estimator with the ``geometry``
 effect on the ``sample`` poses.
@@ -65,6 +70,8 @@ class Design:
     Q0 : ndarray, shape (n, nq)
         Error-model configuration with all parameters at 0 (joint angles in rad).
     names, units : parameter names and (unit, factor internal -> reported)
+    sizes : ndarray, shape (p,), each parameter's typical size in internal units
+        (:meth:`pipeline.robot.effects.RobotEffect.typical_sizes`)
     """
 
     def __init__(self, robot: Robot, effects: list[RobotEffect], data: RobotData, model_and_index=None):
@@ -74,11 +81,12 @@ class Design:
         n = data.n
         self.Q0 = np.zeros((n, self.idx.nq))
         self.Q0[:, self.idx.joints] = np.deg2rad(data.q_deg)
-        names, units, p_idx, c_idx, vals = [], [], [], [], []
+        names, units, sizes, p_idx, c_idx, vals = [], [], [], [], [], []
         for e in effects:
             offset = len(names)
             names += e.parameter_names(robot)
             units += e.units(robot)
+            sizes += list(e.typical_sizes(robot))
             for k, chans in enumerate(e.basis(robot, self.idx, data)):
                 for c, v in chans:
                     p_idx.append(offset + k)
@@ -86,6 +94,8 @@ class Design:
                     vals.append(np.broadcast_to(np.asarray(v, float), (n,)))
         self.names = names
         self.units = units
+        #: typical size of each parameter (internal units): the yardstick of "nearest the nominal robot"
+        self.sizes = np.array([z / f for z, (_, f) in zip(sizes, units)], float)
         self.p = len(names)
         self.p_idx = np.asarray(p_idx, int)
         self.c_idx = np.asarray(c_idx, int)
@@ -228,6 +238,222 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
             "fixed_reasons": reasons, "zero": zero}
 
 
+def frame_deviations(model, idx, Q, Q0) -> list[dict]:
+    """How far the model's frames move and turn from the nominal robot's over the sampled poses, as
+    ``{name, value, unit}`` for the plausibility bounds (:data:`pipeline.robot.lm.PLAUSIBLE_BOUNDS`).
+
+    Per frame, the largest over the poses of the shift (mm) and the turn (arcsec) of its placement
+    relative to the frame before it (the base relative to the world; joint i's link frame relative
+    to joint i-1's, joint angle errors included; the SMR relative to the flange), and of the flange
+    and the SMR in the base frame (everything before them together). Exact (pinocchio), every effect
+    of the model included: what a real robot's frames do, whatever parameters carry it.
+
+    Parameters
+    ----------
+    model : pin.Model, the error model (:func:`pipeline.robot.kinematics.build_error_model`)
+    Q, Q0 : ndarray, shape (n, nq)
+        Error-model configurations with the fitted parameters and with none (nominal).
+    """
+    import pinocchio as pin
+
+    N = idx.joints.size
+    fids = [model.getFrameId(nm) for nm in [f"link{i}" for i in range(1, N + 1)] + ["smr"]]
+    base_joint = int(idx.base[-1]) + 1                      # the last base error joint (pinocchio joint id)
+    data = model.createData()
+
+    def frames(Qs):
+        """Rotations (n, N + 2, 3, 3) and positions (n, N + 2, 3) m: base, link frames 1..N, SMR."""
+        R = np.empty((len(Qs), N + 2, 3, 3))
+        p = np.empty((len(Qs), N + 2, 3))
+        for k, q in enumerate(np.asarray(Qs, float)):
+            pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
+            M = [data.oMi[base_joint]] + [data.oMf[f] for f in fids]
+            R[k] = [m.rotation for m in M]
+            p[k] = [m.translation for m in M]
+        return R, p
+
+    def relative(R, p):
+        """Each frame relative to the one before it (the base relative to the world)."""
+        Rr, pr = R.copy(), p.copy()
+        Rr[:, 1:] = np.einsum("nfji,nfjk->nfik", R[:, :-1], R[:, 1:])
+        pr[:, 1:] = np.einsum("nfji,nfj->nfi", R[:, :-1], p[:, 1:] - p[:, :-1])
+        return Rr, pr
+
+    def angle(Ra, Rb):
+        """Rotation angle (rad) of Ra^T Rb, batched."""
+        c = (np.einsum("...ji,...ji->...", Ra, Rb) - 1.0) / 2.0
+        return np.arccos(np.clip(c, -1.0, 1.0))
+
+    R1, p1 = frames(Q)
+    R0, p0 = frames(Q0)
+    Rr1, pr1 = relative(R1, p1)
+    Rr0, pr0 = relative(R0, p0)
+    # E = rel0^-1 rel: shift rel0.R^T (rel.p - rel0.p), turn angle(rel0.R, rel.R)
+    shift = np.linalg.norm(np.einsum("nfji,nfj->nfi", Rr0, pr1 - pr0), axis=2).max(axis=0) * 1000.0
+    turn = angle(Rr0, Rr1).max(axis=0)
+    flange_turn = float(angle(R0[:, N], R1[:, N]).max())
+    smr_shift = float(np.linalg.norm(p1[:, -1] - p0[:, -1], axis=1).max()) * 1000.0
+    n_frames = N + 2
+    arcsec = 180.0 / np.pi * 3600.0
+    label = ["the base frame"] + [f"joint {i}'s link frame" for i in range(1, N + 1)] + ["the SMR on the flange"]
+    out = []
+    for k in range(n_frames):
+        out.append({"name": f"{label[k]}: shift from nominal (largest over the sampled poses)",
+                    "value": shift[k], "unit": "mm"})
+        if k < n_frames - 1:
+            out.append({"name": f"{label[k]}: turn from nominal (largest over the sampled poses)",
+                        "value": turn[k] * arcsec, "unit": "arcsec"})
+    out.append({"name": "the flange: turn from nominal in the base frame (largest over the sampled poses)",
+                "value": flange_turn * arcsec, "unit": "arcsec"})
+    out.append({"name": "the SMR: distance from its nominal position (largest over the sampled poses)",
+                "value": smr_shift, "unit": "mm"})
+    return out
+
+
+def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = RANK_TOL):
+    """What the measurements determine, represented nearest the nominal robot (contract section 8).
+
+    The fit moves the parameters ``x`` in the span of ``B0`` (the parameters kept, or the leading
+    singular directions): that span decides the predictions. Among the parameters ``free`` to move,
+    the directions ``n`` with ``A n = 0`` (relative singular value of the column-scaled ``A`` below
+    ``tol``) change no prediction: the measurements cannot see them (with one SMR, the last joint's
+    frame against the tool offset; a 7-joint arm's redundant axes). Every parameter is counted in
+    units of its typical size (``u = x / sizes``); the span of ``B0`` is replaced by its projection
+    orthogonal (in ``u``) to those directions. ``A B`` spans what ``A B0`` spans (the same
+    predictions, to first order), and the least-squares solution in it is the one nearest the
+    nominal robot: the smallest ``||x / sizes||`` of all the solutions that predict alike.
+
+    Parameters
+    ----------
+    A : ndarray, shape (m, p)
+        Jacobian of the residuals (with any penalty rows) at the nominal parameters.
+    B0 : ndarray, shape (p, k)
+        The fitted directions (columns), zero outside ``free``.
+    free : ndarray of bool, shape (p,)
+        Parameters that may move (not fixed at nominal).
+    sizes : ndarray, shape (p,)
+        Typical size of each parameter (internal units).
+
+    Returns
+    -------
+    B : ndarray, shape (p, k)
+        The directions to fit in (``x = B z``): each column of ``B0`` without its part along the unseen
+        directions (in ``u``).
+    U : ndarray, shape (p, r)
+        The directions the measurements cannot see (``u`` coordinates, orthonormal; 0 outside ``free``).
+    """
+    p = A.shape[1]
+    cols = np.flatnonzero(free)
+    U = np.zeros((p, 0))
+    if cols.size:
+        Af = A[:, cols] * sizes[cols]
+        nrm = np.linalg.norm(Af, axis=0)
+        nrm = np.where(nrm > 0, nrm, 1.0)
+        R = np.linalg.qr(Af / nrm, mode="r") if Af.shape[0] > Af.shape[1] else Af / nrm
+        _, sv, Vt = np.linalg.svd(R, full_matrices=True)
+        sv = np.concatenate([sv, np.zeros(cols.size - sv.size)])
+        null = Vt[sv <= tol * max(sv[0], 1e-300)].T / nrm[:, None]      # u coordinates, not orthonormal
+        if null.shape[1]:
+            Q, r, _ = scipy.linalg.qr(null, mode="economic", pivoting=True)
+            Q = Q[:, np.abs(np.diag(r)) > 1e-12 * np.abs(r[0, 0])]
+            U = np.zeros((p, Q.shape[1]))
+            U[cols] = Q
+    # each fitted direction without its unseen part: A B = A B0 column by column, so the solver sees the
+    # Jacobian it saw before (same steps, same convergence), and x = B z is the representative nearest
+    # the nominal robot
+    Bu = B0 / sizes[:, None]
+    Bu = Bu - U @ (U.T @ Bu)
+    Bu[~np.asarray(free, bool)] = 0.0          # a parameter fixed at nominal stays there
+    return sizes[:, None] * Bu, U
+
+
+def unseen_groups(U: np.ndarray, names, units, sizes, tol: float = 1e-9) -> list[dict]:
+    """The parameters the measurements cannot tell apart, group by group, in words (the fit JSON).
+
+    Parameters
+    ----------
+    U : ndarray, shape (p, r)
+        Orthonormal directions the measurements cannot see, in units of typical size
+        (:func:`physical_subspace`).
+
+    Returns
+    -------
+    list of dict: per group (parameters linked by an unseen direction; from the projector ``U U^T``,
+    so independent of the basis): ``parameters``, ``typical_sizes`` (reported units), ``seen`` and
+    ``unseen`` (how many combinations of them the measurements see and do not), ``held`` and ``why``
+    (plain words), and ``unseen_directions``: a canonical basis of the unseen combinations (reduced
+    row echelon form, reported units: the first parameter of each moves by one typical size).
+    """
+    if U.shape[1] == 0:
+        return []
+    P = U @ U.T
+    link = np.abs(P) > tol
+    p = len(names)
+    seen_at, groups = np.full(p, -1), []
+    for i in range(p):
+        if seen_at[i] >= 0 or P[i, i] <= tol:
+            continue
+        members, stack = [], [i]
+        seen_at[i] = len(groups)
+        while stack:
+            a = stack.pop()
+            members.append(a)
+            for b in np.flatnonzero(link[a]):
+                if seen_at[b] < 0:
+                    seen_at[b] = len(groups)
+                    stack.append(b)
+        groups.append(sorted(members))
+    out = []
+    for g in groups:
+        g = np.array(g)
+        k = int(round(float(np.trace(P[np.ix_(g, g)]))))
+        # canonical basis of the unseen combinations: reduced row echelon form of U's rows on the group
+        M = U[g].T[np.abs(U[g]).max(axis=0) > tol]                 # (r', n) spanning the group's part
+        M = scipy.linalg.orth(M.T).T if M.size else M
+        E = _rref(M)[:k]
+        dirs = []
+        for row in E:
+            # at a fixed resolution (1e-6 of the reported unit): the last bits of an SVD differ by machine
+            dirs.append({names[c]: round(float(v * sizes[c] * units[c][1]), 6) + 0.0
+                         for c, v in zip(g, row) if abs(v) > 1e-9})
+        typ = {names[c]: float(sizes[c] * units[c][1]) for c in g}
+        out.append({
+            "parameters": [names[c] for c in g], "typical_sizes": typ,
+            "seen": int(len(g) - k), "unseen": k,
+            "held": (f"the {k} combination{'s' if k != 1 else ''} of these {len(g)} parameters that the measurements "
+                     f"cannot see {'are' if k != 1 else 'is'} held where the parameters, each counted in units of its "
+                     "typical size, are nearest the nominal robot (the smallest sum of squares): what the "
+                     "measurements show is carried by the parameters that change least for it"),
+            "why": (f"at these poses the {len(g)} parameters move the measured point in only {len(g) - k} independent "
+                    f"way{'s' if len(g) - k != 1 else ''}: changed together as in each of the unseen directions, they "
+                    "leave every measured position as it is (e.g. with one SMR, the last joint's frame and the tool "
+                    "offset), so no measurement can say which of them it is"),
+            "unseen_directions": dirs})
+    return out
+
+
+def _rref(M: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Reduced row echelon form of M (rows: a basis of a subspace), pivoting by column order."""
+    A = np.array(M, float)
+    r = 0
+    rows, cols = A.shape
+    for c in range(cols):
+        if r >= rows:
+            break
+        piv = r + int(np.argmax(np.abs(A[r:, c])))
+        if abs(A[piv, c]) <= tol:
+            continue
+        A[[r, piv]] = A[[piv, r]]
+        A[r] /= A[r, c]
+        for i in range(rows):
+            if i != r:
+                A[i] -= A[i, c] * A[r]
+        r += 1
+    A[np.abs(A) < 1e-12] = 0.0
+    return A[:r]
+
+
 class RobotErrorModel:
     """Estimator of a robot error model made of effects (scikit-learn style).
 
@@ -286,8 +512,11 @@ class RobotErrorModel:
 
     @staticmethod
     def _priority(names):
-        """Which parameters to keep first when some are redundant: joint offsets, then link
-        lengths and twists, then d and beta (MDH practice); other effects in their order."""
+        """Order of the parameters in the rank and weak-determination passes of :func:`identifiability`:
+        joint offsets, then link lengths and twists, then d and beta (MDH practice); other effects in
+        their order. It decides which parameters are left at nominal when they are weakly determined
+        (the predictions), never how what the measurements cannot see is represented: redundant
+        parameters stay free and the fit is the one nearest the nominal robot (:func:`physical_subspace`)."""
         order = {"dtheta": 0, "da": 1, "dalpha": 2, "dd": 3, "dbeta": 4}
 
         def key(k):
@@ -354,6 +583,30 @@ class RobotErrorModel:
         else:
             keep = ident["keep"] if self.identifiability else np.ones(d.p, bool)
             B = np.eye(d.p)[:, keep]
+        # what the measurements cannot see stays physical (contract section 8): the span of B decides
+        # the predictions; within the parameters free to move, the directions that change no prediction
+        # are held where the model is nearest the nominal robot, every parameter counted in units of its
+        # typical size (physical_subspace). A parameter called redundant (an exact combination of the
+        # kept ones) is free: it takes its share of what it cannot be told apart from.
+        if self.identifiability and self.reduction == "fix":
+            redundant = np.array([ident["fixed_reasons"].get(n, {}).get("reason", "").startswith("redundant")
+                                  for n in d.names], bool)
+            movable = ident["keep"] | redundant
+        elif self.identifiability:
+            movable = ~ident["zero"]
+        else:
+            movable = np.ones(d.p, bool)
+        B, U = physical_subspace(np.vstack([J2, Pen]), B, movable, d.sizes)
+        moves = (np.abs(B).max(axis=1, initial=0.0) > 0) | (np.abs(U).max(axis=1, initial=0.0) > 0)
+        groups = unseen_groups(U, d.names, d.units, d.sizes)
+        in_group = {n for g in groups for n in g["parameters"]}
+        reasons = {n: r for n, r in ident["fixed_reasons"].items()
+                   if n not in in_group and not (n in d.names and moves[d.names.index(n)])}
+        ident["fixed_reasons"] = reasons
+        ident["not_identifiable"] = [n for n in d.names if n in reasons]
+        ident["redundant_groups"] = groups
+        #: directions of the parameters (internal units, columns) no measurement of the fit can see
+        self.unseen_ = d.sizes[:, None] * U
 
         def full(z):
             return B @ z
@@ -372,7 +625,8 @@ class RobotErrorModel:
         z0 = np.zeros(free.size)
         if self.start:
             x0 = np.array([float(self.start.get(nm, 0.0)) for nm in d.names])
-            z0 = np.linalg.lstsq(B, x0, rcond=None)[0] if B.shape[1] else z0
+            # the start's part in the fitted directions, counted in typical sizes
+            z0 = np.linalg.lstsq(B / d.sizes[:, None], x0 / d.sizes, rcond=None)[0] if B.shape[1] else z0
         if self.solver == "gauss-newton":
             # Gauss-Newton (Eq. 6 iterated) on the column-scaled Jacobian (minimum-norm steps from
             # its SVD), with Levenberg damping only when a full step does not lower the cost: the
@@ -442,7 +696,7 @@ class RobotErrorModel:
         self.names_ = d.names
         self.units_ = d.units
         self.identifiability_ = ident
-        self.fixed_ = ident["not_identifiable"] if self.identifiability else []
+        self.fixed_ = ident["not_identifiable"]
         self.cost_ = cost
         resid = (d.predict(self.coef_) - meas)
         self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
@@ -454,6 +708,9 @@ class RobotErrorModel:
             n = len(e.parameter_names(self.robot))
             checked += e.checked_values(self.robot, params[k:k + n], data.q_deg)
             k += n
+        # the frames judged by how far they move and turn (contract section 8: physical deviations, not
+        # a parameter that carried a direction the measurements cannot see)
+        checked += frame_deviations(d.model, d.idx, d.configurations(self.coef_), d.Q0)
         # and whether a joint's angle error varies beyond the robot's own error budget in the sampled
         # joint box (the yardstick diagnosis uses: pipeline.robot.budget)
         self.implausible_ = implausible_parameters(checked) + self._over_budget(d, data)
@@ -494,7 +751,20 @@ class RobotErrorModel:
         m.names_, m.units_ = d.names, d.units
         m.coef_ = np.array([by[n]["value"] / f for n, (u, f) in zip(d.names, d.units)])
         m.fixed_ = [p["name"] for p in parameters if p.get("fixed")]
+        m.unseen_ = np.zeros((len(d.names), 0))
         return m
+
+    def undetermined(self) -> np.ndarray:
+        """Directions of the parameters (internal units, shape (p, m)) the measurements of the fit did
+        not determine: the combinations no measurement could see (:attr:`unseen_`) and every parameter
+        left at nominal (:attr:`fixed_`). ``jointcal correct`` holds the flange orientation only where
+        none of them turns it."""
+        U = getattr(self, "unseen_", None)
+        U = np.zeros((len(self.names_), 0)) if U is None else np.asarray(U, float)
+        fixed = [k for k, n in enumerate(self.names_) if n in set(self.fixed_)]
+        E = np.zeros((len(self.names_), len(fixed)))
+        E[fixed, np.arange(len(fixed))] = 1.0
+        return np.hstack([U, E])
 
 
 def _empty_data(robot):
@@ -522,6 +792,7 @@ def calibrate_mdh(robot: Robot, data: RobotData, effects=None) -> tuple[RobotErr
               "condition_number": ident["condition_number"],
               "condition_number_all": ident["condition_number_all"],
               "not_identifiable": ident["not_identifiable"],
+              "redundant": ident.get("redundant_groups", []),
               "rms_before_mm": float(np.sqrt(np.mean(before**2))), "rms_after_mm": float(np.sqrt(np.mean(after**2))),
               "max_before_mm": float(before.max()), "max_after_mm": float(after.max()),
               "parameters": model.parameters()}

@@ -56,6 +56,30 @@ def all_joints(of=None) -> tuple:
 #: between poses (N m); the UR10's wrist joints carry under 1 N m in any pose.
 MIN_TORQUE_SPREAD_NM = 50.0
 
+#: Typical size of a robot error parameter by its reported unit (the yardstick of "nearest the
+#: nominal robot", contract section 8: a parameter counts in units of its typical size):
+#:
+#: * ``arcsec``: 100 arcsec (0.03 deg): joint zero offsets, axis twists and tilts of a machined and
+#:   assembled arm are tens to a few hundred arcseconds (the simulated cells draw 20-200; the real
+#:   UR10's calibration.conf deltas are of that order); joint maps, harmonics and backlash too.
+#: * ``mm``: 0.5 mm: link lengths and offsets of a machined and assembled arm are off by tenths of a
+#:   millimetre to a millimetre (the simulated cells draw 0.63 mm).
+#: * ``arcsec/kNm``: 50 arcsec per kN m (a joint's compliance; the simulated cells draw 20-60).
+#: * ``ppm/K``: 12 ppm/K (the expansion of steel; aluminium 23).
+#:
+#: The ratio of a length to an angle (0.5 mm / 100 arcsec = 1.03 m) is the lever arm at which a
+#: shift and a rotation count alike: a tool-offset error (1 mm typical, :class:`Tool`) seen by an
+#: SMR within a few hundred mm of the last joint's axis costs less as a tool offset than as the
+#: rotation of the last joint's frame that would move the SMR as much.
+TYPICAL_SIZE = {"arcsec": 100.0, "mm": 0.5, "arcsec/kNm": 50.0, "ppm/K": 12.0}
+#: Typical size of the tool (SMR) offset error (mm): where an SMR or tool sits on the flange is known
+#: from a drawing or a hand measurement of a nest, to about a millimetre (the simulated cells draw
+#: 0.3-0.8 mm), less well than the machined links.
+TOOL_TYPICAL_MM = 1.0
+#: Typical size of the base frame error: the tracker-to-base registration, about a millimetre and
+#: 100 arcsec (the simulated cells draw 0.3-0.8 mm and 20-60 arcsec).
+BASE_TYPICAL_MM, BASE_TYPICAL_ARCSEC = 1.0, 100.0
+
 
 @dataclass
 class RobotData:
@@ -215,6 +239,13 @@ class RobotEffect(Effect):
         """Reported unit of each parameter and the factor internal -> reported."""
         raise NotImplementedError
 
+    def typical_sizes(self, robot: Robot) -> list[float]:
+        """Typical size of each parameter on a real robot, in its reported unit (:meth:`units`):
+        the yardstick of "nearest the nominal robot" where the measurements cannot tell parameters
+        apart (contract section 8; :func:`pipeline.robot.calibrate.physical_sizes`). By default
+        from the unit (:data:`TYPICAL_SIZE`); an effect whose parameters are of another size says so."""
+        return [TYPICAL_SIZE.get(u, 1.0) for u, _ in self.units(robot)]
+
     def prepared(self, robot: Robot, data: RobotData) -> "RobotEffect":
         """The effect made ready for a fit on ``data`` (scikit-learn's fit-time state): an effect
         whose parameters depend on the data (a grid over the sampled joint range) returns a copy
@@ -255,6 +286,12 @@ class Geometry(RobotEffect):
     signature = ("a smooth position error that follows the arm's geometry: constant joint offsets and link "
                  "length errors; in residuals, a pattern fully explained by the MDH Jacobian")
     PARAMS = ("dtheta", "dd", "da", "dalpha", "dbeta")
+
+    def checked_values(self, robot, parameters, q_deg):
+        """None one by one: where the measurements cannot tell them apart, a parameter may carry what
+        another would; the fit judges how far the frames move and turn instead
+        (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
 
     def parameter_names(self, robot):
         return [f"{p}{i}" for i in self.joints(robot) for p in self.PARAMS]
@@ -297,6 +334,13 @@ class Base(RobotEffect):
     def units(self, robot):
         return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * 3
 
+    def typical_sizes(self, robot):
+        return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
+
+    def checked_values(self, robot, parameters, q_deg):
+        """Judged as the base frame's shift and turn (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
+
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.base]
 
@@ -330,6 +374,13 @@ class Tool(RobotEffect):
 
     def units(self, robot):
         return [("mm", 1.0)] * 3
+
+    def typical_sizes(self, robot):
+        return [TOOL_TYPICAL_MM] * 3
+
+    def checked_values(self, robot, parameters, q_deg):
+        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        return []
 
     def basis(self, robot, idx, data):
         return [[(c, 1e-3)] for c in idx.tool]

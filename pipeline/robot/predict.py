@@ -108,7 +108,27 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
             "frame": frame or {"frame": "base", "tracker_to_base": np.eye(4).tolist()},
             **made_for,
             "identification": {"rank_tol": ident.get("rank_tol"), "condition_number": ident.get("condition_number"),
-                               "fixed": {n: r.get("reason") for n, r in reasons.items()}}}
+                               "fixed": {n: r.get("reason") for n, r in reasons.items()},
+                               # what the measurements cannot tell apart, group by group, and how it is held
+                               # (contract section 8: nearest the nominal robot in typical sizes)
+                               "redundant": ident.get("redundant_groups", [])}}
+
+
+def unseen_directions(doc: dict, model) -> np.ndarray:
+    """The parameter directions (internal units, shape (p, m)) that the fit's measurements could not
+    see, from the fit JSON's ``identification.redundant`` groups (none in a JSON written before them)."""
+    groups = ((doc.get("identification") or {}).get("redundant") or []) if isinstance(doc, dict) else []
+    index = {n: k for k, n in enumerate(model.names_)}
+    cols = []
+    for g in groups if isinstance(groups, list) else []:
+        for direction in (g.get("unseen_directions") or []) if isinstance(g, dict) else []:
+            v = np.zeros(len(model.names_))
+            for name, value in direction.items() if isinstance(direction, dict) else []:
+                if name in index and isinstance(value, (int, float)) and np.isfinite(value):
+                    v[index[name]] = float(value) / model.units_[index[name]][1]
+            if np.any(v):
+                cols.append(v)
+    return np.stack(cols, axis=1) if cols else np.zeros((len(model.names_), 0))
 
 
 def load_model_document(doc: dict, path) -> tuple:
@@ -141,6 +161,7 @@ def load_model_document(doc: dict, path) -> tuple:
         raise InputError(path, f"the model's parameters do not match its effects ({exc})", 1, 1) from None
     if not np.all(np.isfinite(model.coef_)):
         raise InputError(path, "the model has a parameter that is not a finite number", 1, 1)
+    model.unseen_ = unseen_directions(doc, model)
     frame = doc.get("frame") or {"frame": "base", "tracker_to_base": np.eye(4).tolist()}
     return robot, effects, model, doc["sampled_range"], frame
 

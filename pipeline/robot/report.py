@@ -46,6 +46,8 @@ def robot_report(inputs: dict, out) -> None:
                   f"  effects {', '.join(mdh['effects'])}; rank {mdh['rank']} of {mdh['n_params']}, "
                   f"condition number {mdh['condition_number']:.0f}",
                   f"  not identifiable (fixed at 0): {', '.join(mdh['not_identifiable']) or 'none'}",
+                  *([f"  told apart by no measurement (held nearest the nominal robot): "
+                     f"{'; '.join(', '.join(g['parameters']) for g in mdh['redundant'])}"] if mdh.get("redundant") else []),
                   f"  RMS residual {mdh['rms_before_mm']:.3f} -> {mdh['rms_after_mm']:.3f} mm", "",
                   f"Chebyshev model (Eqs. 7-13), {ch['n_params']} coefficients on {ch['n_poses']} poses:",
                   f"  exact rank {ch['rank_exact']}, numerical rank {ch['rank']} (tol {ch['rank_tol']:g}); "

@@ -175,3 +175,21 @@ def urscript(robot, Q, name="prog"):
                 lines.append(f"  {'movej' if kind == 'ptp' else 'movel'}({lit}, a=1.2, v=0.25, r=0)")
     lines += ["  movel(pose_add(get_actual_tcp_pose(), p[0, 0, 0.05, 0, 0, 0]), a=1.2, v=0.25)", "end", f"{name}()"]
     return "\n".join(lines) + "\n"
+
+
+def smooth_path(robot, Q, n):
+    """``n`` of the joint vectors Q (m, 6) deg on one branch (the commonest), far from its
+    singularities, in a nearest-neighbour order: a program a controller runs without a branch change."""
+    chain = ik.chain_of(robot)
+    F = ik.frames(chain, np.deg2rad(Q))
+    v = ik._flag_values(F)
+    code = (v < 0) @ np.array([1, 2, 4])
+    scale = np.abs(v).max(axis=0)
+    margin = np.min(np.abs(v) / scale, axis=1)
+    Q = Q[(code == np.bincount(code).argmax()) & (margin > 0.1)]
+    order = [0]
+    left = list(range(1, len(Q)))
+    while left and len(order) < n:
+        d = np.abs(Q[left] - Q[order[-1]]).max(axis=1)
+        order.append(left.pop(int(np.argmin(d))))
+    return Q[order]

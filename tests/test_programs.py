@@ -228,8 +228,10 @@ def test_filtered_program_lands_on_the_model(cells, tmp_path, fmt):
         extra = ["--tool", FANUC_TOOL] if fmt == "fanuc" else []
     run = cells["run"]
     payload = ["--payload", cells[cell]["payload"]]
+    # one UR10 target near the stretched elbow needs 2.3 deg of joint 3 (the default limit 0.5 deg would
+    # leave it as given, at its uncorrected error)
     r = run("correct", "--model", cells["tmp"] / f"{cell}_fit.json", "--program", prog, "--out", tmp_path / "out",
-            "--max-correction-deg", "2", *payload, *extra)
+            "--max-correction-deg", "5", *payload, *extra)
     assert r.exit_code == 0, r.output
     intended = _intended(robot_path, prog, extra)
     assert len(intended) == 32
@@ -242,10 +244,7 @@ def test_filtered_program_lands_on_the_model(cells, tmp_path, fmt):
         rms[label] = float(np.sqrt(np.mean(np.sum((xyz - intended) ** 2, axis=1))))
     heldout = fit["heldout"]["rms_after_mm"]
     before = fit["heldout"]["rms_before_mm"]
-    if fmt == "ur":     # this UR10 cell (seed 3): 0.22 mm filtered vs 0.77 given, the bound 0.107 (see docs)
-        assert rms["filtered"] <= 0.35 * rms["given"], (rms, heldout)
-    else:
-        assert rms["filtered"] <= 1.25 * heldout + 0.005, (rms, heldout)
+    assert rms["filtered"] <= 1.25 * heldout + 0.005, (rms, heldout)
     assert 0.5 * before < rms["given"] < 2.0 * before, (rms, before)
 
 

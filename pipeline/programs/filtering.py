@@ -84,6 +84,9 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     start = (robot.lower_deg + robot.upper_deg) / 2
     # pass 1: frames, flange poses and the branch each Cartesian target is wanted on (flags propagate)
     prev_flags = ik.arm_flags(chain, start[None])[0]
+    joint_k = [k for k, t in enumerate(targets) if t.kind == JOINT and not t.runtime]
+    joint_flags = dict(zip(joint_k, ik.arm_flags(chain, np.array([fm.joints_deg(fmt, targets[k].values)
+                                                                  for k in joint_k])))) if joint_k else {}
     want, T_fl, cart = {}, {}, []
     for k, t in enumerate(targets):
         if t.runtime:
@@ -92,7 +95,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         if t.kind == JOINT:
             qj = fm.joints_deg(fmt, t.values)
             q[k] = qj
-            prev_flags = ik.arm_flags(chain, qj[None])[0]
+            prev_flags = joint_flags[k]
             continue
         tool_T = _frame(t, "tool", tool, slots, fmt)
         base_T = _frame(t, "base", base, slots, fmt)
@@ -192,6 +195,15 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             q1[k] = res.q_deg[r]
     changes = {}
     seen = {}
+    done = sorted(q1)
+    if done:
+        both = np.concatenate([played.q_deg[done], np.array([q1[k] for k in done])])
+        fl = ik.arm_flags(chain, both)
+        F_all = ik.flange(chain, np.deg2rad(both))
+        flags_a = dict(zip(done, fl[:len(done)]))
+        flags_b = dict(zip(done, fl[len(done):]))
+        fl_a = dict(zip(done, F_all[:len(done)]))
+        fl_b = dict(zip(done, F_all[len(done):]))
     smr = np.append(np.asarray(robot.tool_xyz_mm, float), 1.0)
     for k, t in enumerate(targets):
         row = {"file": t.file, "line": t.line, "name": t.name, "kind": t.kind, "status": OK, "reason": "",
@@ -211,20 +223,19 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         qa, qb = played.q_deg[k], q1[k]
         dq = np.abs(qb - qa).max() * 3600.0
         if t.kind == CARTESIAN:
-            fa, fb = ik.arm_flags(chain, np.array([qa, qb]))
+            fa, fb = flags_a[k], flags_b[k]
             if tuple(fa) != tuple(fb) or (t.branch == CONFIG and not fm.turn_ok(fmt, t.turn, qb)):
                 row["status"] = "branch_change"
                 row["reason"] = "the corrected joints are on another branch or turn than the target names"
                 continue
-            Fb = ik.flange(chain, np.deg2rad(qb[None]))[0]
+            Fb = fl_b[k]
             new_pose = invert(played.base[k]) @ Fb @ played.tool[k]
             old = t.values
             new = fm.pose_values(fmt, new_pose, old)
             move = float(np.linalg.norm(new_pose[:3, 3] - fm.pose(fmt, old)[:3, 3]))
         else:
             new = fm.joint_values(fmt, qb)
-            F = ik.flange(chain, np.deg2rad(np.array([qa, qb])))
-            move = float(np.linalg.norm((F[1] @ smr - F[0] @ smr)[:3]))
+            move = float(np.linalg.norm((fl_b[k] @ smr - fl_a[k] @ smr)[:3]))
         for num, v in zip(t.numbers, new):
             s = num.respell(float(v))
             if s is not None:

@@ -316,16 +316,16 @@ def solve_branch(chain: Chain, T, want) -> list:
     rep_flags = flags_from_frames(frames(chain, reps))
     az_rep = _azimuth(frames(chain, reps)[:, -1, :3, 3])
     az_t = _azimuth(T[:, :3, 3])
-    S = np.zeros((n, 1, N))
-    for i in range(n):
-        k = np.flatnonzero(np.all(rep_flags == want[i], axis=1))
-        k = int(k[0]) if k.size else 0
-        S[i, 0] = reps[k]
-        S[i, 0, 0] += az_t[i] - az_rep[k]
-    sols = _run(chain, T, S)
-    out = [_keep(chain, s, w) for s, w in zip(sols, want)]
-    missing = [i for i in range(n) if not len(out[i])]
-    if missing:
+    match = np.all(rep_flags[None, :, :] == want[:, None, :], axis=2)           # (n, k)
+    pick = np.where(match.any(axis=1), np.argmax(match, axis=1), 0)
+    S = reps[pick].copy()
+    S[:, 0] += az_t - az_rep[pick]
+    Q, ok = newton(chain, T, S)
+    Q = wrap(Q)
+    good = ok & np.all(flags_from_frames(frames(chain, Q)) == want, axis=1)
+    out = [Q[i:i + 1] if good[i] else np.zeros((0, N)) for i in range(n)]
+    missing = np.flatnonzero(~good)
+    if missing.size:
         rng = np.random.default_rng(7)
         more = _run(chain, T[missing], np.concatenate(
             [np.repeat(reps[None], len(missing), axis=0), rng.uniform(-np.pi, np.pi, (len(missing), 56, N))], axis=1))

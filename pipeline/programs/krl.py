@@ -114,11 +114,10 @@ class _Data:
     def scan(self, src, fidx):
         text = src.text
         pos = 0
-        for raw in text.splitlines(keepends=True):
-            code = strip_comment(raw, ";")
+        for line, raw in enumerate(text.splitlines(keepends=True), 1):
+            code = strip_comment(raw, ";") if ";" in raw else raw
             m = DECL_RE.match(code)
             if m:
-                line = text.count("\n", 0, pos) + 1
                 brace = code.find("{", m.end())
                 if brace < 0 or code[m.end():brace].strip():
                     raise InputError(src.path, f"DECL {m.group(2)} {m.group(3)}: the value must be an aggregate {{...}}",

@@ -9,6 +9,7 @@ whose rounded new value spells the same is not touched at all.
 
 from __future__ import annotations
 
+import bisect
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,9 @@ class Source:
 
     def line_of(self, pos: int) -> int:
         """1-based line of a character position."""
-        return self.text.count("\n", 0, pos) + 1
+        if not hasattr(self, "_starts"):
+            self._starts = [m.end() for m in re.finditer("\n", self.text)]
+        return bisect.bisect_right(self._starts, pos) + 1
 
 
 def read_source(path) -> Source:
@@ -116,15 +119,19 @@ def rewrite(sources: list[Source], changes: dict[tuple[int, int, int], str]) -> 
     """Texts of the files with the numbers at ``(file, start, end)`` replaced (nothing else touched)."""
     out = []
     for i, s in enumerate(sources):
-        text = s.text
-        for (f, a, b), new in sorted(((k, v) for k, v in changes.items() if k[0] == i), key=lambda kv: -kv[0][1]):
-            text = text[:a] + new + text[b:]
-        out.append(text)
+        pieces, at = [], 0
+        for (f, a, b), new in sorted((k, v) for k, v in changes.items() if k[0] == i):
+            pieces += [s.text[at:a], new]
+            at = b
+        pieces.append(s.text[at:])
+        out.append("".join(pieces))
     return out
 
 
 def strip_comment(line: str, marker: str) -> str:
     """``line`` without its comment (``marker`` outside double quotes)."""
+    if marker not in line:
+        return line
     inside = False
     for k, ch in enumerate(line):
         if ch == '"':

@@ -294,3 +294,41 @@ def test_unreachable_target_is_named_and_left_as_given(cells, tmp_path):
     rows = [t for t in json.loads((tmp_path / "r.json").read_text())["targets"] if t["name"] == m.group(1)]
     assert rows[0]["status"] == "no_ik_solution" and f"{m.group(1)} (cartesian) left as given" in r.output
     assert "X 9000.0," in (tmp_path / "out/sample.dat").read_text(encoding="latin-1")
+
+
+def test_decisions_on_unconfirmed_conventions():
+    """KR210 (q5 = 0 is its wrist singularity): the middle of its ranges is front, elbow up, no flip;
+    q5 < 0 is flip (KUKA S bit 2, ABB cfx bit 0, FANUC N); FANUC turns are those of joints 1, 4, 6."""
+    chain = ik.chain_of(load_robot(KR210))
+    mid = np.array([0.0, -90.0, 95.0, 0.0, 85.0, -10.0])
+    assert ik.arm_flags(chain, mid[None]).tolist() == [[False, False, False]]
+    assert ik.arm_flags(chain, (mid * [1, 1, 1, 1, -1, 1])[None]).tolist() == [[False, False, True]]
+    assert cv.fanuc_turns([190, 0, 0, -190, 0, 370]) == (1, -1, 1) and cv.fanuc_turns([0, 400, 400, 0, 0, 0]) == (0, 0, 0)
+
+
+def test_ptp_goes_to_the_branch_its_configuration_names(tmp_path):
+    """A KR210 with full joint ranges: the same pose at S 2 and S 6 (flip) gives the two wrist
+    solutions; T picks the turn; a LIN after it keeps the branch of the point before."""
+    from pipeline.programs.filtering import play
+    from pipeline.programs.io import read_program
+
+    robot = load_robot(KR210)
+    for i in range(6):
+        robot = robot.replace_joint(i, lower_deg=-350.0, upper_deg=350.0)
+    chain = ik.chain_of(robot)
+    q = np.array([10.0, -95.0, 100.0, 20.0, 70.0, 30.0])
+    qf = q + [0, 0, 0, 180, 0, 180]
+    qf[4] = -q[4]
+    T = ik.flange(chain, np.deg2rad(q[None]))[0]
+    assert np.allclose(ik.flange(chain, np.deg2rad(qf[None]))[0], T, atol=1e-9)
+    a, b, c = cv.kuka_abc(T[:3, :3])
+    pos = f"X {T[0, 3]:.6f},Y {T[1, 3]:.6f},Z {T[2, 3]:.6f},A {a:.7f},B {b:.7f},C {c:.7f}"
+    t_flip = cv.kuka_turn(qf)
+    (tmp_path / "p.src").write_text("DEF p( )\n$TOOL = {X 0,Y 0,Z 0,A 0,B 0,C 0}\nBAS(#BASE, 0)\n"
+                                    f"PTP {{{pos},S 2,T {cv.kuka_turn(q)}}}\nPTP {{{pos},S 6,T {t_flip}}}\n"
+                                    f"LIN {{{pos},S 2,T 0}}\nPTP {{{pos},S 6,T {t_flip ^ 8}}}\nEND\n")
+    pl = play(read_program(tmp_path / "p.src"), robot)
+    assert np.allclose(pl.q_deg[0], q, atol=1e-6)
+    assert np.allclose(pl.q_deg[1], qf, atol=1e-6)
+    assert np.allclose(pl.q_deg[2], qf, atol=1e-6)         # LIN: the branch of the point before, S ignored
+    assert np.allclose(pl.q_deg[3], qf - [0, 0, 0, 360, 0, 0], atol=1e-6)   # T bit 3: joint 4 negative

@@ -214,7 +214,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             row["status"] = "same_target"
             row["reason"] = f"the declaration {t.name} was filtered at its first use, line {first}"
             continue
-        if t.decl:
+        if t.decl and not t.runtime:
             seen[t.decl] = t.line
         if k in status:
             row["status"] = _status_word(status[k], t)

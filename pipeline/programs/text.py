@@ -111,10 +111,6 @@ def spell(value: float, like: str) -> str:
     return ("+" if sign == "+" else "") + out
 
 
-def same_value(a: str, b: str) -> bool:
-    return float(a) == float(b)
-
-
 def rewrite(sources: list[Source], changes: dict[tuple[int, int, int], str]) -> list[str]:
     """Texts of the files with the numbers at ``(file, start, end)`` replaced (nothing else touched)."""
     out = []

@@ -52,8 +52,9 @@ def _load_robot_model(path, doc):
               help="--program: the program's base in the robot's base frame where the program does not define it "
                    "(KRL BASE_DATA[n], FANUC UFRAME[n], an undeclared RAPID work object); same form as --tool. KRL "
                    "base 0, FANUC UF : 0 and RAPID wobj0 are the robot's base frame.")
-@click.option("--payload", "payload_kg", default=0.0, show_default=True, type=click.FloatRange(min=0),
-              help="--program: the mass (kg) the robot carries while it runs the program.")
+@click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
+              help="--program: the mass (kg) the robot carries while it runs the program (default: as for a "
+                   "--targets row without payload_kg).")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
               help="--program: write the per-target report as JSON.")
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),

@@ -155,7 +155,7 @@ class Filtered:
     texts: list = field(default_factory=list)
 
 
-def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg: float = 0.0,
+def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg: float | None = None,
                    max_correction_deg: float = 0.5) -> Filtered:
     """Filter a program's targets through a fitted model (see the module docstring).
 
@@ -167,8 +167,9 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         Joint ranges the model was fitted on (``{"lower_deg": [6], "upper_deg": [6]}``).
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` (format's convention).
-    payload_kg : float, kg
-        Mass the robot carries while it runs the program.
+    payload_kg : float, kg, optional
+        Mass the robot carries while it runs the program (None: what ``correct_commands`` assumes
+        for a row without a payload).
     max_correction_deg : float, deg
     """
     from ..correct.robot import correct_commands
@@ -187,8 +188,8 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     if idx:
         start = (robot.lower_deg + robot.upper_deg) / 2
         dirs = directions_from_sequence(q0, start_deg=start)
-        res = correct_commands(kin, q0, None, dirs, np.full(len(idx), float(payload_kg)), None, sampled,
-                               max_correction_deg)
+        payload = None if payload_kg is None else np.full(len(idx), float(payload_kg))
+        res = correct_commands(kin, q0, None, dirs, payload, None, sampled, max_correction_deg)
         for r, k in enumerate(idx):
             if res.status[r] != "ok":
                 status[k] = f"{res.status[r]}: {res.reason[r]}"

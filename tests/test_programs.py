@@ -253,6 +253,7 @@ BAD = [
     ("sample.src", "PTP XP1\r\n", "SPLINE\r\nPTP XP1\r\n", "unknown motion statement"),
     ("sample.src", "$BASE = {X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}", "BAS(#BASE, 3)", "give it with --base"),
     ("sample.dat", "DECL E6POS XP1={X", "DECL E6POS XP1={{X", "unbalanced"),
+    ("sample.dat", "ENDDAT", ";ENDDAT", "DEFDAT without ENDDAT"),
     ("sample.mod", "MoveL p2,", "MoveJDO p2,", "unknown motion instruction"),
     ("sample.mod", "tSMR \\WObj:=wCell;  ! to p1", "tOther \\WObj:=wCell;  ! to p1", "tool tOther"),
     ("sample.ls", "/END", "/ENX", "no /END"),

@@ -156,6 +156,10 @@ def read(path) -> Program:
     if dat is not None:
         sources.append(read_source(dat))
         data.scan(sources[1], 1)
+        codes = [strip_comment(x, ";").strip().upper() for x in sources[1].text.splitlines()]
+        opened = [k for k, c in enumerate(codes, 1) if re.match(r"^DEFDAT\b", c)]
+        if opened and not any(re.match(r"^ENDDAT\b", c) for c in codes):
+            raise InputError(sources[1].path, "DEFDAT without ENDDAT", opened[0], None)
     data.scan(src, 0)
     text = src.text
     targets = []

@@ -333,3 +333,41 @@ def test_ptp_goes_to_the_branch_its_configuration_names(tmp_path):
     assert np.allclose(pl.q_deg[1], qf, atol=1e-6)
     assert np.allclose(pl.q_deg[2], qf, atol=1e-6)         # LIN: the branch of the point before, S ignored
     assert np.allclose(pl.q_deg[3], qf - [0, 0, 0, 360, 0, 0], atol=1e-6)   # T bit 3: joint 4 negative
+
+
+def test_kss8_inline_form_fanuc_continuation_and_names_from_elsewhere(cells, tmp_path):
+    """KSS 8 ``SPTP ... WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)`` takes FP1's tool and base
+    numbers (here TOOL_DATA[1], BASE_DATA[1]: --tool, --base); ``PTP XHOME`` of $config.dat is named and
+    left as given; a FANUC instruction continued on a ':' line is read whole (its Offset option seen)."""
+    src = tmp_path / "in"
+    shutil.copytree(DATA, src)
+    s = (src / "sample.src").read_bytes().decode("latin-1")
+    s = s.replace("PTP XP1\r\n", "SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO), $APO = "
+                  "SAPO_PTP(PPDAT1)\r\nPTP XHOME\r\n", 1)
+    s = s.replace("$TOOL = {X 60.0,Y 40.0,Z 120.0,A 30.0,B -20.0,C 10.0}", "BAS(#TOOL, 1)")
+    s = s.replace("$BASE = {X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}", "BAS(#BASE, 1)")
+    (src / "sample.src").write_bytes(s.encode("latin-1"))
+    d = (src / "sample.dat").read_bytes().decode("latin-1")
+    d = d.replace("ENDDAT", "DECL FDAT FP1={TOOL_NO 1,BASE_NO 1,IPO_FRAME #BASE,POINT2[] \" \",TQ_STATE FALSE}\r\n"
+                  "ENDDAT")
+    (src / "sample.dat").write_bytes(d.encode("latin-1"))
+    run = cells["run"]
+    model = cells["tmp"] / "kr210_identity.json"
+    r = run("correct", "--model", model, "--program", src / "sample.src", "--out", tmp_path / "o1")
+    assert r.exit_code == 2 and "give it with --tool" in r.output
+    r = run("correct", "--model", model, "--program", src / "sample.src", "--out", tmp_path / "o2", "--tool",
+            "60 40 120 30 -20 10", "--base", "100 -50 20 5 0 0", "--json", tmp_path / "r.json")
+    assert r.exit_code == 0, r.output
+    rows = {t["name"]: t for t in json.loads((tmp_path / "r.json").read_text())["targets"]}
+    assert rows["XP1"]["status"] == "ok" and rows["XHOME"]["status"] == "run_time"
+    assert "declared outside the program" in rows["XHOME"]["reason"]
+    for f in ("sample.src", "sample.dat"):
+        assert (tmp_path / "o2" / f).read_bytes() == (src / f).read_bytes()
+    ls = (src / "sample.ls").read_text()
+    first = re.search(r"(?m)^(\s*\d+:J P\[1\] 100% CNT50)(\s*;)$", ls)
+    (src / "sample.ls").write_text(ls.replace(first.group(0), first.group(1) + "\n    :  Offset,PR[3]" + first.group(2)))
+    r = run("correct", "--model", model, "--program", src / "sample.ls", "--out", tmp_path / "o3", "--tool", FANUC_TOOL,
+            "--json", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    rows = json.loads((tmp_path / "f.json").read_text())["targets"]
+    assert rows[0]["name"] == "P[1]" and rows[0]["status"] == "run_time" and "Offset" in rows[0]["reason"]

@@ -121,6 +121,22 @@ def read(path) -> Program:
         if not raw.strip():
             k += 1
             continue
+        if re.match(r"^\s*\d+\s*:", raw) and not raw.rstrip().endswith(";") and not CIRC_FIRST.match(raw):
+            # a long instruction the TP wrote on several lines: continuation lines start with ':'
+            j = k + 1
+            while j < stop and re.match(r"^\s*:", lines[j]) and not lines[j - 1].rstrip().endswith(";"):
+                j += 1
+            if j == k + 1 or not lines[j - 1].rstrip().endswith(";"):
+                raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;')",
+                                 k + 1, None)
+            raw = raw + " " + " ".join(re.sub(r"^\s*:", "", x.rstrip("\r\n")) for x in lines[k + 1:j])
+            m = MN_LINE.match(raw)
+            mm = MOTION.match(m.group(1))
+            if mm:
+                motions.append((k + 1, mm.group(1).upper(), mm.group(2), mm.group(3), int(mm.group(4)),
+                                m.group(1)[mm.end():]))
+            k = j
+            continue
         if CIRC_FIRST.match(raw):
             if k + 1 >= stop or not CIRC_SECOND.match(lines[k + 1].rstrip("\r\n")):
                 raise InputError(src.path, "C (circular) needs its second line ':  P[j] speed term ;'", k + 2, None)

@@ -11,9 +11,11 @@ base 0 the robot's base frame; any other number is ``TOOL_DATA``/``BASE_DATA`` o
 the sign of each joint.
 
 Left as given and named: geometric operators (``XP1 : {X 10}``), ``PTP_REL``/``LIN_REL``, ``$POS_ACT``
-and other system variables, indexed arrays, partial aggregates (``{X 10, Y 20}``), and targets under
-``IPO_FRAME #TCP`` (a stationary tool). Refused (file:line): unbalanced braces, a ``DEF`` without
-``END``, a name nobody declared, spline blocks (``SPLINE``/``SPL``) and asynchronous motions.
+and other system variables, indexed arrays, partial aggregates (``{X 10, Y 20}``), targets under
+``IPO_FRAME #TCP`` (a stationary tool), and names declared outside the program (``XHOME`` of
+``$config.dat``). KSS 8 inline forms (``SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)``)
+take the tool and base of their FDAT. Refused (file:line): unbalanced braces, a ``DEF`` without
+``END``, a ``DEFDAT`` without ``ENDDAT``, spline blocks (``SPLINE``/``SPL``) and asynchronous motions.
 """
 
 from __future__ import annotations
@@ -228,7 +230,24 @@ def read(path) -> Program:
         if word.endswith("_REL"):
             targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})"))
             continue
-        rest_main = re.split(r"\bWITH\b", rest, flags=re.IGNORECASE)[0]
+        with_parts = re.split(r"\bWITH\b", rest, maxsplit=1, flags=re.IGNORECASE)
+        rest_main = with_parts[0]
+        if len(with_parts) > 1:            # KSS 8 inline forms: $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)
+            for which, pat in (("TOOL", r"\$TOOL\s*=\s*STOOL2\s*\(\s*([A-Za-z_]\w*)\s*\)"),
+                               ("BASE", r"\$BASE\s*=\s*SBASE\s*\(\s*([A-Za-z_]\w*)\s*\.\s*BASE_NO\s*\)")):
+                mw = re.search(pat, with_parts[1], re.IGNORECASE)
+                if not mw:
+                    continue
+                d = data.decls.get(mw.group(1).upper())
+                key = f"{which}_NO"
+                if d is None or d[0] != "FDAT" or key not in d[3]:
+                    raise InputError(src.path, f"{word} ... WITH: no DECL FDAT {mw.group(1)} with {key} in the .src or "
+                                     ".dat", lineno, None)
+                fr = _numbered(which, int(float(d[3][key][0])))
+                if which == "TOOL":
+                    tool = fr
+                else:
+                    base = fr
         rest_main = re.sub(r"\s+(C_PTP|C_DIS|C_VEL|C_ORI|C_SPL)(\s+C_\w+)*\s*$", "", rest_main, flags=re.IGNORECASE)
         parts = split_top(rest_main)
         if word in ("CIRC", "SCIRC"):
@@ -296,7 +315,8 @@ def _motion_target(expr, at, text, data, path, line, word) -> Target:
         return Target(path, line, e, CARTESIAN, branch, runtime=f"the system variable {e} (the robot's current position)")
     d = data.decls.get(e.upper())
     if d is None:
-        raise InputError(path, f"{word} {e}: no DECL of {e} in the .src or its .dat", line, None)
+        return Target(path, line, e, CARTESIAN, branch,
+                      runtime=f"{e} is declared outside the program (not in the .src or its .dat; e.g. $config.dat)")
     dtype, fidx, brace, items, dline, name = d
     if dtype in ("FDAT", "FRAME"):
         if dtype == "FDAT":

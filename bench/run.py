@@ -144,6 +144,7 @@ OPTIONAL_JOBS = {
     "fleet": "bench.fleet_bench",          # fleet of robots
     "real": "bench.real_bench",            # real UR10: import + fit of 2,773 poses, predict on 10,000
     "correct": "bench.correct_bench",      # jointcal correct of a 10,000-point program (every effect)
+    "programs": "bench.programs_bench",    # jointcal correct --program: 10,000-target KRL, RAPID and FANUC programs
     "plan": "bench.plan_bench",            # planned poses against random ones (real UR10, virtual cell)
     "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
 }

@@ -39,6 +39,18 @@ def _joint_list(text, n_joints: int, option: str) -> list[int]:
     return sorted(set(out))
 
 
+def _angle_problem(model_path, doc, closed_loop, n_joints: int) -> list[int]:
+    """The joints run closed loop on their encoders (--closed-loop-joints); refuses a model whose angle
+    source does not match how the program runs the joints (:func:`pipeline.correct.robot.angle_mismatch`)."""
+    from ..correct.robot import angle_mismatch
+
+    closed = _joint_list(closed_loop, n_joints, "--closed-loop-joints")
+    problem = angle_mismatch(doc.get("joint_angles"), closed)
+    if problem:
+        raise InputError(model_path, problem, _json_line(model_path, "joint_angles"), "joint_angles")
+    return closed
+
+
 def _json_line(path, key: str):
     """1-based line of ``"key":`` in a JSON file (None when absent)."""
     try:
@@ -57,10 +69,27 @@ def _json_line(path, key: str):
               help="Robot model: the program's points, one row per point in visiting order: point_id, q1 … qN (deg), "
                    "optional x_mm, y_mm, z_mm (point to reach, base frame; default the nominal kinematics of q), "
                    "payload_kg, dir1 … dirN (default from the visiting order), temperature_c (default 20).")
-@click.option("--out", "out_path", type=click.Path(dir_okay=False),
+@click.option("--out", "out_path", type=click.Path(),
               help="Robot model: the corrected program (CSV: point_id, q1 … qN deg, dq1_arcsec … dqN_arcsec, x_mm, "
                    "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, orientation_held, status, "
-                   "reason).")
+                   "reason); with --program: the folder the filtered program goes to, under its own file names.")
+@click.option("--program", "program_path", type=click.Path(dir_okay=False),
+              help="Robot model: a robot program to filter (contract section 11), told by extension: .src (KUKA KRL, "
+                   "with the .dat of the same name), .mod (ABB RAPID), .ls (FANUC TP ASCII), .script (URScript). "
+                   "See docs/programs.md for what is read and the conventions.")
+@click.option("--tool", "tool_text", default=None,
+              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n], "
+                   "FANUC UTOOL, an undeclared RAPID tool, URScript without set_tcp): \"X Y Z A B C\", mm and the "
+                   "format's rotation (KRL A B C, FANUC W P R deg; RAPID \"x y z q1 q2 q3 q4\"; UR rotation vector rad).")
+@click.option("--base", "base_text", default=None,
+              help="--program: the program's base in the robot's base frame where the program does not define it "
+                   "(KRL BASE_DATA[n], FANUC UFRAME[n], an undeclared RAPID work object); same form as --tool. KRL "
+                   "base 0, FANUC UF : 0 and RAPID wobj0 are the robot's base frame.")
+@click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
+              help="--program: the mass (kg) the robot carries while it runs the program (default: as for a "
+                   "--targets row without payload_kg).")
+@click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
+              help="--program: write the per-target report as JSON.")
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Robot model: a row needing a larger correction of any joint is left as given (status "
                    "correction_too_large).")
@@ -74,7 +103,8 @@ def _json_line(path, key: str):
 @click.option("--output", "output_path", default="-", show_default=True, type=click.Path(),
               help="Encoder model: where to write the CSV with corrected_deg and correction_arcsec added.")
 @click.pass_context
-def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_loop, input_path, column, output_path):
+def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, base_text, payload_kg, json_path,
+            max_correction_deg, closed_loop, input_path, column, output_path):
     """Correct with a fitted model: a robot program's commands, or an encoder's readings.
 
     \b
@@ -98,8 +128,25 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_
     \b
     Encoder model: corrected = reading - error(reading) (see --input, --column, --output).
       printf 'encoder_deg\\n10.0\\n95.5\\n' | jointcal correct --model results/encoder/a_model.json
+    \b
+    Robot program (--program, contract section 11): each Cartesian target goes through the
+    nominal controller's inverse kinematics on the branch its configuration data name (KUKA S/T,
+    ABB cf1 cf4 cf6 cfx, FANUC CONFIG + turns of joints 1, 4, 6; a linear move and every UR move:
+    the branch of the point before, nearest its joints; the robot starts at the middle of its
+    joint ranges), is corrected as above, and is written back as the nominal forward kinematics
+    of the corrected joints in its own tool and base frame; a joint target is corrected. Only
+    the numbers of motion targets change, each with its decimals; every other byte stays. Joint
+    values in a program are the robot.toml's joint angles (FANUC: no J2/J3 interaction). Left
+    as given and named: targets computed at run time, without a solution on their branch,
+    refused by the model, or whose branch or turn would change. Conventions: docs/programs.md.
+      jointcal correct --model fit.json --program weld.src --out filtered/ --json report.json
     """
     doc = read_json(model_path)
+    if program_path and _is_robot_model(doc):
+        if not out_path:
+            raise click.UsageError("--program needs --out DIR (the folder for the filtered program)")
+        return _correct_program(model_path, doc, program_path, out_path, tool_text, base_text, payload_kg, json_path,
+                                max_correction_deg, closed_loop)
     if not _is_robot_model(doc):
         if targets_path or out_path:
             raise InputError(model_path, "--targets/--out correct a robot program, and this is not a fitted robot "
@@ -111,7 +158,7 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_
     import time
 
     from ..core.files import write_text
-    from ..correct.robot import ModelKinematics, angle_mismatch, correct_commands
+    from ..correct.robot import ModelKinematics, correct_commands
     from ..correct.targets import read_targets
     from ..correct.write import corrected_csv
 
@@ -119,10 +166,7 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_
     from ..robot.rigid import assumptions, model_payload
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
-    problem = angle_mismatch(doc.get("joint_angles"), closed)
-    if problem:
-        raise InputError(model_path, problem, _json_line(model_path, "joint_angles"), "joint_angles")
+    closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
     payload = model_payload(doc.get("payloads_kg"))
     kin = ModelKinematics(robot, model)
     t0 = time.perf_counter()
@@ -150,6 +194,67 @@ def correct(ctx, model_path, targets_path, out_path, max_correction_deg, closed_
                err=True)
 
 
+def _frame_option(text, name, fmt):
+    if text is None:
+        return None
+    from ..programs.formats import frame_arity
+
+    try:
+        values = [float(v) for v in text.replace(",", " ").split()]
+    except ValueError:
+        raise click.BadParameter(f"'{text}': numbers separated by spaces", param_hint=name) from None
+    if len(values) != frame_arity(fmt):
+        raise click.BadParameter(f"'{text}': {frame_arity(fmt)} numbers for this program's format", param_hint=name)
+    return values
+
+
+def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_text, payload_kg, json_path,
+                     max_correction_deg, closed_loop=()):
+    import time
+
+    from ..core.files import write_json
+    from ..correct.robot import ModelKinematics
+    from ..programs.filtering import filter_program
+    from ..programs.io import read_program, write_all
+    from ..programs.text import rewrite
+    from ..robot.rigid import assumptions, model_payload
+
+    _need_file(program_path, "the robot program")
+    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
+    closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
+    if payload_kg is None:      # as for a --targets row without payload_kg: the model's payload, when it was one
+        payload_kg = model_payload(doc.get("payloads_kg")) or 0.0
+    t0 = time.perf_counter()
+    program = read_program(program_path)
+    tool = _frame_option(tool_text, "--tool", program.format)
+    base = _frame_option(base_text, "--base", program.format)
+    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, payload_kg,
+                         max_correction_deg)
+    texts = rewrite(program.sources, res.changes)
+    written = write_all(out_dir, program, texts)
+    rows = res.rows
+    counts = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    ok = [r for r in rows if r["status"] == "ok"]
+    largest = max((r["max_correction_arcsec"] for r in ok), default=0.0)
+    moved = max((r["move_mm"] for r in ok), default=0.0)
+    click.echo(f"{', '.join(map(str, written))}: {len(rows)} targets in {time.perf_counter() - t0:.1f} s: "
+               f"{counts.get('ok', 0)} filtered (largest joint correction {largest:.1f} arcsec, largest target move "
+               f"{moved:.3f} mm), {len(res.changes)} numbers changed; left as given: "
+               + (", ".join(f"{v} {k}" for k, v in sorted(counts.items()) if k != "ok") or "none"), err=True)
+    for r in rows:
+        if r["status"] not in ("ok", "same_target"):
+            click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    click.echo(f"  {assumptions(doc, len(robot.joints))}"
+               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+               + f"; the program run at {payload_kg:g} kg", err=True)
+    if json_path:
+        write_json(json_path, {"program": str(program_path), "format": program.format, "model": str(model_path),
+                               "payload_kg": payload_kg, "counts": counts, "files": [str(w) for w in written],
+                               "targets": rows})
+
+
 # ------------------------------------------------------------------------------ simulate measure
 def _measure_robot(truth_path, campaign, robot_path):
     """The cell's nominal robot: --robot, else the truth's own (robot_toml), else the campaign folder's,
@@ -171,7 +276,7 @@ def _measure_robot(truth_path, campaign, robot_path):
 @click.command("measure")
 @click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
               type=click.Path(dir_okay=False), help="Truth of the virtual cell, as `jointcal simulate robot` wrote it.")
-@click.option("--poses", "poses_path", required=True, type=click.Path(dir_okay=False),
+@click.option("--poses", "poses_path", default=None, type=click.Path(dir_okay=False),
               help="Commanded poses in visiting order: point_id, q1 … qN (deg), optional payload_kg, dir1 … dirN "
                    "(default from the visiting order), temperature_c (default 20), set (default target).")
 @click.option("--campaign", required=True, type=click.Path(file_okay=False),
@@ -183,7 +288,16 @@ def _measure_robot(truth_path, campaign, robot_path):
               help="Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the "
                    "grating reads the command), as \"1 2 3\" or 1,2,3; the campaign then has the grating readings. "
                    "Default: every joint open loop. The paper's cell has gratings on joints 1-3, a user's cell none.")
-def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop):
+@click.option("--program", "program_path", default=None, type=click.Path(dir_okay=False),
+              help="Instead of --poses: a robot program (.src, .mod, .ls, .script) played by the nominal controller "
+                   "(as jointcal correct --program reads it); point_id = the target's name (#2, #3 for a target "
+                   "visited again).")
+@click.option("--tool", "tool_text", default=None, help="--program: as for jointcal correct --program.")
+@click.option("--base", "base_text", default=None, help="--program: as for jointcal correct --program.")
+@click.option("--payload", "payload_kg", default=0.0, show_default=True, type=click.FloatRange(min=0),
+              help="--program: the mass (kg) the robot carries.")
+def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop, program_path, tool_text, base_text,
+                payload_kg):
     """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
 
     The cell whose truth `jointcal simulate robot` wrote moves to each pose in the file's order -
@@ -203,6 +317,11 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop)
     from ..core.tables import FLOAT, SIGN, STR, read_table
     from ..robot.measure import campaign_tables, cell_from_truth, measure_poses
 
+    if bool(poses_path) == bool(program_path):
+        raise click.UsageError("give --poses FILE or --program FILE (one of them)")
+    if program_path:
+        return _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_text, base_text, payload_kg,
+                                closed_loop)
     _need_file(poses_path, "the commanded poses: point_id, q1 … qN")
     robot = _measure_robot(truth_path, campaign, robot_path)
     truth = read_json(truth_path)
@@ -254,6 +373,56 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop)
             else "every joint open loop")
     click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
                f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target; {loop})", err=True)
+
+
+def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_text, base_text, payload_kg,
+                     closed_loop=()):
+    import numpy as np
+
+    from ..core.files import write_text
+    from ..programs.filtering import play
+    from ..programs.io import read_program
+    from ..robot.measure import campaign_tables, cell_from_truth, measure_poses
+
+    _need_file(program_path, "the robot program")
+    robot = _measure_robot(truth_path, campaign, robot_path)
+    truth = read_json(truth_path)
+    try:
+        cell = cell_from_truth(robot, truth)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
+                         f"{exc}", 1, 1) from None
+    program = read_program(program_path)
+    played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
+                  _frame_option(base_text, "--base", program.format))
+    keep = [k for k, r in enumerate(played.reason) if not r]
+    for k, r in enumerate(played.reason):
+        if r:
+            t = program.targets[k]
+            click.echo(f"  {t.file}:{t.line}: {t.name} not played: {r}", err=True)
+    if not keep:
+        raise InputError(program_path, "no motion of the program could be played", None, None)
+    names, seen = [], {}
+    for k in keep:
+        nm = program.targets[k].name
+        seen[nm] = seen.get(nm, 0) + 1
+        names.append(nm if seen[nm] == 1 else f"{nm}#{seen[nm]}")
+    q = played.q_deg[keep]
+    payload = np.full(len(q), float(payload_kg))
+    temp = np.full(len(q), 20.0)
+    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
+    try:
+        dirs, xyz, gratings = measure_poses(cell, q, None, payload, temp, seed, closed)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
+    sets = np.full(len(q), "target")
+    poses_csv, tracker_csv = campaign_tables(np.array(names), sets, q, dirs, payload, temp, xyz,
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
+    write_text(Path(campaign) / "robot.toml", robot.to_toml())
+    write_text(Path(campaign) / "poses.csv", poses_csv)
+    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    click.echo(f"{campaign}: measured {len(q)} motions of {program_path} on the cell of {truth_path} "
+               f"({len(played.reason) - len(keep)} not played)", err=True)
 
 
 # ------------------------------------------------------------------------------ export

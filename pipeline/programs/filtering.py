@@ -1,0 +1,257 @@
+"""The nominal controller and the filter (contract section 11).
+
+:func:`play` is the robot's controller with its nominal kinematics: each motion of a program, in
+visiting order, becomes commanded joint values - a joint target as it is, a Cartesian target (TCP
+pose in the program's base frame) through inverse kinematics on its branch: the branch flags its
+configuration data name, or, for a linear move (and every UR move, and a joint move without
+configuration monitoring), the branch of the point before; among the turns of that branch, the one
+the target's turn data name (KUKA ``T``, ABB ``cf1 cf4 cf6``, FANUC turns), else the one nearest the
+joints of the point before. The robot starts at the middle of its joint ranges (decision).
+
+:func:`filter_program` corrects those commands with the whole fitted model
+(:func:`pipeline.correct.robot.correct_commands`, as ``jointcal correct --targets``) and writes
+back, for a Cartesian target, the nominal forward kinematics of the corrected joints in the
+target's own tool and base frame (its configuration data unchanged); for a joint target the
+corrected joints. Left as given and named: targets computed at run time, without a solution on
+their branch or within the joint ranges, whose correction the model refuses (outside the sampled
+range, too large), or whose branch or turn the correction would change.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.errors import InputError
+from . import formats as fm
+from . import ik
+from .conventions import invert
+from .model import CARTESIAN, CONFIG, JOINT, Program
+
+OK = "ok"
+
+
+@dataclass
+class Played:
+    """The nominal controller's commands for a program's motions (n motions, N joints)."""
+
+    q_deg: np.ndarray               # (n, N) deg, NaN where not played
+    reason: list                    # (n,) '' or why the motion has no commanded joints
+    tool: list                      # (n,) 4 x 4 or None
+    base: list                      # (n,) 4 x 4 or None
+    notes: list = field(default_factory=list)
+
+
+def _frame(t, which: str, given, slots: dict, fmt: str):
+    fr = getattr(t, which)
+    if fr.pose is not None:
+        return fr.pose
+    if given is None:
+        raise InputError(t.file, f"Cartesian target {t.name}: {fr.why or 'no ' + which + ' frame'}; the program does "
+                         f"not define its {which} frame, so give it with --{which}", t.line, None)
+    first = slots.setdefault(which, (fr.key, t.file, t.line))
+    if first[0] != fr.key:
+        raise InputError(t.file, f"Cartesian target {t.name} uses {which} {fr.key}, but --{which} already stands for "
+                         f"{first[0]} (first used at {first[1]}:{first[2]}); a program with two undefined {which} "
+                         "frames cannot be filtered with one --" + which, t.line, None)
+    return fm.frame_pose(fmt, given)
+
+
+def play(program: Program, robot, tool=None, base=None) -> Played:
+    """The nominal controller: commanded joints (deg) of every motion (see the module docstring).
+
+    Parameters
+    ----------
+    program : Program
+    robot : pipeline.robot.kinematics.Robot
+        The nominal robot (six joints).
+    tool, base : sequence of float, optional
+        ``--tool`` / ``--base`` in the format's convention (:func:`pipeline.programs.formats.frame_pose`).
+
+    Raises InputError (file:line) for a Cartesian target whose tool or base frame nobody gave.
+    """
+    if robot.n_joints != 6:
+        raise InputError(robot.path, f"program filtering needs a six-joint arm; this robot has {robot.n_joints}", 1, 1)
+    fmt = program.format
+    chain = ik.chain_of(robot)
+    targets = program.targets
+    n = len(targets)
+    q = np.full((n, 6), np.nan)
+    reason = [""] * n
+    tools, bases = [None] * n, [None] * n
+    slots: dict = {}
+    start = (robot.lower_deg + robot.upper_deg) / 2
+    # pass 1: frames, flange poses and the branch each Cartesian target is wanted on (flags propagate)
+    prev_flags = ik.arm_flags(chain, start[None])[0]
+    joint_k = [k for k, t in enumerate(targets) if t.kind == JOINT and not t.runtime]
+    joint_flags = dict(zip(joint_k, ik.arm_flags(chain, np.array([fm.joints_deg(fmt, targets[k].values)
+                                                                  for k in joint_k])))) if joint_k else {}
+    want, T_fl, cart = {}, {}, []
+    for k, t in enumerate(targets):
+        if t.runtime:
+            reason[k] = t.runtime
+            continue
+        if t.kind == JOINT:
+            qj = fm.joints_deg(fmt, t.values)
+            q[k] = qj
+            prev_flags = joint_flags[k]
+            continue
+        tool_T = _frame(t, "tool", tool, slots, fmt)
+        base_T = _frame(t, "base", base, slots, fmt)
+        tools[k], bases[k] = tool_T, base_T
+        T_fl[k] = base_T @ fm.pose(fmt, t.values) @ invert(tool_T)
+        w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
+        want[k] = w
+        prev_flags = w
+        cart.append(k)
+    sols = {}
+    if cart:
+        found = ik.solve_branch(chain, np.array([T_fl[k] for k in cart]), np.array([want[k] for k in cart]))
+        sols = dict(zip(cart, found))
+    # pass 2: the turn, in visiting order
+    prev = start.copy()
+    lo, hi = robot.lower_deg, robot.upper_deg
+    for k, t in enumerate(targets):
+        if reason[k]:
+            continue
+        if t.kind == JOINT:
+            out = (q[k] < lo - 1e-9) | (q[k] > hi + 1e-9)
+            if out.any():
+                j = int(np.argmax(out))
+                reason[k] = (f"joint {j + 1} at {q[k, j]:.4f} deg is beyond the robot's joint range "
+                             f"({lo[j]:g} to {hi[j]:g} deg)")
+                q[k] = np.nan
+                continue
+            prev = q[k]
+            continue
+        s = sols.get(k, np.zeros((0, 6)))
+        flags = "".join(n for n, f in zip(("rear ", "down ", "flip"), want[k]) if f).strip() or "front, up, no flip"
+        if not len(s):
+            reason[k] = f"no inverse-kinematics solution on its branch ({flags})"
+            continue
+        cands = np.rad2deg(ik.expand_turns(chain, s))
+        if not len(cands):
+            reason[k] = f"its branch ({flags}) has no solution within the joint ranges"
+            continue
+        if t.branch == CONFIG and t.turn is not None:
+            okt = np.array([fm.turn_ok(fmt, t.turn, c) for c in cands])
+            if not okt.any():
+                reason[k] = f"no solution on its branch ({flags}) has the turn it names ({t.turn})"
+                continue
+            cands = cands[okt]
+        best = cands[np.argmin(np.abs(cands - prev).max(axis=1))]
+        q[k] = best
+        prev = best
+    return Played(q, reason, tools, bases)
+
+
+@dataclass
+class Filtered:
+    """Result of :func:`filter_program`: the changed numbers and one report row per motion."""
+
+    changes: dict                   # (file index, start, end) -> new text
+    rows: list                      # dicts: file, line, name, kind, status, reason, max_correction_arcsec, move_mm
+    texts: list = field(default_factory=list)
+
+
+def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg: float | None = None,
+                   max_correction_deg: float = 0.5) -> Filtered:
+    """Filter a program's targets through a fitted model (see the module docstring).
+
+    Parameters
+    ----------
+    kin : pipeline.correct.robot.ModelKinematics
+        The fitted model.
+    sampled : dict, optional
+        Joint ranges the model was fitted on (``{"lower_deg": [6], "upper_deg": [6]}``).
+    tool, base : sequence of float, optional
+        ``--tool`` / ``--base`` (format's convention).
+    payload_kg : float, kg, optional
+        Mass the robot carries while it runs the program (None: what ``correct_commands`` assumes
+        for a row without a payload).
+    max_correction_deg : float, deg
+    """
+    from ..correct.robot import correct_commands
+    from ..robot.simulate import directions_from_sequence
+
+    fmt = program.format
+    chain = ik.chain_of(robot)
+    played = play(program, robot, tool, base)
+    targets = program.targets
+    n = len(targets)
+    rows = []
+    idx = [k for k in range(n) if not played.reason[k]]
+    q0 = played.q_deg[idx]
+    status = {k: played.reason[k] for k in range(n) if played.reason[k]}
+    q1 = {}
+    if idx:
+        start = (robot.lower_deg + robot.upper_deg) / 2
+        dirs = directions_from_sequence(q0, start_deg=start)
+        payload = None if payload_kg is None else np.full(len(idx), float(payload_kg))
+        res = correct_commands(kin, q0, None, dirs, payload, None, sampled, max_correction_deg)
+        for r, k in enumerate(idx):
+            if res.status[r] != "ok":
+                status[k] = f"{res.status[r]}: {res.reason[r]}"
+            q1[k] = res.q_deg[r]
+    changes = {}
+    seen = {}
+    done = sorted(q1)
+    if done:
+        both = np.concatenate([played.q_deg[done], np.array([q1[k] for k in done])])
+        fl = ik.arm_flags(chain, both)
+        F_all = ik.flange(chain, np.deg2rad(both))
+        flags_a = dict(zip(done, fl[:len(done)]))
+        flags_b = dict(zip(done, fl[len(done):]))
+        fl_a = dict(zip(done, F_all[:len(done)]))
+        fl_b = dict(zip(done, F_all[len(done):]))
+    smr = np.append(np.asarray(robot.tool_xyz_mm, float), 1.0)
+    for k, t in enumerate(targets):
+        row = {"file": t.file, "line": t.line, "name": t.name, "kind": t.kind, "status": OK, "reason": "",
+               "max_correction_arcsec": 0.0, "move_mm": 0.0}
+        rows.append(row)
+        if t.decl and t.decl in seen:
+            first = seen[t.decl]
+            row["status"] = "same_target"
+            row["reason"] = f"the declaration {t.name} was filtered at its first use, line {first}"
+            continue
+        if t.decl and not t.runtime:
+            seen[t.decl] = t.line
+        if k in status:
+            row["status"] = _status_word(status[k], t)
+            row["reason"] = status[k]
+            continue
+        qa, qb = played.q_deg[k], q1[k]
+        dq = np.abs(qb - qa).max() * 3600.0
+        if t.kind == CARTESIAN:
+            fa, fb = flags_a[k], flags_b[k]
+            if tuple(fa) != tuple(fb) or (t.branch == CONFIG and not fm.turn_ok(fmt, t.turn, qb)):
+                row["status"] = "branch_change"
+                row["reason"] = "the corrected joints are on another branch or turn than the target names"
+                continue
+            Fb = fl_b[k]
+            new_pose = invert(played.base[k]) @ Fb @ played.tool[k]
+            old = t.values
+            new = fm.pose_values(fmt, new_pose, old)
+            move = float(np.linalg.norm(new_pose[:3, 3] - fm.pose(fmt, old)[:3, 3]))
+        else:
+            new = fm.joint_values(fmt, qb)
+            move = float(np.linalg.norm((fl_b[k] @ smr - fl_a[k] @ smr)[:3]))
+        for num, v in zip(t.numbers, new):
+            s = num.respell(float(v))
+            if s is not None:
+                changes[(num.file, num.start, num.end)] = s
+        row["max_correction_arcsec"] = float(dq)
+        row["move_mm"] = move
+    return Filtered(changes, rows)
+
+
+def _status_word(reason: str, t) -> str:
+    if t.runtime:
+        return "run_time"
+    for w in ("outside_sampled_range", "correction_too_large", "no_solution"):
+        if reason.startswith(w):
+            return w
+    if "joint range" in reason:
+        return "beyond_joint_range"
+    return "no_ik_solution"

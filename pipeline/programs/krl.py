@@ -1,0 +1,328 @@
+"""KUKA KRL: a ``.src`` and the ``.dat`` of the same name beside it (contract section 11).
+
+Read: ``DECL E6POS/POS/E6AXIS/AXIS/FRAME/FDAT`` data (in either file), and in the ``.src`` the motions
+``PTP``, ``LIN``, ``CIRC`` (and the spline single motions ``SPTP``, ``SLIN``, ``SCIRC``) to a declared
+name or an inline aggregate (``{X 1,Y 2,...}``, ``{E6POS: ...}``, ``{AXIS: A1 ...}``); the tool and base
+from ``$TOOL = {...}`` / ``$BASE = {...}``, ``BAS(#TOOL, n)`` / ``BAS(#BASE, n)``, ``$TOOL = TOOL_DATA[n]``,
+``$BASE = BASE_DATA[n]`` and ``FDAT_ACT = FPn`` (``TOOL_NO``, ``BASE_NO``). Tool 0 is the flange and
+base 0 the robot's base frame; any other number is ``TOOL_DATA``/``BASE_DATA`` of the controller's
+``$config.dat``, not in the program: ``--tool`` / ``--base``. ``S`` names the branch of a ``PTP``
+(bit 0 rear, bit 1 elbow up, bit 2 flip; ignored for ``LIN``/``CIRC`` as the controller does), ``T``
+the sign of each joint.
+
+Left as given and named: geometric operators (``XP1 : {X 10}``), ``PTP_REL``/``LIN_REL``, ``$POS_ACT``
+and other system variables, indexed arrays, partial aggregates (``{X 10, Y 20}``), targets under
+``IPO_FRAME #TCP`` (a stationary tool), and names declared outside the program (``XHOME`` of
+``$config.dat``). KSS 8 inline forms (``SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)``)
+take the tool and base of their FDAT. Refused (file:line): unbalanced braces, a ``DEF`` without
+``END``, a ``DEFDAT`` without ``ENDDAT``, spline blocks (``SPLINE``/``SPL``) and asynchronous motions.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..core.errors import InputError
+from . import conventions as cv
+from .model import CARTESIAN, CONFIG, JOINT, PREVIOUS, Frame, Program, Target
+from .text import NUMBER, Number, balanced, read_source, split_top, strip_comment
+
+DECL_RE = re.compile(r"^(\s*(?:DECL\s+)?(?:GLOBAL\s+)?)(E6POS|POS|E6AXIS|AXIS|FRAME|FDAT)\s+([A-Za-z_$][\w$]*)\s*=\s*",
+                     re.IGNORECASE)
+MOTION_RE = re.compile(r"^\s*(PTP_REL|LIN_REL|SPTP_REL|SLIN_REL|PTP|LIN|CIRC|SPTP|SLIN|SCIRC)\b(.*)$", re.IGNORECASE)
+UNSUPPORTED_RE = re.compile(r"^\s*(SPLINE|PTP_SPLINE|SPL|ASYPTP|ASYLIN|ASYCIRC|ASYCONT)\b", re.IGNORECASE)
+POSE_KEYS = ("X", "Y", "Z", "A", "B", "C")
+JOINT_KEYS = ("A1", "A2", "A3", "A4", "A5", "A6")
+ITEM_RE = re.compile(r"^\s*([A-Za-z_$][\w$]*(?:\[\])?)\s+(.*?)\s*$")
+
+
+def dat_of(src: Path) -> Path | None:
+    """The ``.dat`` beside a ``.src`` (same name, any case of the extension), or None."""
+    for cand in src.parent.glob(src.stem + ".*"):
+        if cand.suffix.lower() == ".dat" and cand.stem == src.stem:
+            return cand
+    return None
+
+
+def _aggregate(text: str, start: int, path: str, line: int):
+    """Parse an aggregate ``{...}`` beginning at ``text[start]``: (end, items, type prefix).
+
+    items: KEY -> (value text, absolute start, absolute end)."""
+    depth, k, inside = 0, start, False
+    while k < len(text):
+        ch = text[k]
+        if ch == '"':
+            inside = not inside
+        elif not inside and ch == "{":
+            depth += 1
+        elif not inside and ch == "}":
+            depth -= 1
+            if depth == 0:
+                break
+        elif ch == "\n" and depth:
+            raise InputError(path, "unbalanced braces: the aggregate is not closed on its line", line, None)
+        k += 1
+    if depth:
+        raise InputError(path, "unbalanced braces: the aggregate is not closed", line, None)
+    body_start = start + 1
+    body = text[body_start:k]
+    prefix = ""
+    m = re.match(r"\s*([A-Za-z_][\w]*)\s*:", body)
+    if m:
+        prefix = m.group(1).upper()
+        body_start += m.end()
+        body = body[m.end():]
+    items = {}
+    if body.strip():
+        for off, part in split_top(body):
+            mi = ITEM_RE.match(part)
+            if not mi:
+                raise InputError(path, f"broken aggregate item '{part.strip()}' (expected NAME value)", line, None)
+            key, val = mi.group(1).upper(), mi.group(2)
+            vstart = body_start + off + part.index(val, mi.start(2)) if val else body_start + off
+            items[key] = (val, vstart, vstart + len(val))
+    return k + 1, items, prefix
+
+
+def _numbers(items, keys, fidx):
+    out = []
+    for key in keys:
+        val, a, b = items[key]
+        if not re.fullmatch(NUMBER, val):
+            return None
+        out.append(Number(fidx, a, b, val))
+    return out
+
+
+def _st(items):
+    def val(key):
+        if key not in items:
+            return None
+        v = items[key][0].strip()
+        m = re.fullmatch(r"'B([01]+)'", v, re.IGNORECASE)
+        if m:
+            return int(m.group(1), 2)
+        return int(float(v)) if re.fullmatch(NUMBER, v) else None
+    return val("S"), val("T")
+
+
+class _Data:
+    def __init__(self):
+        self.decls = {}
+
+    def scan(self, src, fidx):
+        text = src.text
+        pos = 0
+        for line, raw in enumerate(text.splitlines(keepends=True), 1):
+            code = strip_comment(raw, ";") if ";" in raw else raw
+            m = DECL_RE.match(code)
+            if m:
+                brace = code.find("{", m.end())
+                if brace < 0 or code[m.end():brace].strip():
+                    raise InputError(src.path, f"DECL {m.group(2)} {m.group(3)}: the value must be an aggregate {{...}}",
+                                     line, None)
+                if not balanced(code):
+                    raise InputError(src.path, "unbalanced braces", line, None)
+                _, items, _ = _aggregate(text, pos + brace, src.path, line)
+                self.decls[m.group(3).upper()] = (m.group(2).upper(), fidx, pos + brace, items, line, m.group(3))
+            pos += len(raw)
+
+
+def _target_of(items, prefix, fidx, decl_type=""):
+    """(kind, numbers, flags, turn) of an aggregate, or a reason it is partial."""
+    keys = set(items)
+    if decl_type in ("E6AXIS", "AXIS") or prefix in ("AXIS", "E6AXIS") or (keys & set(JOINT_KEYS) and not keys & {"X", "Y", "Z"}):
+        if not set(JOINT_KEYS) <= keys:
+            return None, "a partial joint aggregate (the controller fills the missing axes at run time)"
+        nums = _numbers(items, JOINT_KEYS, fidx)
+        return (JOINT, nums, None, None) if nums else (None, "joint values that are not numbers")
+    if not set(POSE_KEYS) <= keys:
+        return None, "a partial aggregate (the controller fills the missing fields from the current position)"
+    nums = _numbers(items, POSE_KEYS, fidx)
+    if nums is None:
+        return None, "pose fields that are not numbers"
+    S, T = _st(items)
+    flags = cv.kuka_status_flags(S) if S is not None else None
+    return CARTESIAN, nums, flags, T
+
+
+def read(path) -> Program:
+    """Read a KRL program (``.src`` and its ``.dat``); InputError (file:line) on broken syntax."""
+    src = read_source(path)
+    sources = [src]
+    dat = dat_of(Path(path))
+    data = _Data()
+    if dat is not None:
+        sources.append(read_source(dat))
+        data.scan(sources[1], 1)
+        codes = [strip_comment(x, ";").strip().upper() for x in sources[1].text.splitlines()]
+        opened = [k for k, c in enumerate(codes, 1) if re.match(r"^DEFDAT\b", c)]
+        if opened and not any(re.match(r"^ENDDAT\b", c) for c in codes):
+            raise InputError(sources[1].path, "DEFDAT without ENDDAT", opened[0], None)
+    data.scan(src, 0)
+    text = src.text
+    targets = []
+    tool = Frame(None, "the program never sets $TOOL (nor BAS(#TOOL, n), nor FDAT_ACT)", "$TOOL (not set)")
+    base = Frame(None, "the program never sets $BASE (nor BAS(#BASE, n), nor FDAT_ACT)", "$BASE (not set)")
+    external = False
+    depth_def, def_line = 0, None
+    pos = 0
+    for lineno, raw in enumerate(text.splitlines(keepends=True), 1):
+        here = pos
+        pos += len(raw)
+        code = strip_comment(raw, ";").rstrip("\r\n")
+        s = code.strip()
+        if not s or s.startswith("&"):
+            continue
+        if not balanced(code):
+            raise InputError(src.path, "unbalanced brackets or braces", lineno, None)
+        up = s.upper()
+        if re.match(r"^(GLOBAL\s+)?DEF(FCT)?\b", up):
+            depth_def += 1
+            def_line = lineno
+            continue
+        if re.match(r"^END(FCT)?\b", up) and not re.match(r"^END(IF|FOR|WHILE|LOOP|SWITCH|FOLD|DAT)\b", up):
+            depth_def -= 1
+            if depth_def < 0:
+                raise InputError(src.path, "END without DEF", lineno, None)
+            continue
+        if UNSUPPORTED_RE.match(s):
+            raise InputError(src.path, f"unknown motion statement '{s.split()[0]}' (spline blocks and asynchronous "
+                             "motions are not read: PTP, LIN, CIRC, SPTP, SLIN, SCIRC are)", lineno, None)
+        m = re.match(r"^\$TOOL\s*=\s*(.*)$", s, re.IGNORECASE)
+        if m:
+            tool = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "TOOL")
+            continue
+        m = re.match(r"^\$BASE\s*=\s*(.*)$", s, re.IGNORECASE)
+        if m:
+            base = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "BASE")
+            continue
+        m = re.match(r"^BAS\s*\(\s*#(TOOL|BASE)\s*,\s*(\d+)\s*\)", s, re.IGNORECASE)
+        if m:
+            fr = _numbered(m.group(1).upper(), int(m.group(2)))
+            if m.group(1).upper() == "TOOL":
+                tool = fr
+            else:
+                base = fr
+            continue
+        m = re.match(r"^FDAT_ACT\s*=\s*([A-Za-z_][\w]*)\s*$", s, re.IGNORECASE)
+        if m:
+            d = data.decls.get(m.group(1).upper())
+            if d is None or d[0] != "FDAT":
+                raise InputError(src.path, f"FDAT_ACT = {m.group(1)}: no DECL FDAT {m.group(1)} in the .src or .dat",
+                                 lineno, None)
+            items = d[3]
+            if "TOOL_NO" in items:
+                tool = _numbered("TOOL", int(float(items["TOOL_NO"][0])))
+            if "BASE_NO" in items:
+                base = _numbered("BASE", int(float(items["BASE_NO"][0])))
+            external = items.get("IPO_FRAME", ("#BASE",))[0].strip().upper() == "#TCP"
+            continue
+        m = MOTION_RE.match(code)
+        if not m:
+            continue
+        word = m.group(1).upper()
+        rest = m.group(2)
+        rest_at = here + m.start(2)
+        if word.endswith("_REL"):
+            targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})"))
+            continue
+        with_parts = re.split(r"\bWITH\b", rest, maxsplit=1, flags=re.IGNORECASE)
+        rest_main = with_parts[0]
+        if len(with_parts) > 1:            # KSS 8 inline forms: $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)
+            for which, pat in (("TOOL", r"\$TOOL\s*=\s*STOOL2\s*\(\s*([A-Za-z_]\w*)\s*\)"),
+                               ("BASE", r"\$BASE\s*=\s*SBASE\s*\(\s*([A-Za-z_]\w*)\s*\.\s*BASE_NO\s*\)")):
+                mw = re.search(pat, with_parts[1], re.IGNORECASE)
+                if not mw:
+                    continue
+                d = data.decls.get(mw.group(1).upper())
+                key = f"{which}_NO"
+                if d is None or d[0] != "FDAT" or key not in d[3]:
+                    raise InputError(src.path, f"{word} ... WITH: no DECL FDAT {mw.group(1)} with {key} in the .src or "
+                                     ".dat", lineno, None)
+                fr = _numbered(which, int(float(d[3][key][0])))
+                if which == "TOOL":
+                    tool = fr
+                else:
+                    base = fr
+        rest_main = re.sub(r"\s+(C_PTP|C_DIS|C_VEL|C_ORI|C_SPL)(\s+C_\w+)*\s*$", "", rest_main, flags=re.IGNORECASE)
+        parts = split_top(rest_main)
+        if word in ("CIRC", "SCIRC"):
+            if len(parts) < 2:
+                raise InputError(src.path, f"{word} needs an auxiliary point and a target", lineno, None)
+            parts = parts[:2]
+        else:
+            parts = parts[:1]
+        for off, expr in parts:
+            t = _motion_target(expr, rest_at + off, text, data, src.path, lineno, word)
+            t.tool, t.base = tool, base
+            if external and t.kind == CARTESIAN and not t.runtime:
+                t.runtime = "IPO_FRAME #TCP: a stationary tool (the roles of $TOOL and $BASE are swapped)"
+            targets.append(t)
+    if depth_def > 0:
+        raise InputError(src.path, f"DEF at line {def_line} has no END", def_line, None)
+    return Program("krl", sources, targets)
+
+
+def _numbered(which: str, n: int) -> Frame:
+    if n == 0:
+        return Frame(np.eye(4), "", f"{which} 0")
+    data = "TOOL_DATA" if which == "TOOL" else "BASE_DATA"
+    return Frame(None, f"{which.lower()} {n} is {data}[{n}] of the controller's $config.dat, not in the program",
+                 f"{data}[{n}]")
+
+
+def _frame_stmt(expr, text, at, path, line, which):
+    e = expr.strip()
+    m = re.match(r"^(TOOL_DATA|BASE_DATA)\s*\[\s*(\d+)\s*\]$", e, re.IGNORECASE)
+    if m:
+        return _numbered(which, int(m.group(2)))
+    if e.upper() == "$NULLFRAME":
+        return Frame(np.eye(4), "", "$NULLFRAME")
+    if e.startswith("{"):
+        _, items, _ = _aggregate(text, at + expr.index("{"), path, line)
+        if not set(POSE_KEYS) <= set(items):
+            return Frame(None, f"${which} is set from a partial frame", f"${which} at line {line}")
+        v = [float(items[k][0]) for k in POSE_KEYS]
+        return Frame(cv.homogeneous(cv.kuka_matrix(*v[3:]), v[:3]), "", f"${which} at line {line}")
+    return Frame(None, f"${which} = {e} is computed at run time", f"${which} = {e}")
+
+
+def _motion_target(expr, at, text, data, path, line, word) -> Target:
+    branch = CONFIG if word in ("PTP", "SPTP") else PREVIOUS
+    e = expr.strip()
+    lead = at + (len(expr) - len(expr.lstrip()))
+    if not e:
+        raise InputError(path, f"{word} without a target", line, None)
+    if e.startswith("{"):
+        end, items, prefix = _aggregate(text, lead, path, line)
+        if text[end:at + len(expr)].strip():
+            return Target(path, line, f"<inline>@{line}", CARTESIAN, branch,
+                          runtime=f"a target computed at run time ({e})")
+        kind, *rest = _target_of(items, prefix, 0)
+        if kind is None:
+            return Target(path, line, f"<inline>@{line}", CARTESIAN, branch, runtime=rest[0])
+        nums, flags, turn = rest
+        return Target(path, line, f"<inline>@{line}", kind, branch, nums, flags, turn, decl=(0, lead))
+    if ":" in e:
+        return Target(path, line, e, CARTESIAN, branch, runtime=f"a geometric operator ({e}) computed at run time")
+    if not re.fullmatch(r"[A-Za-z_$][\w$]*", e):
+        return Target(path, line, e, CARTESIAN, branch, runtime=f"a target computed at run time ({e})")
+    if e.startswith("$"):
+        return Target(path, line, e, CARTESIAN, branch, runtime=f"the system variable {e} (the robot's current position)")
+    d = data.decls.get(e.upper())
+    if d is None:
+        return Target(path, line, e, CARTESIAN, branch,
+                      runtime=f"{e} is declared outside the program (not in the .src or its .dat; e.g. $config.dat)")
+    dtype, fidx, brace, items, dline, name = d
+    if dtype in ("FDAT", "FRAME"):
+        if dtype == "FDAT":
+            raise InputError(path, f"{word} {e}: {e} is FDAT data, not a position", line, None)
+    kind, *rest = _target_of(items, "", fidx, dtype)
+    if kind is None:
+        return Target(path, line, name, CARTESIAN, branch, runtime=rest[0], decl=(fidx, brace))
+    nums, flags, turn = rest
+    return Target(path, line, name, kind, branch, nums, flags, turn, decl=(fidx, brace))

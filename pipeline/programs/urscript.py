@@ -1,0 +1,162 @@
+"""Universal Robots URScript ``.script`` (contract section 11).
+
+Read: ``movej``, ``movel``, ``movep`` (one target) and ``movec`` (via point and target), to an
+inline ``p[x, y, z, rx, ry, rz]`` (m and rotation vector, rad: Cartesian) or ``[q1 .. q6]`` (rad: joint),
+to a variable assigned once (``global P1 = p[...]``, ``Q1 = [...]``), or to
+``get_inverse_kin(pose, qnear=...)`` of one; the TCP from ``set_tcp(p[...])`` (or a variable assigned
+once). UR has no configuration data: every Cartesian target goes to the solution nearest the joints
+of the point before (decision: the ``qnear`` hint is not read, and not rewritten). Poses are in the
+robot's base frame (``--base`` is not used for UR); without ``set_tcp`` the TCP is ``--tool``
+(mm and a rotation vector, rad). ``#`` starts a comment.
+
+Left as given and named: poses built at run time (``pose_trans``, ``pose_add``,
+``get_actual_tcp_pose()``, a variable assigned more than once). Refused (file:line): unbalanced
+brackets or parentheses, a ``def``/``if``/``while``/``for``/``thread`` block without its ``end``, a
+variable nobody assigned, and motion functions not read here (``servoj``, ``servoc``, ``speedj``,
+``speedl``, ``movecs``).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..core.errors import InputError
+from . import conventions as cv
+from .model import CARTESIAN, JOINT, PREVIOUS, Frame, Program, Target
+from .text import NUMBER, Number, balanced, read_source, split_top, strip_comment
+
+MOVE_RE = re.compile(r"\b(movej|movel|movep|movec)\s*\(")
+OTHER_RE = re.compile(r"\b(servoj|servoc|speedj|speedl|movecs|servol)\s*\(")
+ASSIGN_RE = re.compile(r"^\s*(?:global\s+|local\s+)?([A-Za-z_]\w*)\s*=(?!=)\s*(.*?)\s*$")
+OPEN_RE = re.compile(r"^\s*(def|thread|if|while|for)\b.*:\s*$")
+
+
+def _list(expr: str, at: int, path: str, line: int):
+    """Numbers of ``p[...]`` / ``[...]``: (is_pose, [Number]) or None when not a literal of numbers."""
+    e = expr.strip()
+    lead = at + (expr.index(e) if e else 0)
+    m = re.fullmatch(r"(p?)\[(.*)\]", e, re.DOTALL)
+    if not m:
+        return None
+    body_at = lead + len(m.group(1)) + 1
+    nums = []
+    for off, part in split_top(m.group(2)):
+        p = part.strip()
+        if not re.fullmatch(NUMBER, p):
+            return None
+        a = body_at + off + part.index(p)
+        nums.append(Number(0, a, a + len(p), p))
+    if len(nums) != 6:
+        raise InputError(path, f"a {'pose p' if m.group(1) else 'joint list '}[...] needs 6 numbers, not {len(nums)}",
+                         line, None)
+    return bool(m.group(1)), nums
+
+
+def _args(code: str, open_at: int):
+    depth = 0
+    for k in range(open_at, len(code)):
+        if code[k] == "(":
+            depth += 1
+        elif code[k] == ")":
+            depth -= 1
+            if depth == 0:
+                return code[open_at + 1:k], open_at + 1
+    return None, None
+
+
+def read(path) -> Program:
+    """Read a URScript program; InputError (file:line) on broken syntax."""
+    src = read_source(path)
+    text = src.text
+    lines = text.splitlines(keepends=True)
+    offsets = np.cumsum([0] + [len(x) for x in lines]).tolist()
+    codes = [strip_comment(s, "#").rstrip("\r\n") for s in lines]
+    assigned = {}
+    depth, opened = 0, []
+    for i, code in enumerate(codes):
+        if not balanced(code):
+            raise InputError(src.path, "unbalanced brackets or parentheses", i + 1, None)
+        s = code.strip()
+        if OPEN_RE.match(code):
+            depth += 1
+            opened.append(i + 1)
+        elif re.fullmatch(r"end", s):
+            depth -= 1
+            if depth < 0:
+                raise InputError(src.path, "'end' without a block to end", i + 1, None)
+            opened.pop()
+        m = ASSIGN_RE.match(code)
+        if m and not s.startswith(("if ", "while ", "elif ")):
+            assigned.setdefault(m.group(1), []).append((i, m.start(2), m.group(2)))
+    if depth:
+        raise InputError(src.path, "block without its 'end'", opened[-1], None)
+
+    def lookup(name, line):
+        if name not in assigned:
+            raise InputError(src.path, f"{name} is not assigned in the script", line, None)
+        if len(assigned[name]) > 1:
+            return None, f"{name} is assigned {len(assigned[name])} times (its value is known at run time only)"
+        i, col, expr = assigned[name][0]
+        lit = _list(expr, offsets[i] + col, src.path, i + 1)
+        if lit is None:
+            return None, f"{name} = {expr.strip()} is computed at run time"
+        return lit, (name, offsets[i] + col)
+
+    tool = Frame(None, "the script sets no TCP (set_tcp) before it", "TCP (no set_tcp)")
+    base = Frame(np.eye(4), "", "base")
+    targets = []
+    for i, code in enumerate(codes):
+        line = i + 1
+        mo = OTHER_RE.search(code)
+        if mo:
+            raise InputError(src.path, f"unknown motion function '{mo.group(1)}' (movej, movel, movep and movec "
+                             "are read)", line, None)
+        mt = re.search(r"\bset_tcp\s*\(", code)
+        if mt:
+            args, at = _args(code, mt.end() - 1)
+            first = split_top(args)[0][1]
+            lit = _list(first, 0, src.path, line)
+            if lit is None and re.fullmatch(r"\s*[A-Za-z_]\w*\s*", first):
+                lit, _ = lookup(first.strip(), line)
+            if lit is None or not lit[0]:
+                tool = Frame(None, f"set_tcp({first.strip()}) is computed at run time", f"set_tcp at line {line}")
+            else:
+                v = [float(n.text) for n in lit[1]]
+                tool = Frame(cv.homogeneous(cv.ur_matrix(*v[3:]), np.array(v[:3]) * 1000.0), "", f"set_tcp@{line}")
+            continue
+        for m in MOVE_RE.finditer(code):
+            args, at = _args(code, m.end() - 1)
+            parts = split_top(args)
+            n_pts = 2 if m.group(1) == "movec" else 1
+            for off, expr in parts[:n_pts]:
+                t = _target(m.group(1), expr, offsets[i] + at + off, src.path, line, lookup)
+                t.tool, t.base = tool, base
+                targets.append(t)
+    return Program("ur", [src], targets)
+
+
+def _target(word, expr, at, path, line, lookup) -> Target:
+    e = expr.strip()
+    mg = re.fullmatch(r"get_inverse_kin\s*\((.*)\)", e, re.DOTALL)
+    if mg:
+        inner = split_top(mg.group(1))[0]
+        at = at + expr.index(mg.group(1)) + inner[0]
+        expr = inner[1]
+        e = expr.strip()
+    lit = _list(expr, at, path, line)
+    name = f"<inline>@{line}"
+    decl = (0, at)
+    if lit is None:
+        if re.fullmatch(r"[A-Za-z_]\w*", e):
+            lit, info = lookup(e, line)
+            if lit is None:
+                return Target(path, line, e, CARTESIAN, PREVIOUS, runtime=info)
+            name, decl = info[0], (0, info[1])
+        else:
+            return Target(path, line, e[:40], CARTESIAN, PREVIOUS, runtime=f"a pose computed at run time ({e[:60]})")
+    is_pose, nums = lit
+    if not is_pose and word != "movej":
+        return Target(path, line, name, JOINT, PREVIOUS, nums, decl=decl)
+    return Target(path, line, name, CARTESIAN if is_pose else JOINT, PREVIOUS, nums, decl=decl)

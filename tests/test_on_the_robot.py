@@ -160,7 +160,7 @@ def test_grating_model_refused_for_an_open_loop_program(cells, tmp_path):
             "--closed-loop-joints", "1")
     assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1 and not (tmp_path / "c.csv").exists()
     r = run("correct", "--model", model, "--targets", tmp_path / "p.csv", "--out", tmp_path / "c.csv",
-            "--closed-loop-joints", "1,2,3", "--max-correction-deg", "5")
+            "--closed-loop-joints", "1,2,3")
     assert r.exit_code == 0, r.output
     assert "closed loop on their encoders: joints 1 2 3" in r.output
 
@@ -194,10 +194,8 @@ def test_grating_model_lands_at_its_heldout_error_closed_loop(cells, tmp_path):
     fit = cells["fits"]["grating"]
     fresh = _fresh(fit)
     fresh.to_csv(tmp_path / "p.csv", index=False)
-    # --max-correction-deg 5: with one SMR the model's joint-6 frame carries what is a tool offset (issue 22,
-    # part A), and the orientation stage turns joint 6 by up to ~2 deg; the position is what is checked here
     r = run("correct", "--model", tmp / "grating_fit.json", "--targets", tmp_path / "p.csv", "--out", tmp_path / "c.csv",
-            "--closed-loop-joints", "1 2 3", "--max-correction-deg", "5")
+            "--closed-loop-joints", "1 2 3")
     assert r.exit_code == 0, r.output
     assert (pd.read_csv(tmp_path / "c.csv")["status"] == "ok").mean() >= 0.95
     land = {}

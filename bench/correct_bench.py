@@ -20,23 +20,7 @@ import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 JC = str(ROOT / ".venv" / "bin" / "jointcal")
-SPEC = """[model]
-kind = "robot"
-[[effect]]
-name = "geometry"
-[[effect]]
-name = "base"
-[[effect]]
-name = "tool"
-[[effect]]
-name = "compliance"
-[[effect]]
-name = "backlash"
-[[effect]]
-name = "joint_harmonic"
-joints = [1, 2, 3, 4, 5, 6]
-orders = [1, 2, 3]
-"""
+SPEC = (ROOT / "specs" / "robot_cell.toml").read_text()
 
 
 def run(n: int = 10_000, repeat: int = 3) -> dict:

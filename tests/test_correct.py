@@ -11,23 +11,7 @@ import pytest
 
 from conftest import ROOT, cli_invoker
 
-SPEC = """[model]
-kind = "robot"
-[[effect]]
-name = "geometry"
-[[effect]]
-name = "base"
-[[effect]]
-name = "tool"
-[[effect]]
-name = "compliance"
-[[effect]]
-name = "backlash"
-[[effect]]
-name = "joint_harmonic"
-joints = [1, 2, 3, 4, 5, 6]
-orders = [1, 2, 3]
-[[effect]]
+SPEC = (ROOT / "specs" / "robot_cell.toml").read_text() + """[[effect]]
 name = "joint_harmonic"
 joints = [2]
 orders = [7]

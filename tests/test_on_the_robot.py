@@ -15,23 +15,7 @@ from conftest import ROOT, cli_invoker
 KR210 = ROOT / "raw/robot/kr210"
 TRUTH = ROOT / "raw/truth/robot/kr210.json"
 KINEMATIC = ROOT / "specs/robot_kinematic.toml"
-FULL_SPEC = """[model]
-kind = "robot"
-[[effect]]
-name = "geometry"
-[[effect]]
-name = "base"
-[[effect]]
-name = "tool"
-[[effect]]
-name = "compliance"
-[[effect]]
-name = "backlash"
-[[effect]]
-name = "joint_harmonic"
-joints = [1, 2, 3, 4, 5, 6]
-orders = [1, 2, 3]
-"""
+FULL_SPEC = (ROOT / "specs" / "robot_cell.toml").read_text()
 Q = [f"q{j}" for j in range(1, 7)]
 
 

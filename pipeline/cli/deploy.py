@@ -4,7 +4,6 @@ programs and encoder readings), ``jointcal export`` and ``jointcal simulate meas
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
@@ -313,9 +312,7 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
     """
     import numpy as np
 
-    from ..core.files import write_text
     from ..core.tables import FLOAT, SIGN, STR, read_table
-    from ..robot.measure import campaign_tables, cell_from_truth, measure_poses
 
     if bool(poses_path) == bool(program_path):
         raise click.UsageError("give --poses FILE or --program FILE (one of them)")
@@ -323,13 +320,7 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
         return _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_text, base_text, payload_kg,
                                 closed_loop)
     _need_file(poses_path, "the commanded poses: point_id, q1 … qN")
-    robot = _measure_robot(truth_path, campaign, robot_path)
-    truth = read_json(truth_path)
-    try:
-        cell = cell_from_truth(robot, truth)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
-                         f"{exc}", 1, 1) from None
+    robot, cell = _measure_cell(truth_path, campaign, robot_path)
     nj = len(robot.joints)
     qcols = [f"q{j}" for j in range(1, nj + 1)]
     frame = read_table(poses_path, {"point_id": STR, **{c: FLOAT for c in qcols}},
@@ -359,39 +350,54 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
         dirs = frame[dcols].to_numpy(int)
     payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
     temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
-    closed = _joint_list(closed_loop, nj, "--closed-loop-joints")
-    try:
-        dirs, xyz, gratings = measure_poses(cell, q, dirs, payload, temp, seed, closed)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
-    poses_csv, tracker_csv = campaign_tables(frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
-    write_text(Path(campaign) / "robot.toml", robot.to_toml())
-    write_text(Path(campaign) / "poses.csv", poses_csv)
-    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    closed = _write_measured(campaign, robot, cell, frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, seed,
+                             closed_loop)
     loop = (f"joints {' '.join(map(str, closed))} closed loop on their gratings, the others open loop" if closed
             else "every joint open loop")
     click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
                f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target; {loop})", err=True)
 
 
+def _measure_cell(truth_path, campaign, robot_path):
+    """The nominal robot and the virtual cell its truth describes (see :func:`_measure_robot`)."""
+    from ..robot.measure import cell_from_truth
+
+    robot = _measure_robot(truth_path, campaign, robot_path)
+    try:
+        return robot, cell_from_truth(robot, read_json(truth_path))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
+                         f"{exc}", 1, 1) from None
+
+
+def _write_measured(campaign, robot, cell, point_id, sets, q, dirs, payload, temp, seed, closed_loop) -> list[int]:
+    """Move the cell to the poses q (n, N) deg, measure them, and write the campaign folder; returns the
+    joints run closed loop on their gratings."""
+    from ..core.files import write_text
+    from ..robot.measure import campaign_tables, measure_poses
+
+    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
+    try:
+        dirs, xyz, gratings = measure_poses(cell, q, dirs, payload, temp, seed, closed)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
+    poses_csv, tracker_csv = campaign_tables(point_id, sets, q, dirs, payload, temp, xyz,
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
+    write_text(Path(campaign) / "robot.toml", robot.to_toml())
+    write_text(Path(campaign) / "poses.csv", poses_csv)
+    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    return closed
+
+
 def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_text, base_text, payload_kg,
                      closed_loop=()):
     import numpy as np
 
-    from ..core.files import write_text
     from ..programs.filtering import play
     from ..programs.io import read_program
-    from ..robot.measure import campaign_tables, cell_from_truth, measure_poses
 
     _need_file(program_path, "the robot program")
-    robot = _measure_robot(truth_path, campaign, robot_path)
-    truth = read_json(truth_path)
-    try:
-        cell = cell_from_truth(robot, truth)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
-                         f"{exc}", 1, 1) from None
+    robot, cell = _measure_cell(truth_path, campaign, robot_path)
     program = read_program(program_path)
     played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
                   _frame_option(base_text, "--base", program.format))
@@ -410,17 +416,8 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
     q = played.q_deg[keep]
     payload = np.full(len(q), float(payload_kg))
     temp = np.full(len(q), 20.0)
-    closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
-    try:
-        dirs, xyz, gratings = measure_poses(cell, q, None, payload, temp, seed, closed)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
-    sets = np.full(len(q), "target")
-    poses_csv, tracker_csv = campaign_tables(np.array(names), sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
-    write_text(Path(campaign) / "robot.toml", robot.to_toml())
-    write_text(Path(campaign) / "poses.csv", poses_csv)
-    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    _write_measured(campaign, robot, cell, np.array(names), np.full(len(q), "target"), q, None, payload, temp, seed,
+                    closed_loop)
     click.echo(f"{campaign}: measured {len(q)} motions of {program_path} on the cell of {truth_path} "
                f"({len(played.reason) - len(keep)} not played)", err=True)
 

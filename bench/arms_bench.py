@@ -30,9 +30,9 @@ ROBOTS = {4: ROOT / "raw" / "arms" / "arm4.toml", 6: ROOT / "raw" / "robot" / "k
 
 
 def _campaign(folder: Path, robot_path: Path):
-    from pipeline.robot.ingest import robot_data_sets
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.simulate import cell_config, format_poses_csv, format_tracker_csv, simulate_robot
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import cell_config, format_poses_csv, format_tracker_csv, simulate_robot
 
     robot = load_robot(robot_path)
     poses, tracker, _ = simulate_robot(robot, cell_config(robot, 1, paper=False))
@@ -48,7 +48,7 @@ def one(n_joints: int, robot_path: Path) -> dict:
     from pipeline.core.spec import load_spec
     from pipeline.diagnosis.engine import diagnose
     from pipeline.diagnosis.robot import RobotAdapter
-    from pipeline.robot.evaluate import fit_effects, heldout_fit
+    from pipeline.robot.model.estimate import fit_effects, heldout_fit
 
     spec = load_spec(ROOT / "specs" / "robot_kinematic.toml")
     with tempfile.TemporaryDirectory() as tmp:
@@ -74,7 +74,7 @@ def one(n_joints: int, robot_path: Path) -> dict:
 
 
 def run() -> dict:
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     rows = [one(n, p) for n, p in ROBOTS.items()]

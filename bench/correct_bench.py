@@ -25,7 +25,7 @@ SPEC = (ROOT / "specs" / "robot_cell.toml").read_text()
 
 def run(n: int = 10_000, repeat: int = 3) -> dict:
     from pipeline.correct.robot import ModelKinematics, correct_commands
-    from pipeline.robot.predict import load_model_document
+    from pipeline.robot.model.predict import load_model_document
 
     tmp = Path(tempfile.mkdtemp(prefix="jointcal-correct-bench-"))
     try:

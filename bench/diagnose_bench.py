@@ -29,9 +29,9 @@ CASES = ("robot_200_poses_robot_paper", "robot_200_poses_robot_geometry", "encod
 def _robot_case(name):
     from pipeline.core.spec import load_spec, parse_spec
     from pipeline.diagnosis.robot import RobotAdapter
-    from pipeline.robot.ingest import robot_data_from_campaign
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
+    from pipeline.robot.campaign.ingest import robot_data_from_campaign
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
     config = dict(ROBOT_FIXTURE, seed=101, n_sample=200, n_target=0, repeat_cycles=0)
@@ -68,7 +68,7 @@ def _encoder_case():
 def case(name) -> dict:
     """One diagnosis, measured in this process (meant to be a fresh one)."""
     from pipeline.diagnosis.engine import diagnose
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     adapter, spec, data, info = _encoder_case() if name == "encoder_8_runs" else _robot_case(name)

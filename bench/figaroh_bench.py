@@ -12,7 +12,7 @@ reading and each tool's prediction. Two models per campaign:
   option (``include_non_geometric``: elastic gain x gravity torque of its URDF model).
 
 Campaigns: the shipped fixture ``raw/robot/kr210`` (60 kg on every pose) and two campaigns
-simulated into a temporary folder by ``pipeline.robot.simulate``: hidden compliance on
+simulated into a temporary folder by ``pipeline.robot.cell.simulate``: hidden compliance on
 joint 2 with a payload that varies 0-150 kg from pose to pose, and stiffer-than-fixture
 compliance with a constant 150 kg payload.
 
@@ -51,7 +51,7 @@ ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 CONVERSIONS = [
     "robot.toml (modified DH, mm/deg) -> URDF (m/rad): revolute-z joint q_i at origin L_{i-1} Rz(theta_offset_i) "
     "with L = Tz(d) Tx(a) Rx(alpha) Ry(beta) written as xyz + rpy (17 digits), fixed joints to 'flange' (L_6) "
-    "and 'smr' ([tool] xyz_mm); link masses at L_i com_mm; checked against pipeline.robot.kinematics at 20 random poses "
+    "and 'smr' ([tool] xyz_mm); link masses at L_i com_mm; checked against pipeline.robot.arm.kinematics at 20 random poses "
     "(SMR position and gravity torques, see urdf_check)",
     "payload: FIGAROH has no per-pose payload, so the payload is a fixed 'payload' link (point mass at the SMR, "
     "where jointcal lumps it) in the URDF: exact for a constant payload, the mean of the sample poses' payloads "
@@ -120,8 +120,8 @@ def ensure_venv(timeout=1800) -> tuple[bool, str, float]:
 # ------------------------------------------------------------------------- campaigns
 def _simulated(robot, folder: Path, name: str, config_changes: dict, hidden: dict | None):
     """Simulate a campaign into ``folder/name`` (robot.toml copied) and return it ingested."""
-    from pipeline.robot.ingest import ingest_robot
-    from pipeline.robot.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
+    from pipeline.robot.campaign.ingest import ingest_robot
+    from pipeline.robot.cell.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
 
     config = dict(ROBOT_FIXTURE, repeat_cycles=0, **config_changes)
     poses, tracker, truth = simulate_robot(robot, config, hidden)
@@ -136,8 +136,8 @@ def _simulated(robot, folder: Path, name: str, config_changes: dict, hidden: dic
 
 
 def campaigns(robot, folder: Path) -> list[dict]:
-    from pipeline.robot.ingest import ingest_robot
-    from pipeline.robot.simulate import hidden_robot_effect
+    from pipeline.robot.campaign.ingest import ingest_robot
+    from pipeline.robot.cell.simulate import hidden_robot_effect
 
     out = []
     _, frame = ingest_robot(ROOT / "raw" / "robot" / "kr210")
@@ -160,7 +160,7 @@ def campaigns(robot, folder: Path) -> list[dict]:
 
 # --------------------------------------------------------------------------- jointcal
 def _effects(kind):
-    from pipeline.robot.effects import Base, Compliance, Geometry
+    from pipeline.robot.arm.effects import Base, Compliance, Geometry
 
     return [Geometry(), Base()] + ([Compliance()] if kind == "compliance" else [])
 
@@ -172,7 +172,7 @@ def jointcal_fit(robot, sample, kind, repeat=REPEAT, min_repeat=JOINTCAL_MIN_REP
     ``budget_s`` together, as ``timeit`` does for a short call: the machine is shared, and
     the best of many runs of a 20 ms call is less disturbed than the best of five.
     """
-    from pipeline.robot.calibrate import RobotErrorModel
+    from pipeline.robot.model.calibrate import RobotErrorModel
 
     times = []
     while len(times) < repeat or (len(times) < min_repeat and sum(times) < budget_s):
@@ -190,10 +190,10 @@ def _errors(pred_mm, meas_mm) -> dict:
 JOINTCAL_PROCESS = """
 import time; t0 = time.perf_counter()
 import numpy as np
-from pipeline.robot.calibrate import RobotErrorModel
-from pipeline.robot.effects import Base, Compliance, Geometry
-from pipeline.robot.ingest import ingest_robot, robot_data
-from pipeline.robot.lm import limit_blas_threads
+from pipeline.robot.model.calibrate import RobotErrorModel
+from pipeline.robot.arm.effects import Base, Compliance, Geometry
+from pipeline.robot.campaign.ingest import ingest_robot, robot_data
+from pipeline.robot.model.lm import limit_blas_threads
 limit_blas_threads(1)
 robot, frame = ingest_robot("raw/robot/kr210")
 s, t = frame[frame["set"] == "sample"], frame[frame["set"] == "target"]
@@ -225,9 +225,9 @@ def _process_walls(jobs_path: Path, out_path: Path) -> dict:
 def run() -> dict:
     """The side-by-side benchmark; ``{"skipped": reason}`` when FIGAROH's venv cannot be made."""
     from bench.figaroh_convert import write_inputs
-    from pipeline.robot.ingest import robot_data
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.campaign.ingest import robot_data
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.model.lm import limit_blas_threads
 
     t_start = time.perf_counter()
     ok, venv_msg, venv_s = ensure_venv()

@@ -13,16 +13,16 @@ Ry(beta_i)`` the URDF below has
   child link ``link{i}`` = the joint frame after the rotation, limits = robot.toml's range;
 * the mass of link i (``mass_kg`` at ``com_mm`` in MDH link frame {i}) as ``link{i}``'s
   inertial, at ``L_i . com`` in the joint frame (rotational inertia ``0.01 m`` I, as
-  ``pipeline.robot.kinematics`` uses; it plays no part in gravity);
+  ``pipeline.robot.arm.kinematics`` uses; it plays no part in gravity);
 * a fixed joint to ``flange`` at ``L_6`` and a fixed joint to ``smr`` at the tool offset;
 * optionally a fixed ``payload`` link carrying the payload mass at the SMR point - the
-  same point where ``pipeline.robot.kinematics.gravity_torques`` lumps the payload. FIGAROH has no
+  same point where ``pipeline.robot.arm.kinematics.gravity_torques`` lumps the payload. FIGAROH has no
   per-pose payload: its elasticity model uses the URDF's gravity torques only, so the
   payload must be a constant of the model (exact when every pose carries the same payload).
 
 URDF origins are ``xyz`` + ``rpy`` (R = Rz(yaw) Ry(pitch) Rx(roll)), written with 17
 significant digits; :func:`verify_urdf` checks the URDF's forward kinematics and gravity
-torques in pinocchio against ``pipeline.robot.kinematics``.
+torques in pinocchio against ``pipeline.robot.arm.kinematics``.
 
 Runs in jointcal's venv (imports ``pipeline``); the FIGAROH side reads only the files.
 """
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from pipeline.robot.kinematics import Robot, build_model, gravity_torques, link_placement, positions
+from pipeline.robot.arm.kinematics import Robot, build_model, gravity_torques, link_placement, positions
 
 JOINT_NAMES = tuple(f"q{i}" for i in range(1, 7))
 
@@ -89,7 +89,7 @@ def robot_to_urdf(robot: Robot, payload_kg: float = 0.0) -> str:
 
 
 def verify_urdf(robot: Robot, urdf_path, payload_kg: float = 0.0, n: int = 20, seed: int = 0) -> dict:
-    """Compare the URDF model (pinocchio) with ``pipeline.robot.kinematics`` at ``n`` random poses.
+    """Compare the URDF model (pinocchio) with ``pipeline.robot.arm.kinematics`` at ``n`` random poses.
 
     Returns the largest SMR position difference (m) and the largest gravity torque
     difference (N m, payload included).

@@ -49,7 +49,7 @@ def _pool_ceiling(campaigns, spec_text, spec_path, workers) -> dict:
 
 def run(units: int = UNITS) -> dict:
     from pipeline.fleet.engine import fleet_summary, fleet_table, run_units
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     spec_path = "specs/encoder_paper.toml"

@@ -9,7 +9,7 @@
   random draws' median, quartiles, extremes, and how many random fits did not converge. The tracker
   frame is registered once on all the series' sample poses (as the import does); the fitted base
   (6 dof) takes up any rigid difference, so the registration does not favour either choice.
-* ``virtual``: the virtual KR210 cell (pipeline.robot.simulate; ``jointcal simulate measure`` stands
+* ``virtual``: the virtual KR210 cell (pipeline.robot.cell.simulate; ``jointcal simulate measure`` stands
   in for it once it lands) with no backlash but a hidden one on joint 4 (90 arcsec): from a pool of
   300 reachable poses (drawn per trial), K poses chosen at random (visited in the short-path order,
   directions from the motion) or planned with ``--reveal 'name = "backlash", joints = [4]'``
@@ -40,7 +40,7 @@ VIRTUAL_TRIALS = 10
 
 
 def _import(series: str, tmp: Path) -> Path:
-    from pipeline.robot.importer import import_campaign
+    from pipeline.robot.campaign.importer import import_campaign
 
     src = {"B": REAL / "Series_B" / "measurements_joint_configurations.csv",
            "C": REAL / "Series_C" / "measurements_random_poses.csv"}[series]
@@ -58,8 +58,8 @@ def _stats(values) -> dict:
 def real_series(folder: Path) -> dict:
     from pipeline.core.spec import load_spec
     from pipeline.plan.design import plan_poses, pool_data
-    from pipeline.robot.evaluate import fit_effects
-    from pipeline.robot.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+    from pipeline.robot.campaign.ingest import robot_data_sets
 
     robot, (sample, target) = robot_data_sets(folder, ("sample",), ("target",))
     effects = load_spec(SPEC).effects
@@ -100,7 +100,8 @@ def _virtual_trial(robot, cell, spec_path, K, seed, tmp: Path) -> dict:
     from pipeline.plan.design import visiting_order
     from pipeline.plan.pool import Pool
     from pipeline.plan.reveal import parse_reveal
-    from pipeline.robot.simulate import directions_from_sequence, draw_poses
+    from pipeline.robot.arm.kinematics import directions_from_sequence
+    from pipeline.robot.cell.simulate import draw_poses
 
     rng = np.random.default_rng([19, seed])
     Q = draw_poses(robot, 300, rng, [1200.0, 1600.0, 1200.0], 30.0, cell.model_nominal)
@@ -145,8 +146,8 @@ def _virtual_trial(robot, cell, spec_path, K, seed, tmp: Path) -> dict:
 
 
 def virtual() -> dict:
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.simulate import ROBOT_FIXTURE, make_cell
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import ROBOT_FIXTURE, make_cell
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
     config = {**ROBOT_FIXTURE, "backlash_arcsec": [0.0] * 6}
@@ -173,7 +174,7 @@ def virtual() -> dict:
 def speed() -> dict:
     from pipeline.core.spec import load_spec
     from pipeline.plan.design import plan_poses, pool_data
-    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.arm.kinematics import load_robot
 
     robot = load_robot(REAL / "robot.toml")
     rng = np.random.default_rng(0)
@@ -186,7 +187,7 @@ def speed() -> dict:
 
 
 def run() -> dict:
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     tmp = Path(tempfile.mkdtemp(prefix="jointcal-plan-real-"))

@@ -30,7 +30,7 @@ GOAL_S = 15.0
 def run(n: int = 10_000, repeat: int = 2) -> dict:
     sys.path.insert(0, str(ROOT / "tests"))
     import program_samples as ps
-    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.arm.kinematics import load_robot
 
     tmp = Path(tempfile.mkdtemp(prefix="jointcal-programs-bench-"))
     try:

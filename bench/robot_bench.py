@@ -4,10 +4,10 @@ Both stages of ``specs/robot_paper.toml``, run by the code the CLI runs, on synt
 campaigns of 10^2, 10^3 and 10^4 poses of the KR210 (joint angles uniform in the robot's
 range, tracker noise 0.015 mm per axis):
 
-* ``mdh``: the kinematic stage, ``pipeline.robot.calibrate.calibrate_mdh`` with the spec's
+* ``mdh``: the kinematic stage, ``pipeline.robot.model.calibrate.calibrate_mdh`` with the spec's
   ``kinematic_effects`` (geometry + base: 36 parameters, Gauss-Newton, identifiability),
   as ``jointcal robot calibrate`` runs it;
-* ``chebyshev``: the feedback stage's identification, ``pipeline.robot.chebyshev.chebyshev_estimator``
+* ``chebyshev``: the feedback stage's identification, ``pipeline.robot.model.chebyshev.chebyshev_estimator``
   with the spec's ``feedback_effects`` (order 3 on joints 1-6: 144 coefficients) and the
   spec's improved L-M constants (``jointcal robot chebyshev`` also runs scipy beside it as a
   cross-check; that is measured by ``bench.solver_bench``).
@@ -32,13 +32,13 @@ NOISE_MM = 0.015
 
 def _spec_and_robot():
     from pipeline.core.spec import load_spec
-    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.arm.kinematics import load_robot
 
     return load_spec(ROOT / "specs" / "robot_paper.toml"), load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
 
 
 def stage_effects(spec, stage):
-    from pipeline.robot.fit import stage_effects as effects_of
+    from pipeline.robot.model.fit import stage_effects as effects_of
 
     return effects_of(spec, stage)
 
@@ -46,9 +46,9 @@ def stage_effects(spec, stage):
 def synthetic_campaign(robot, effects, n, seed=0, size=0.02):
     """``n`` poses uniform in the joint range; tracker positions of the model ``effects`` with
     parameters drawn N(0, size) (internal units: mm, mrad) plus N(0, 0.015 mm) noise."""
-    from pipeline.robot.calibrate import Design
-    from pipeline.robot.effects import RobotData
-    from pipeline.robot.kinematics import gravity_torques
+    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.arm.effects import RobotData
+    from pipeline.robot.arm.kinematics import gravity_torques
 
     rng = np.random.default_rng(seed)
     Q = rng.uniform(robot.lower_deg, robot.upper_deg, (n, 6))
@@ -84,7 +84,7 @@ def _series(what, sizes, fit_once):
 
 def mdh_series(sizes=SIZES) -> dict:
     """The kinematic stage (``calibrate_mdh``, Gauss-Newton on geometry + base)."""
-    from pipeline.robot.calibrate import calibrate_mdh
+    from pipeline.robot.model.calibrate import calibrate_mdh
 
     spec, robot = _spec_and_robot()
     effects = stage_effects(spec, "kinematic")
@@ -101,7 +101,7 @@ def mdh_series(sizes=SIZES) -> dict:
 
 def chebyshev_series(sizes=SIZES) -> dict:
     """The feedback stage's identification (improved L-M, truncated-SVD reduction)."""
-    from pipeline.robot.chebyshev import LM_DEFAULTS, chebyshev_estimator
+    from pipeline.robot.model.chebyshev import LM_DEFAULTS, chebyshev_estimator
 
     spec, robot = _spec_and_robot()
     effects = stage_effects(spec, "feedback")
@@ -121,7 +121,7 @@ def chebyshev_series(sizes=SIZES) -> dict:
 
 def run() -> dict:
     """Benchmark both robot identification stages at 10^2, 10^3 and 10^4 poses."""
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     mdh = mdh_series()

@@ -174,7 +174,7 @@ def main(argv=None):
     unknown = ((only or set()) | skip) - set(BUILTIN_JOBS) - set(OPTIONAL_JOBS)
     if unknown:
         parser.error(f"unknown job(s) {', '.join(sorted(unknown))}; jobs are: {names}")
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     jobs, skipped = available_jobs()

@@ -23,14 +23,14 @@ the solvers get the *same* residual closure, the same analytic Jacobian closure 
 scipy's ``jac`` evaluates it at the point asked), the same reduced parameters and the same
 start (0). Only the solvers' own arithmetic and stopping rules differ:
 
-* improved L-M (``pipeline.robot.lm.improved_lm``: column-scaled, dimensionless damping; see its
+* improved L-M (``pipeline.robot.model.lm.improved_lm``: column-scaled, dimensionless damping; see its
   docstring): the spec's constants; converged when ``||F(x_k+1) - F(x_k)||^2 <= phi`` after an
   accepted step *and* a Gauss-Newton step would change F by no more (stationary); not
   converged at 100 iterations. Each iteration: one F+J evaluation (only after an accepted
   step), three more F evaluations, one Cholesky of a p x p matrix.
 * scipy ``trf`` (trust region reflective, ``tr_solver="exact"``: an SVD of J per iteration)
   with the pipeline's cross-check tolerances (ftol = xtol = gtol = 1e-12, at most 200
-  evaluations: ``pipeline.robot.lm.scipy_least_squares``) and with scipy's default tolerances (1e-8);
+  evaluations: ``pipeline.robot.model.lm.scipy_least_squares``) and with scipy's default tolerances (1e-8);
   converged as the pipeline judges it: scipy's success and a stationary end point;
 * scipy ``lm`` (MINPACK's Levenberg-Marquardt, QR of J) with default tolerances;
 * MDH only: the pipeline's Gauss-Newton (``calibrate_mdh``; Levenberg damping when a full step
@@ -60,7 +60,7 @@ class Problem:
     """A least-squares problem captured from ``RobotErrorModel.fit`` (its closures and start)."""
 
     def __init__(self, estimator, data):
-        import pipeline.robot.lm as lm
+        import pipeline.robot.model.lm as lm
 
         real = lm.improved_lm
         captured = {}
@@ -116,7 +116,7 @@ def _best(solve):
 
 
 def _improved_lm(problem):
-    from pipeline.robot.lm import improved_lm
+    from pipeline.robot.model.lm import improved_lm
 
     c = Counted(problem)
     r = improved_lm(c.fun, None, problem.x0, fun_and_jac=c.fun_and_jac, **problem.lm_options)
@@ -127,13 +127,13 @@ def _improved_lm(problem):
 def _scipy(problem, **options):
     from scipy.optimize import least_squares
 
-    from pipeline.robot.lm import is_stationary
+    from pipeline.robot.model.lm import is_stationary
 
     c = Counted(problem)
     res = least_squares(c.fun, problem.x0, jac=c.jac, **options)
     its = int(res.njev) - 1 if options.get("method", "trf") == "trf" else int(res.njev)
     stationary, gain = is_stationary(res.fun, np.asarray(res.jac, float), 1e-5)
-    # converged as the pipeline judges it (pipeline.robot.lm.scipy_least_squares): scipy's success and stationary
+    # converged as the pipeline judges it (pipeline.robot.model.lm.scipy_least_squares): scipy's success and stationary
     return {"iterations": its, "f_evals": c.f, "fj_evals": c.fj, "cost_mm2": float(res.cost),
             "converged": bool(res.success) and stationary,
             "stop": f"{res.message} (a Gauss-Newton step would change F by ||dF||^2 = {gain:.2g})"}
@@ -141,7 +141,7 @@ def _scipy(problem, **options):
 
 def _gauss_newton(robot, effects, data):
     """The pipeline's MDH solver: whole fit minus the fit without iterations (set-up + final residual)."""
-    from pipeline.robot.calibrate import RobotErrorModel
+    from pipeline.robot.model.calibrate import RobotErrorModel
 
     def fit(max_iter):
         t = time.perf_counter()
@@ -222,10 +222,10 @@ def format_table(rows: list[dict]) -> str:
 def run() -> dict:
     from bench.robot_bench import _spec_and_robot, stage_effects, synthetic_campaign
     from pipeline.core.spec import load_spec
-    from pipeline.robot.calibrate import RobotErrorModel
-    from pipeline.robot.chebyshev import LM_DEFAULTS, chebyshev_estimator
-    from pipeline.robot.ingest import has_gratings, ingest_robot, robot_data
-    from pipeline.robot.lm import limit_blas_threads
+    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.chebyshev import LM_DEFAULTS, chebyshev_estimator
+    from pipeline.robot.campaign.ingest import has_gratings, ingest_robot, robot_data
+    from pipeline.robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     spec, robot = _spec_and_robot()
@@ -268,7 +268,7 @@ def run() -> dict:
         gn = {"Gauss-Newton (pipeline's MDH solver)": _gauss_newton(robot, kinematic, data)}
         out.append(compare(name, Problem(mdh(), data), gn))
     rows = [table_row(e) for e in out if "error" not in e]
-    result = {"what": "improved L-M (pipeline.robot.lm.improved_lm) against scipy.optimize.least_squares on the same "
+    result = {"what": "improved L-M (pipeline.robot.model.lm.improved_lm) against scipy.optimize.least_squares on the same "
                       "captured problems (same residual and Jacobian closures, same start, same reduction)",
               "table": rows, "table_text": format_table(rows),
               "all_within_1pct": all(r["within_1pct"] for r in rows),

@@ -12,9 +12,9 @@ import pinocchio as pin
 import pytest
 
 from conftest import ROOT
-from pipeline.robot.kinematics import build_model, load_robot, positions
-from pipeline.robot.simulate import cell_config, format_poses_csv, format_tracker_csv, simulate_robot
-from pipeline.robot.urdf import robot_from_urdf
+from pipeline.robot.arm.kinematics import build_model, load_robot, positions
+from pipeline.robot.cell.simulate import cell_config, format_poses_csv, format_tracker_csv, simulate_robot
+from pipeline.robot.campaign.urdf import robot_from_urdf
 
 ARMS = ROOT / "raw" / "arms"
 PANDA, ARM4, PANDA_URDF = ARMS / "panda.toml", ARMS / "arm4.toml", ARMS / "panda.urdf"
@@ -210,7 +210,7 @@ def test_import_map_with_other_joint_count_refused(tmp_path, invoke):
 
 def test_robot_toml_joint_count_bounds(tmp_path):
     from pipeline.core.errors import InputError
-    from pipeline.robot.kinematics import parse_robot
+    from pipeline.robot.arm.kinematics import parse_robot
 
     text = ARM4.read_text()
     three = text[:text.rindex("[[joint]]")]

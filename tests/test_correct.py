@@ -25,8 +25,8 @@ def _q(frame, n=6):
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory):
     """A cell with a hidden joint harmonic, measured without gratings, a model of it, and a fresh program."""
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.simulate import ROBOT_FIXTURE, draw_poses
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses
 
     tmp = tmp_path_factory.mktemp("loop")
     run = cli_invoker()
@@ -72,14 +72,14 @@ def test_measure_is_the_simulators_cell(loop):
     d = np.linalg.norm(a.loc[b.index[same], ["x_mm", "y_mm", "z_mm"]].to_numpy()
                        - b.loc[same, ["x_mm", "y_mm", "z_mm"]].to_numpy(), axis=1)
     assert np.sqrt(np.mean(d ** 2)) < 0.06        # two tracker readings (15 um per axis each) and jitter
-    from pipeline.robot.kinematics import build_model, load_robot, positions
+    from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 
     nominal = positions(build_model(load_robot(loop["robot_toml"])), np.deg2rad(_q(pb)))
     assert np.sqrt(np.mean(np.sum((b[["x_mm", "y_mm", "z_mm"]].to_numpy() - nominal) ** 2, axis=1))) > 0.2
 
 
 def test_corrected_program_lands_at_the_models_heldout_error(loop):
-    from pipeline.robot.kinematics import build_model, load_robot, positions
+    from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 
     tmp, run = loop["tmp"], loop["run"]
     r = run("correct", "--model", tmp / "fit.json", "--targets", tmp / "fresh.csv", "--out", tmp / "corr.csv")
@@ -105,7 +105,7 @@ def test_corrected_program_lands_at_the_models_heldout_error(loop):
 
 def test_correct_reaches_the_model_point_and_keeps_orientation(loop):
     from pipeline.correct.robot import ModelKinematics, correct_commands
-    from pipeline.robot.predict import load_model_document
+    from pipeline.robot.model.predict import load_model_document
 
     robot, effects, model, sampled, _ = load_model_document(loop["fit"], "fit.json")
     kin = ModelKinematics(robot, model)
@@ -127,7 +127,7 @@ def test_correct_reaches_the_model_point_and_keeps_orientation(loop):
 
 def test_rows_left_as_given_say_why(loop):
     from pipeline.correct.robot import ModelKinematics, correct_commands
-    from pipeline.robot.predict import load_model_document
+    from pipeline.robot.model.predict import load_model_document
 
     robot, effects, model, sampled, _ = load_model_document(loop["fit"], "fit.json")
     kin = ModelKinematics(robot, model)
@@ -160,7 +160,7 @@ def test_bad_targets_refused(loop, tmp_path, edit, column):
 
 
 def test_target_far_from_its_pose_refused(loop, tmp_path):
-    from pipeline.robot.kinematics import build_model, load_robot, positions
+    from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 
     fresh = loop["fresh"].head(5).copy()
     xyz = positions(build_model(load_robot(loop["robot_toml"])), np.deg2rad(_q(fresh))) / 1000.0   # metres

@@ -11,9 +11,9 @@ from conftest import ROOT
 from pipeline.core.spec import parse_spec
 from pipeline.diagnosis.engine import diagnose
 from pipeline.diagnosis.robot import RobotAdapter
-from pipeline.robot.ingest import robot_data_from_campaign
-from pipeline.robot.kinematics import load_robot
-from pipeline.robot.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
+from pipeline.robot.campaign.ingest import robot_data_from_campaign
+from pipeline.robot.arm.kinematics import load_robot
+from pipeline.robot.cell.simulate import ROBOT_FIXTURE, format_poses_csv, format_tracker_csv, simulate_robot
 
 SPEC = parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n')
 SIGMA = ROBOT_FIXTURE["tracker_sigma_mm"]

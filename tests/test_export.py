@@ -38,11 +38,11 @@ joints = [2]
 def synthetic_model(robot, spec_text, seed, angle_arcsec=60.0, length_mm=0.5):
     """A 'fitted' model: every parameter drawn at a realistic size (seeded)."""
     from pipeline.core.spec import parse_spec
-    from pipeline.robot.calibrate import RobotErrorModel
+    from pipeline.robot.model.calibrate import RobotErrorModel
 
     effects = list(parse_spec(spec_text, "spec").effects)
     from pipeline.export.chain import model_data
-    from pipeline.robot.calibrate import Design
+    from pipeline.robot.model.calibrate import Design
 
     nj = len(robot.joints)
     d = Design(robot, effects, model_data(robot, np.zeros((1, nj)), np.ones((1, nj), int), np.zeros(1),
@@ -72,7 +72,7 @@ def _chain_reference(robot, model, q):
 
 @pytest.fixture(scope="module")
 def ur10():
-    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.arm.kinematics import load_robot
 
     return load_robot(UR10)
 
@@ -90,7 +90,7 @@ def test_urdf_round_trip(ur10, tmp_path):
     err = np.abs(urdf_positions(text, "smr", q) - _chain_reference(ur10, model, q)).max()
     assert err < 1e-3        # mm: < 1 um
     # the nominal chain is not the model's: the test can tell them apart
-    from pipeline.robot.kinematics import build_model, positions
+    from pipeline.robot.arm.kinematics import build_model, positions
 
     assert np.abs(positions(build_model(ur10), np.deg2rad(q)) - _chain_reference(ur10, model, q)).max() > 0.1
 
@@ -98,7 +98,7 @@ def test_urdf_round_trip(ur10, tmp_path):
 def test_urdf_rewrite_changes_only_origins(tmp_path):
     from pipeline.export.chain import folded_chain
     from pipeline.export.urdf import rewrite_urdf, urdf_positions
-    from pipeline.robot.urdf import robot_from_urdf
+    from pipeline.robot.campaign.urdf import robot_from_urdf
 
     robot, _ = robot_from_urdf(UR10E_URDF, "tool0", base="base_link")
     model, _ = synthetic_model(robot, CHAIN_SPEC, 3)

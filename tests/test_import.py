@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.robot.kinematics import Joint, Robot, build_model, load_robot, parse_robot, positions
+from pipeline.robot.arm.kinematics import Joint, Robot, build_model, load_robot, parse_robot, positions
 
 ROOT = Path(__file__).resolve().parents[1]
 FIX = ROOT / "raw" / "real" / "ur10-ipa"
@@ -117,7 +117,7 @@ def test_one_map_for_both_series(invoke, tmp_path):
 
 def test_nominal_residual_is_a_robots(tmp_path, invoke):
     """With the fixture's robot.toml the measured points sit a few mm from nominal (rigid fit)."""
-    from pipeline.robot.importer import nominal_rms
+    from pipeline.robot.campaign.importer import nominal_rms
 
     out = tmp_path / "c"
     assert invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out).exit_code == 0
@@ -157,7 +157,7 @@ def _urdf_positions(base, tip, Q):
 @pytest.mark.parametrize("base,tip", [("base", "tool0"), (None, "flange"), ("base_link", "tool0"),
                                       ("base", "ur10e_tooltip_link")])
 def test_urdf_fk_matches_pinocchio(base, tip):
-    from pipeline.robot.urdf import robot_from_urdf
+    from pipeline.robot.campaign.urdf import robot_from_urdf
 
     robot, info = robot_from_urdf(URDF, tip, base)
     assert info["chain"] == JOINTS and info["fk_max_error_mm"] < 1e-6
@@ -172,7 +172,7 @@ def test_urdf_fk_matches_pinocchio(base, tip):
 
 def test_urdf_gives_urs_published_dh():
     """In UR's own base frame the derived parameters are UR's published UR10e DH."""
-    from pipeline.robot.urdf import robot_from_urdf
+    from pipeline.robot.campaign.urdf import robot_from_urdf
 
     robot, _ = robot_from_urdf(URDF, "tool0", "base")
     got = np.array([(j.a_mm, j.alpha_deg, j.d_mm) for j in robot.joints])
@@ -415,7 +415,7 @@ def test_tip_with_robot_toml_and_missing_files(invoke, tmp_path):
 def test_urdf_base_not_on_joint_1_is_refused(tmp_path):
     """A base frame whose z is not joint 1's axis cannot be written as DH: refused, located."""
     from pipeline.core.errors import InputError
-    from pipeline.robot.urdf import robot_from_urdf
+    from pipeline.robot.campaign.urdf import robot_from_urdf
 
     text = URDF.read_text().replace('<origin rpy="0.0 0.0 -1.5707963" xyz="0.0 0.0 0.90"/>',
                                     '<origin rpy="0.3 0.0 -1.5707963" xyz="0.0 0.0 0.90"/>')
@@ -462,7 +462,7 @@ def _urdf_of(robot: Robot) -> str:
     """A URDF of a contract robot: joint i at L_{i-1} Rz(theta_offset_i), link i's mass at L_i com_i, SMR link."""
     import pinocchio as pin
 
-    from pipeline.robot.kinematics import link_placement
+    from pipeline.robot.arm.kinematics import link_placement
 
     def origin(M):
         rpy = pin.rpy.matrixToRpy(M.rotation)
@@ -504,8 +504,8 @@ def _random_robot(seed) -> Robot:
 @pytest.mark.parametrize("which", ["kr210", 1, 2, 3, 4, 5])
 def test_urdf_of_a_contract_robot_comes_back(tmp_path, which):
     """robot.toml -> URDF -> derived robot: the same SMR positions and the same gravity torques."""
-    from pipeline.robot.kinematics import gravity_torques
-    from pipeline.robot.urdf import robot_from_urdf
+    from pipeline.robot.arm.kinematics import gravity_torques
+    from pipeline.robot.campaign.urdf import robot_from_urdf
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml") if which == "kr210" else _random_robot(which)
     path = tmp_path / "made.urdf"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from pipeline.robot.kinematics import load_robot
-from pipeline.robot.effects import JOINT_MAP_FADE_DEG, JointMap, joint_map_basis
+from pipeline.robot.arm.kinematics import load_robot
+from pipeline.robot.arm.effects import JOINT_MAP_FADE_DEG, JointMap, joint_map_basis
 from pipeline.core.spec import parse_spec
 
 

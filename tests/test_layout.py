@@ -68,9 +68,9 @@ def prerequisites(target):
     ("results/encoder/a_model.json", ["pipeline/encoder/selection.py", "pipeline/encoder/harmonic.py",
                                       "pipeline/encoder/aliasing.py", "pipeline/encoder/effects.py",
                                       "pipeline/core/spec.py", "pipeline/core/crossval.py"]),
-    ("results/robot/mdh.json", ["pipeline/robot/kinematics.py", "pipeline/robot/lm.py", "pipeline/robot/effects.py"]),
-    ("reports/diagnosis.pdf", ["pipeline/diagnosis/report.py", "pipeline/robot/evaluate.py", "pipeline/encoder/evaluate.py"]),
-    ("results/fleet.parquet", ["pipeline/fleet/engine.py", "pipeline/fleet/report.py", "pipeline/robot/fit.py"]),
+    ("results/robot/mdh.json", ["pipeline/robot/arm/kinematics.py", "pipeline/robot/model/lm.py", "pipeline/robot/arm/effects.py"]),
+    ("reports/diagnosis.pdf", ["pipeline/diagnosis/report.py", "pipeline/robot/model/estimate.py", "pipeline/encoder/evaluate.py"]),
+    ("results/fleet.parquet", ["pipeline/fleet/engine.py", "pipeline/fleet/report.py", "pipeline/robot/model/fit.py"]),
 ])
 def test_stage_rules_depend_on_the_modules_deep_in_their_closure(target, deep):
     have = prerequisites(target)

@@ -21,7 +21,7 @@ Q = [f"q{j}" for j in range(1, 7)]
 
 def _land_rms(campaign, fresh, robot_toml=KR210 / "robot.toml"):
     """RMS (mm) of where a measured program landed from the nominal kinematics of its given joints."""
-    from pipeline.robot.kinematics import build_model, load_robot, positions
+    from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 
     target = positions(build_model(load_robot(robot_toml)), np.deg2rad(fresh[Q].to_numpy(float)))
     meas = pd.read_csv(campaign / "tracker.csv").set_index("point_id").loc[fresh["point_id"]]
@@ -31,8 +31,8 @@ def _land_rms(campaign, fresh, robot_toml=KR210 / "robot.toml"):
 
 def _fresh(fit, n=60, seed=21):
     """A program of poses in the model's sampled joint ranges (the cell's test box), no payload_kg."""
-    from pipeline.robot.kinematics import load_robot
-    from pipeline.robot.simulate import ROBOT_FIXTURE, draw_poses
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses
 
     lo, hi = np.array(fit["sampled_range"]["lower_deg"]), np.array(fit["sampled_range"]["upper_deg"])
     q = draw_poses(load_robot(KR210 / "robot.toml"), 10 * n, np.random.default_rng(seed), ROBOT_FIXTURE["box_mm"], 10.0)
@@ -76,8 +76,8 @@ def test_export_chain_is_nearest_the_whole_model(cells):
     together with compliance, backlash and harmonics) and is as good as a kinematic fit; pinocchio's
     forward kinematics of the file is that chain."""
     from pipeline.export.urdf import urdf_positions
-    from pipeline.robot.ingest import robot_data_sets
-    from pipeline.robot.kinematics import load_robot
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.arm.kinematics import load_robot
 
     tmp, run = cells["tmp"], cells["run"]
     r = run("export", "--model", tmp / "full_fit.json", "--format", "urdf", "--out", tmp / "full.urdf",
@@ -91,7 +91,7 @@ def test_export_chain_is_nearest_the_whole_model(cells):
     # the chain for drives that apply the joint tables, with them, beats the model's own geometry with them
     assert h["full_rms_mm"] <= h["chain_tables_rms_mm"] < h["model_geometry_tables_rms_mm"], h
     assert "payload 60 kg" in r.output              # says what it assumes
-    from pipeline.robot.rigid import load_chain
+    from pipeline.robot.model.rigid import load_chain
 
     robot = load_robot(KR210 / "robot.toml")
     chain = load_chain(robot, cells["fits"]["full"]["rigid_chain"])
@@ -99,8 +99,8 @@ def test_export_chain_is_nearest_the_whole_model(cells):
     urdf = urdf_positions((tmp / "full.urdf").read_text(), "smr", target.q_deg)
     assert np.abs(urdf - chain.predict(target)).max() < 1e-3        # mm
     # --with-tables: that URDF at the angles the joint tables turn the joints to is the model's chain for them
-    from pipeline.robot.predict import load_model_document
-    from pipeline.robot.rigid import table_angles_deg, with_angles
+    from pipeline.robot.model.predict import load_model_document
+    from pipeline.robot.model.rigid import table_angles_deg, with_angles
 
     r = run("export", "--model", tmp / "full_fit.json", "--format", "urdf", "--with-tables", "--out", tmp / "t.urdf")
     assert r.exit_code == 0, r.output

@@ -62,7 +62,7 @@ def _loop(tmp, robot_toml, simulate_args, spec_text):
     r = run("simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "corrected.csv",
             "--campaign", tmp / "meas")
     assert r.exit_code == 0, r.output
-    from pipeline.robot.kinematics import build_model, load_robot, placements
+    from pipeline.robot.arm.kinematics import build_model, load_robot, placements
 
     qc = [c for c in prog if c[:1] == "q" and c[1:].isdigit()]
     _, nominal = placements(build_model(load_robot(robot_toml)), np.deg2rad(prog[qc].to_numpy(float)), "smr")
@@ -151,9 +151,9 @@ def test_correction_is_the_smallest_that_reaches_the_point_where_no_orientation_
 
 def _synthetic(robot_path, x_true: dict, effects, n=80, seed=1):
     """Poses of a robot and the SMR positions a model with parameters ``x_true`` (internal units) predicts."""
-    from pipeline.robot.calibrate import Design
-    from pipeline.robot.effects import RobotData
-    from pipeline.robot.kinematics import gravity_torques, load_robot
+    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.arm.effects import RobotData
+    from pipeline.robot.arm.kinematics import gravity_torques, load_robot
 
     robot = load_robot(robot_path)
     rng = np.random.default_rng(seed)
@@ -169,8 +169,8 @@ def _synthetic(robot_path, x_true: dict, effects, n=80, seed=1):
 
 def test_genuinely_implausible_robot_is_still_refused():
     """A link frame twisted by 8 deg is no robot's error, whatever parameters carry it."""
-    from pipeline.robot.calibrate import RobotErrorModel
-    from pipeline.robot.effects import Base, Geometry, Tool
+    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.arm.effects import Base, Geometry, Tool
 
     effects = [Geometry(), Base(), Tool()]
     robot, data = _synthetic(ROOT / "raw/robot/kr210/robot.toml", {"dalpha3": np.deg2rad(8.0) * 1e3}, effects)
@@ -184,8 +184,8 @@ def test_genuinely_implausible_robot_is_still_refused():
 
 def test_unseen_directions_change_no_prediction():
     """The physical representative predicts what the old one (fix the redundant parameters) predicts."""
-    from pipeline.robot.calibrate import RobotErrorModel
-    from pipeline.robot.effects import Base, Geometry, Tool
+    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.arm.effects import Base, Geometry, Tool
 
     effects = [Geometry(), Base(), Tool()]
     robot, data = _synthetic(ROOT / "raw/robot/kr210/robot.toml",

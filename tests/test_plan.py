@@ -13,9 +13,10 @@ import pytest
 
 from pipeline.core.spec import load_spec
 from pipeline.plan.design import plan_poses, pool_data, visiting_order, path_cost
-from pipeline.robot.evaluate import fit_effects
-from pipeline.robot.kinematics import load_robot
-from pipeline.robot.simulate import ROBOT_FIXTURE, directions_from_sequence, draw_poses, make_cell
+from pipeline.robot.model.estimate import fit_effects
+from pipeline.robot.arm.kinematics import load_robot
+from pipeline.robot.arm.kinematics import directions_from_sequence
+from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses, make_cell
 
 ROOT = Path(__file__).resolve().parents[1]
 KR210 = ROOT / "raw" / "robot" / "kr210" / "robot.toml"

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from conftest import ROOT, cli_invoker
 from pipeline.programs import conventions as cv
 from pipeline.programs import ik
-from pipeline.robot.kinematics import build_model, load_robot, placements
+from pipeline.robot.arm.kinematics import build_model, load_robot, placements
 
 DATA = ROOT / "tests/data/programs"
 KR210 = ROOT / "raw/robot/kr210/robot.toml"
@@ -206,7 +206,7 @@ def test_filtered_program_lands_on_the_model(cells, tmp_path, fmt):
     """32 targets (joint and Cartesian, PTP and linear) of a fresh program per format: as given, the
     robot lands at its uncorrected error; filtered, within 1.25 x the model's held-out RMS + 5 um."""
     import program_samples as ps
-    from pipeline.robot.simulate import cell_config, draw_poses
+    from pipeline.robot.cell.simulate import cell_config, draw_poses
 
     cell = "ur10" if fmt == "ur" else "kr210"
     robot_path = UR10 if fmt == "ur" else KR210

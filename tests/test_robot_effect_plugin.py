@@ -9,9 +9,9 @@ import numpy as np
 from conftest import ROOT
 from pipeline.core.effect import Registry
 from pipeline.diagnosis.robot import RobotAdapter
-from pipeline.robot.effects import EFFECTS, RobotData, RobotEffect, jh_orders
-from pipeline.robot.kinematics import load_robot
-from pipeline.robot.simulate import hidden_effects_help, hidden_robot_effect
+from pipeline.robot.arm.effects import EFFECTS, RobotData, RobotEffect, jh_orders
+from pipeline.robot.arm.kinematics import load_robot
+from pipeline.robot.cell.simulate import hidden_effects_help, hidden_robot_effect
 
 ROBOT = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
 

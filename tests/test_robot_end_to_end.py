@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import cli
-from pipeline.robot.lm import limit_blas_threads
+from pipeline.robot.model.lm import limit_blas_threads
 
 limit_blas_threads(1)
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from conftest import ROOT
 from pipeline.core.errors import InputError
-from pipeline.robot import frame as rf
+from pipeline.robot.campaign import frame as rf
 
 KR210 = ROOT / "raw" / "robot" / "kr210"
 
@@ -137,7 +137,7 @@ def test_rigid_fit_never_returns_a_reflection_and_refuses_degenerate_input():
 
 # ------------------------------------------------------------------------ frame = tracker
 def test_tracker_frame_ingests_to_the_same_base_frame_points(tmp_path):
-    from pipeline.robot.ingest import ingest_robot, ingest_robot_with_frame
+    from pipeline.robot.campaign.ingest import ingest_robot, ingest_robot_with_frame
 
     a = _copy(tmp_path, "a")
     _frame_toml(a)
@@ -303,7 +303,7 @@ HYPOTHESIS = {"radians": "radians", "metres": "metres", "sign_q1": "sign1", "sig
 
 
 def _hypothesis_of(folder):
-    from pipeline.robot.ingest import load_robot_campaign
+    from pipeline.robot.campaign.ingest import load_robot_campaign
 
     with pytest.raises(InputError) as exc:
         load_robot_campaign(folder)
@@ -360,7 +360,7 @@ def test_real_robot_errors_pass_and_corruption_fails_in_library():
     """The thresholds: a realistic robot error (a 16 mm tool error, 0.05 deg joint offsets) passes."""
     from dataclasses import replace
 
-    from pipeline.robot.kinematics import build_model, load_robot, positions
+    from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 
     robot = load_robot(KR210 / "robot.toml")
     q = _q(KR210)[[f"q{j}" for j in range(1, 7)]].astype(float).to_numpy()
@@ -374,7 +374,7 @@ def test_real_robot_errors_pass_and_corruption_fails_in_library():
 
 
 def test_check_is_fast():
-    from pipeline.robot.kinematics import build_model, load_robot
+    from pipeline.robot.arm.kinematics import build_model, load_robot
 
     robot = load_robot(KR210 / "robot.toml")
     poses = _q(KR210)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.robot.kinematics import (build_error_model, build_model, gravity_torques, load_robot, parse_robot,
+from pipeline.robot.arm.kinematics import (build_error_model, build_model, gravity_torques, load_robot, parse_robot,
                             positions, positions_and_jacobians)
 
 KR210 = "raw/robot/kr210/robot.toml"

@@ -2,13 +2,13 @@
 
 import numpy as np
 
-from pipeline.robot.calibrate import Design, RobotErrorModel, calibrate_mdh
-from pipeline.robot.chebyshev import identify
-from pipeline.robot.closedloop import KD, KP, JointPlant, pd_poles, run_loop
-from pipeline.robot.effects import Base, Chebyshev, Geometry, RobotData
-from pipeline.robot.kinematics import build_model, gravity_torques, load_robot, positions
-from pipeline.robot.lm import improved_lm, limit_blas_threads, scipy_least_squares
-from pipeline.robot.simulate import ROBOT_FIXTURE, draw_poses
+from pipeline.robot.model.calibrate import Design, RobotErrorModel, calibrate_mdh
+from pipeline.robot.model.chebyshev import identify
+from pipeline.robot.paper.closedloop import KD, KP, JointPlant, pd_poles, run_loop
+from pipeline.robot.arm.effects import Base, Chebyshev, Geometry, RobotData
+from pipeline.robot.arm.kinematics import build_model, gravity_torques, load_robot, positions
+from pipeline.robot.model.lm import improved_lm, limit_blas_threads, scipy_least_squares
+from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses
 
 limit_blas_threads(1)
 ROBOT = load_robot("raw/robot/kr210/robot.toml")

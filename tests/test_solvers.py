@@ -8,13 +8,13 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import cli
-from pipeline.robot.calibrate import RobotErrorModel
-from pipeline.robot.chebyshev import LM_DEFAULTS, chebyshev_estimator, identify
-from pipeline.robot.effects import Base, Chebyshev, Geometry, RobotData
-from pipeline.robot.kinematics import build_model, gravity_torques, load_robot, positions
-import pipeline.robot.lm as lm_module
-from pipeline.robot.lm import implausible_parameters, improved_lm, limit_blas_threads, scipy_least_squares
-from pipeline.robot.simulate import ROBOT_FIXTURE, draw_poses
+from pipeline.robot.model.calibrate import RobotErrorModel
+from pipeline.robot.model.chebyshev import LM_DEFAULTS, chebyshev_estimator, identify
+from pipeline.robot.arm.effects import Base, Chebyshev, Geometry, RobotData
+from pipeline.robot.arm.kinematics import build_model, gravity_torques, load_robot, positions
+import pipeline.robot.model.lm as lm_module
+from pipeline.robot.model.lm import implausible_parameters, improved_lm, limit_blas_threads, scipy_least_squares
+from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses
 
 from conftest import ROOT
 
@@ -138,7 +138,7 @@ def test_a_run_that_never_leaves_its_start_is_not_converged(problem):
 def test_tool_on_the_last_joint_axis_like_the_real_ur10():
     """The UR10's probe sits on the flange axis: rotations about that axis do not move it (zero
     columns). The Chebyshev stage must still agree with scipy and give plausible coefficients."""
-    from pipeline.robot.chebyshev import cross_check_problems
+    from pipeline.robot.model.chebyshev import cross_check_problems
 
     robot = replace(ROBOT, tool_xyz_mm=(0.0, 0.0, 109.0))
     rng = np.random.default_rng(3)

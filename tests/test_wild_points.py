@@ -98,8 +98,8 @@ def test_a_missing_effect_is_not_named(tmp_path):
     """A joint 1 angle error of +-150 arcsec (1 mm at the SMR, 60 times the noise) that the spec lacks:
     the flexible model has it, so no pose is wild."""
     from pipeline.core.spec import load_spec
-    from pipeline.robot.ingest import robot_data_sets
-    from pipeline.robot.outliers import find_wild
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.outliers import find_wild
 
     dst = tmp_path / "c"
     shutil.copytree(KR210, dst)

@@ -23,7 +23,7 @@ def _is_robot_model(doc) -> bool:
 
 
 def _load_robot_model(path, doc):
-    from ..robot.predict import load_model_document
+    from ..robot.model.predict import load_model_document
 
     return load_model_document(doc, path)
 
@@ -162,7 +162,7 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     from ..correct.write import corrected_csv
 
     _need_file(targets_path, "the targets: point_id, q1 … qN, one row per point")
-    from ..robot.rigid import assumptions, model_payload
+    from ..robot.model.rigid import assumptions, model_payload
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
@@ -216,7 +216,7 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     from ..programs.filtering import filter_program
     from ..programs.io import read_program, write_all
     from ..programs.text import rewrite
-    from ..robot.rigid import assumptions, model_payload
+    from ..robot.model.rigid import assumptions, model_payload
 
     _need_file(program_path, "the robot program")
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
@@ -258,7 +258,7 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
 def _measure_robot(truth_path, campaign, robot_path):
     """The cell's nominal robot: --robot, else the truth's own (robot_toml), else the campaign folder's,
     else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml)."""
-    from ..robot.kinematics import load_robot, parse_robot
+    from ..robot.arm.kinematics import load_robot, parse_robot
 
     if robot_path:
         return load_robot(robot_path)
@@ -360,7 +360,7 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
 
 def _measure_cell(truth_path, campaign, robot_path):
     """The nominal robot and the virtual cell its truth describes (see :func:`_measure_robot`)."""
-    from ..robot.measure import cell_from_truth
+    from ..robot.cell.measure import cell_from_truth
 
     robot = _measure_robot(truth_path, campaign, robot_path)
     try:
@@ -374,7 +374,7 @@ def _write_measured(campaign, robot, cell, point_id, sets, q, dirs, payload, tem
     """Move the cell to the poses q (n, N) deg, measure them, and write the campaign folder; returns the
     joints run closed loop on their gratings."""
     from ..core.files import write_text
-    from ..robot.measure import campaign_tables, measure_poses
+    from ..robot.cell.measure import campaign_tables, measure_poses
 
     closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
     try:
@@ -494,7 +494,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         click.echo(f"{out}: {len(table)} angles; {note}", err=True)
         return
     from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, export_chain, folded_chain, leftover_cost
-    from ..robot.rigid import assumptions
+    from ..robot.model.rigid import assumptions
 
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     plain_model, plain_how = export_chain(robot, model, doc, sampled)
@@ -539,7 +539,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         written = [out]
     elif fmt == "ur":
         from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
-        from ..robot.calibrate import RobotErrorModel
+        from ..robot.model.calibrate import RobotErrorModel
 
         chain = folded_chain(robot, chain_model)
         nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
@@ -562,10 +562,10 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
     if heldout_campaign:
         from ..core.files import write_json
         from ..export.chain import heldout_by_carrier
-        from ..robot.ingest import robot_data_sets
-        from ..robot.predict import same_robot_problem
+        from ..robot.campaign.ingest import robot_data_sets
+        from ..robot.model.predict import same_robot_problem
 
-        from ..robot.outliers import describe, find_wild
+        from ..robot.model.outliers import describe, find_wild
 
         other, (sample, target) = robot_data_sets(heldout_campaign, ("sample",), ("target",))
         problem = same_robot_problem(robot, other)

@@ -1,7 +1,7 @@
 """``jointcal import``: a measurement export -> a robot campaign folder (contract section 6).
 
-Thin wrapper: the work is in :mod:`pipeline.robot.importer` (map, source, tables, split,
-atomic install) and :mod:`pipeline.robot.urdf` (a URDF's arm as the contract's robot).
+Thin wrapper: the work is in :mod:`pipeline.robot.campaign.importer` (map, source, tables, split,
+atomic install) and :mod:`pipeline.robot.campaign.urdf` (a URDF's arm as the contract's robot).
 Library imports are inside the command: see :mod:`pipeline.cli.common` (start-up time).
 """
 
@@ -35,8 +35,8 @@ def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
     ingest` would (nominal consistency included) before it replaces --out; on any problem
     nothing is written and one line names the file, line and column.
     """
-    from ..robot.importer import import_campaign
-    from ..robot.lm import limit_blas_threads
+    from ..robot.campaign.importer import import_campaign
+    from ..robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
     s = import_campaign(source_path, map_path, robot_path, out_dir, tip, base, tool_mm)

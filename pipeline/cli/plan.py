@@ -59,8 +59,8 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     from ..plan.api import plan_from_pool
     from ..plan.pool import read_pool
     from ..plan.reveal import parse_reveal
-    from ..robot.importer import load_import_robot
-    from ..robot.lm import limit_blas_threads
+    from ..robot.campaign.importer import load_import_robot
+    from ..robot.model.lm import limit_blas_threads
     from .common import load_spec
 
     limit_blas_threads(1)
@@ -71,7 +71,7 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     pool = read_pool(pool_path, robot)
     measured = None
     if campaign is not None:
-        from ..robot.ingest import robot_data_sets
+        from ..robot.campaign.ingest import robot_data_sets
 
         crobot, (measured,) = robot_data_sets(campaign, ("sample", "target", "repeat"))
         if len(crobot.joints) != len(robot.joints):

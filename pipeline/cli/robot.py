@@ -26,7 +26,7 @@ DEFAULT_INTERIM = "interim/robot/poses.parquet"
 
 
 def _edge():
-    from ..robot.lm import limit_blas_threads
+    from ..robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
 
@@ -38,9 +38,9 @@ def _read_json(path):
 
 
 def _interim(path):
-    """An ingested robot table, checked against its nominal kinematics (:func:`pipeline.robot.ingest.check_ingested`)."""
+    """An ingested robot table, checked against its nominal kinematics (:func:`pipeline.robot.campaign.ingest.check_ingested`)."""
     from ..core.files import parquet_metadata, read_parquet_input
-    from ..robot.ingest import check_ingested
+    from ..robot.campaign.ingest import check_ingested
 
     frame = read_parquet_input(path, "run `jointcal ingest --campaign raw/robot/<robot>` first")
     check_ingested(frame, path, parquet_metadata(path))
@@ -86,7 +86,7 @@ def outside_message(outside, worst: bool = False) -> str:
 
 
 def _robot(path):
-    from ..robot.kinematics import load_robot
+    from ..robot.arm.kinematics import load_robot
 
     return load_robot(path)
 
@@ -94,7 +94,7 @@ def _robot(path):
 def _paper_robot(path, command: str):
     """The robot of a stage that runs the paper's virtual six-joint cell (gratings on joints 1-3):
     another joint count is refused with one line."""
-    from ..robot.kinematics import PAPER_JOINTS
+    from ..robot.arm.kinematics import PAPER_JOINTS
 
     robot = _robot(path)
     if robot.n_joints != PAPER_JOINTS:
@@ -113,7 +113,7 @@ def _spec(path):
 
 def warn_unstaged(spec) -> None:
     """Warn about effects that neither stage of the paper's chain takes (``fit`` and ``diagnose`` do)."""
-    from ..robot.fit import stage_effects
+    from ..robot.model.fit import stage_effects
 
     staged = {id(e) for stage in ("kinematic", "feedback") for e in stage_effects(spec, stage)}
     left = list(dict.fromkeys(e.name for e in spec.effects if id(e) not in staged))
@@ -126,8 +126,8 @@ def warn_unstaged(spec) -> None:
 def ingest_robot_to(campaign, out):
     """``jointcal ingest`` for a robot campaign folder."""
     from ..core.files import provenance, write_parquet
-    from ..robot.frame import describe, from_matrix
-    from ..robot.ingest import ingest_robot_with_frame
+    from ..robot.campaign.frame import describe, from_matrix
+    from ..robot.campaign.ingest import ingest_robot_with_frame
 
     robot, frame, info = ingest_robot_with_frame(campaign)
     files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
@@ -144,7 +144,7 @@ def ingest_robot_to(campaign, out):
 
 def validate_robot(campaign, problems):
     """``jointcal validate`` for a robot campaign folder: collect every problem."""
-    from ..robot.ingest import load_robot_campaign
+    from ..robot.campaign.ingest import load_robot_campaign
 
     try:
         load_robot_campaign(campaign, problems)
@@ -154,7 +154,7 @@ def validate_robot(campaign, problems):
 
 # ------------------------------------------------------------------------------ simulate
 def _hidden_help() -> str:
-    from ..robot.simulate import hidden_effects_help
+    from ..robot.cell.simulate import hidden_effects_help
 
     return hidden_effects_help()
 
@@ -184,8 +184,8 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base
     payload a tenth of its mass, no ISO rows, no gratings). Physics: raw/README.md.
     """
     from ..core.files import write_json, write_text
-    from ..robot.importer import load_import_robot
-    from ..robot.simulate import cell_config, format_poses_csv, format_tracker_csv, hidden_robot_effect, simulate_robot
+    from ..robot.campaign.importer import load_import_robot
+    from ..robot.cell.simulate import cell_config, format_poses_csv, format_tracker_csv, hidden_robot_effect, simulate_robot
 
     _edge()
     robot_text = None
@@ -251,9 +251,9 @@ def calibrate_cmd(interim, robot_path, spec_path, out):
     cannot identify (fixed at 0). Parameters in mm and arcsec.
     """
     from ..core.files import provenance, write_json
-    from ..robot.calibrate import calibrate_mdh
-    from ..robot.fit import fit_problems, stage_effects
-    from ..robot.ingest import robot_data
+    from ..robot.model.calibrate import calibrate_mdh
+    from ..robot.model.fit import fit_problems, stage_effects
+    from ..robot.campaign.ingest import robot_data
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
@@ -293,10 +293,10 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
     """
     from ..core.files import provenance, write_json
     from ..core.spec import _locate
-    from ..robot.chebyshev import cross_check_problems, identify
-    from ..robot.fit import stage_effects
-    from ..robot.ingest import has_gratings, robot_data
-    from ..robot.lm import lm_options_problem
+    from ..robot.model.chebyshev import cross_check_problems, identify
+    from ..robot.model.fit import stage_effects
+    from ..robot.campaign.ingest import has_gratings, robot_data
+    from ..robot.model.lm import lm_options_problem
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
@@ -355,11 +355,11 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     import pandas as pd
 
     from ..core.files import parquet_metadata, write_csv
-    from ..robot.chebyshev import model_from_json
-    from ..robot.fit import stage_effects
-    from ..robot.ingest import robot_data
-    from ..robot.mapping import joint_mapping
-    from ..robot.simulate import directions_from_sequence
+    from ..robot.model.chebyshev import model_from_json
+    from ..robot.model.fit import stage_effects
+    from ..robot.campaign.ingest import robot_data
+    from ..robot.paper.mapping import joint_mapping
+    from ..robot.arm.kinematics import directions_from_sequence
 
     _edge()
     robot, frame, spec = _paper_robot(robot_path, "map-joints"), _interim(interim), _spec(spec_path)
@@ -436,8 +436,9 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     import numpy as np
 
     from ..core.files import write_json
-    from ..robot.closedloop import CYCLE_S, KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG, pd_poles
-    from ..robot.simulate import EXECUTE, ROBOT_FIXTURE, directions_from_sequence, make_cell, rng_for
+    from ..robot.paper.closedloop import CYCLE_S, KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG, pd_poles
+    from ..robot.arm.kinematics import directions_from_sequence
+    from ..robot.cell.simulate import EXECUTE, ROBOT_FIXTURE, make_cell, rng_for
 
     _edge()
     robot, frame = _paper_robot(robot_path, "closed-loop"), _interim(interim)
@@ -489,12 +490,13 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
 
     from ..core.files import provenance, write_csv, write_json
     from ..core.tables import FLOAT, STR, read_table
-    from ..robot.calibrate import RobotErrorModel
-    from ..robot.evaluate import execute_virtual, table2, vap
-    from ..robot.fit import stage_effects
-    from ..robot.ingest import robot_data
-    from ..robot.mapping import inverse_commands
-    from ..robot.simulate import ROBOT_FIXTURE, make_cell
+    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.cell.execute import execute_virtual
+    from ..robot.paper.evaluate import table2, vap
+    from ..robot.model.fit import stage_effects
+    from ..robot.campaign.ingest import robot_data
+    from ..robot.paper.mapping import inverse_commands
+    from ..robot.cell.simulate import ROBOT_FIXTURE, make_cell
 
     _edge()
     robot, frame, spec = _paper_robot(robot_path, "evaluate"), _interim(interim), _spec(spec_path)
@@ -578,7 +580,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
 def report_cmd(results_dir, beyond_path, diagnosis_path, out):
     """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec);
     with --beyond, a page with what adding the effects diagnosis found does to Table 2."""
-    from ..robot.report import robot_report
+    from ..robot.reports.report import robot_report
 
     _edge()
     r = Path(results_dir)
@@ -608,7 +610,7 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
     import pandas as pd
 
     from ..core.files import write_json
-    from ..robot.real_report import load_results, real_report
+    from ..robot.reports.real_report import load_results, real_report
 
     series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
         if Path(campaigns_dir).is_dir() else []
@@ -651,14 +653,14 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     from ..core.spec import load_spec
     from ..diagnosis.engine import verified_text
     from ..diagnosis.loop import diagnosis_loop
-    from ..robot.ingest import robot_data_sets
-    from ..robot.outliers import describe, find_wild
+    from ..robot.campaign.ingest import robot_data_sets
+    from ..robot.model.outliers import describe, find_wild
 
     _edge()
     spec = load_spec(spec_path)
     spec.require_kind("robot", campaign)
     robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
-    from ..robot.fit import check_spec_joints
+    from ..robot.model.fit import check_spec_joints
 
     check_spec_joints(spec, robot)
     wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
@@ -709,11 +711,11 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
 
 def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`); wild measurements
-    named and left out (:mod:`pipeline.robot.outliers`) unless ``keep_outliers``."""
+    named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``."""
     from ..core.files import provenance, write_json
-    from ..robot.fit import check_spec_joints, fit_problems, robot_fit_result
-    from ..robot.ingest import robot_data_sets
-    from ..robot.outliers import describe, find_wild
+    from ..robot.model.fit import check_spec_joints, fit_problems, robot_fit_result
+    from ..robot.campaign.ingest import robot_data_sets
+    from ..robot.model.outliers import describe, find_wild
 
     _edge()
     spec.require_kind("robot", campaign)
@@ -770,10 +772,10 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
     import numpy as np
 
     from ..core.files import provenance, write_json
-    from ..robot.frame import apply, from_matrix
-    from ..robot.ingest import robot_data_sets
-    from ..robot.outliers import describe, find_wild
-    from ..robot.predict import load_model_document, predict_campaign, same_robot_problem
+    from ..robot.campaign.frame import apply, from_matrix
+    from ..robot.campaign.ingest import robot_data_sets
+    from ..robot.model.outliers import describe, find_wild
+    from ..robot.model.predict import load_model_document, predict_campaign, same_robot_problem
 
     _edge()
     robot_m, effects, model, sampled, fit_frame = load_model_document(_read_json(model_path), model_path)

@@ -16,7 +16,7 @@ Each :class:`Effect` knows
   injection: :class:`pipeline.encoder.effects.EncoderEffect`).
 
 The effects of a domain live in its package (:mod:`pipeline.encoder.effects`,
-:mod:`pipeline.robot.effects`). Each domain registers its own in one place, its package's
+:mod:`pipeline.robot.arm.effects`). Each domain registers its own in one place, its package's
 ``__init__`` (``REGISTRY.register(*EFFECTS)``), so the spec loader, the models and the
 diagnosis see one vocabulary (contract section 3). Nothing here imports a domain.
 

@@ -1,5 +1,5 @@
 """The rule that names wild measurements (contract section 12), as numbers and words: kept free of
-the library so that the commands' ``--help`` can state it (:mod:`pipeline.robot.outliers` applies it)."""
+the library so that the commands' ``--help`` can state it (:mod:`pipeline.robot.model.outliers` applies it)."""
 
 #: A pose is wild beyond this many robust standard deviations (per axis) of a flexible model's
 #: residuals. Gaussian noise passes 6 sigma (3-D) once in 10^7 poses; real residuals are heavier

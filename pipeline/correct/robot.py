@@ -32,11 +32,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core.units import REFERENCE_TEMPERATURE_C
-from ..robot.calibrate import Design
-from ..robot.effects import RobotData
-from ..robot.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
-from ..robot.predict import outside_range
-from ..robot.rigid import secondary_joints
+from ..robot.model.calibrate import Design
+from ..robot.arm.effects import RobotData
+from ..robot.arm.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
+from ..robot.model.predict import outside_range
+from ..robot.model.rigid import secondary_joints
 
 #: A row is ``ok`` when the model's prediction at its corrected commands is within this of the point (um).
 RESIDUAL_TOL_UM = 1.0
@@ -110,7 +110,7 @@ class ModelKinematics:
     ----------
     robot : Robot
     model : RobotErrorModel
-        Fitted (``coef_``, ``effects_``), e.g. from :func:`pipeline.robot.predict.load_model_document`.
+        Fitted (``coef_``, ``effects_``), e.g. from :func:`pipeline.robot.model.predict.load_model_document`.
     """
 
     def __init__(self, robot, model):
@@ -147,7 +147,7 @@ class ModelKinematics:
 
     def unseen_rotations(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
         """How the model's flange turns along each direction of its parameters that the fit's
-        measurements did not determine (:meth:`pipeline.robot.calibrate.RobotErrorModel.undetermined`),
+        measurements did not determine (:meth:`pipeline.robot.model.calibrate.RobotErrorModel.undetermined`),
         at commanded poses: shape (n, 3, m), rad per unit of the direction, world-aligned."""
         self._built()
         D = self.model.undetermined() if hasattr(self.model, "undetermined") else np.zeros((0, 0))
@@ -268,7 +268,7 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     tol_um : float, um
         Largest model residual of an ``ok`` row.
     """
-    from ..robot.simulate import directions_from_sequence
+    from ..robot.arm.kinematics import directions_from_sequence
 
     q0 = np.atleast_2d(np.asarray(q_deg, float))
     n, nj = q0.shape
@@ -358,7 +358,7 @@ def angle_mismatch(sources, closed) -> str:
     """Why a model does not apply to a robot whose joints ``closed`` (1-based) follow their secondary
     encoders in a closed loop and whose other joints run open loop on their commands ('' when it does).
 
-    ``sources``: the fit JSON's ``joint_angles`` (:func:`pipeline.robot.rigid.joint_angle_sources`;
+    ``sources``: the fit JSON's ``joint_angles`` (:func:`pipeline.robot.model.rigid.joint_angle_sources`;
     None: every joint commanded). A joint whose model takes a secondary encoder's angle (a grating)
     has its transmission error, compliance and backlash hidden from the model: open loop they are
     all there (0.64 mm on the KR210 cell against its model's 0.07 mm held out). A joint whose model

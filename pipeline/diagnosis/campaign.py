@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from ..core.campaign import campaign_kind
 from ..core.spec import load_spec
-from ..robot.fit import check_spec_joints
-from ..robot.ingest import robot_data_sets
-from ..robot.outliers import describe, find_wild
+from ..robot.model.fit import check_spec_joints
+from ..robot.campaign.ingest import robot_data_sets
+from ..robot.model.outliers import describe, find_wild
 from .encoder import EncoderAdapter, encoder_data_from_campaign
 from .engine import diagnose
 from .robot import RobotAdapter
@@ -23,7 +23,7 @@ def adapter_and_data(campaign, kind, workers=1):
 def run_diagnosis(campaign, spec_path, progress=None, workers=1, keep_outliers=False):
     """Load a raw campaign and a spec, check they match, and diagnose.
 
-    A robot campaign's wild measurements (:mod:`pipeline.robot.outliers`) are named (``outliers``)
+    A robot campaign's wild measurements (:mod:`pipeline.robot.model.outliers`) are named (``outliers``)
     and its wild sample poses left out of the diagnosis, unless ``keep_outliers``.
     Returns the result dict (contract section 4) and ``(adapter, spec, data)`` for the report.
     """

@@ -26,10 +26,10 @@ from __future__ import annotations
 import numpy as np
 
 # configurations drawn in the sampled joint box (the robot's error budget, shared with every fit)
-from ..robot.budget import N_BOX, box_configurations  # noqa: F401 (re-exported)
-from ..robot.calibrate import WEAK_TOL, Design
-from ..robot.evaluate import fit_effects
-from ..robot.kinematics import positions_and_jacobians
+from ..robot.model.budget import N_BOX, box_configurations  # noqa: F401 (re-exported)
+from ..robot.model.calibrate import WEAK_TOL, Design
+from ..robot.model.estimate import fit_effects
+from ..robot.arm.kinematics import positions_and_jacobians
 
 #: Region folds: number of blocks of joint space and k-means iterations.
 N_REGIONS = 5

@@ -22,9 +22,9 @@ import re
 import numpy as np
 
 from ..core.spec import parse_spec
-from ..robot.effects import jh_orders
-from ..robot.evaluate import fit_effects
-from ..robot.frame import apply, rigid_fit
+from ..robot.arm.effects import jh_orders
+from ..robot.model.estimate import fit_effects
+from ..robot.campaign.frame import apply, rigid_fit
 from .engine import MIN_GAIN, diagnose, done_text, label
 from .robot import RobotAdapter
 
@@ -69,7 +69,7 @@ def refit_cv(robot, effects, sample, cache=None) -> tuple[float, float]:
 
 def _one_joint(name: str, j: int, sample) -> str:
     """The ``[[effect]]`` lines of effect ``name`` on joint ``j`` alone (a joint harmonic: every order
-    diagnosis tries on the joint's sampled range, :func:`pipeline.robot.effects.jh_orders`)."""
+    diagnosis tries on the joint's sampled range, :func:`pipeline.robot.arm.effects.jh_orders`)."""
     if name == "joint_harmonic":
         return f'[[effect]]\nname = "joint_harmonic"\njoints = [{j}]\norders = {jh_orders(sample.q_deg[:, j - 1])}'
     return f'[[effect]]\nname = "{name}"\njoints = [{j}]'

@@ -1,6 +1,6 @@
 """The robot side of diagnosis: folds by pose over the sample set, candidates per joint.
 
-The model is :class:`pipeline.robot.calibrate.RobotErrorModel` (Gauss-Newton over the sum of the
+The model is :class:`pipeline.robot.model.calibrate.RobotErrorModel` (Gauss-Newton over the sum of the
 effects, pinocchio Jacobians). Poses are independent (each is its own tracker measurement),
 so a candidate's held-out gain is tested with a paired t test over poses.
 """
@@ -13,13 +13,13 @@ import numpy as np
 
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
-from ..robot.calibrate import Design
-from ..robot.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
-from ..robot.evaluate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
-from ..robot.kinematics import gravity_torques
-from ..robot.budget import angle_budget, angle_variation, error_scale, lever_arms
-from ..robot.lm import describe_implausible, implausible_parameters
-from ..robot.noise import noise_estimate
+from ..robot.model.calibrate import Design
+from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
+from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
+from ..robot.arm.kinematics import gravity_torques
+from ..robot.model.budget import angle_budget, angle_variation, error_scale, lever_arms
+from ..robot.model.lm import describe_implausible, implausible_parameters
+from ..robot.model.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
 
@@ -68,7 +68,7 @@ class RobotAdapter:
         return list(spec.effects)
 
     def candidates(self, spec, data, base_effects):
-        """Every robot effect's candidates (:meth:`pipeline.robot.effects.RobotEffect.candidates`), in
+        """Every robot effect's candidates (:meth:`pipeline.robot.arm.effects.RobotEffect.candidates`), in
         diagnosis order: the whole-robot effects, then the per-joint ones joint by joint, then the
         periodic joint errors per joint and order."""
         return [c for cls in effect_classes(self.registry) for c in cls.candidates(data, list(base_effects))]
@@ -174,7 +174,7 @@ class RobotAdapter:
     def cross_validate(self, effects, data, folds: str = "random") -> CVResult:
         """Held-out residuals of the model ``effects``: linear corrections to the shared baseline
         when ``effects`` extends it, else the model refitted on every fold (random folds:
-        :func:`pipeline.robot.evaluate.cross_validate`, as ``jointcal fit``)."""
+        :func:`pipeline.robot.model.estimate.cross_validate`, as ``jointcal fit``)."""
         lin_extra = self._linear_extra(list(effects), data)
         if lin_extra is not None:
             lin, blocks = lin_extra
@@ -193,7 +193,7 @@ class RobotAdapter:
         return cache[key]
 
     def noise_estimate(self, data) -> dict:
-        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.noise.noise_estimate`)."""
+        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.model.noise.noise_estimate`)."""
         return noise_estimate(self.robot, data, getattr(self, "repeat", None))
 
     def _refit(self, effects, data, folds):

@@ -2,7 +2,7 @@
 
 A URDF or a controller's kinematic parameters hold a rigid chain, folded into joint origins
 (:func:`folded_chain`): the chain nearest the *whole* model (:func:`export_chain`; the fit JSON's
-``rigid_chain``, :mod:`pipeline.robot.rigid`), not the model's own ``geometry``, ``base`` and
+``rigid_chain``, :mod:`pipeline.robot.model.rigid`), not the model's own ``geometry``, ``base`` and
 ``tool`` parameters, which were fitted together with its other effects. A drive's
 compensation table holds what is a function of its own joint's angle (``joint_map``,
 ``joint_harmonic``; ``backlash`` with a direction column). The rest (compliance with the payload,
@@ -17,10 +17,10 @@ import numpy as np
 import pinocchio as pin
 
 from ..core.units import REFERENCE_TEMPERATURE_C
-from ..robot.calibrate import Design
-from ..robot.effects import RobotData
-from ..robot.kinematics import build_error_model, build_model, gravity_torques
-from ..robot.rigid import CHAIN_EFFECTS, TABLE_EFFECTS, chain_predict, fit_rigid_chain, has_tables, load_chain
+from ..robot.model.calibrate import Design
+from ..robot.arm.effects import RobotData
+from ..robot.arm.kinematics import build_error_model, build_model, gravity_torques
+from ..robot.model.rigid import CHAIN_EFFECTS, TABLE_EFFECTS, chain_predict, fit_rigid_chain, has_tables, load_chain
 
 #: poses over the sampled joint box on which the cost of what is left out is measured
 COST_POSES = 2000
@@ -119,7 +119,7 @@ def export_chain(robot, model, doc: dict, sampled: dict, with_tables: bool = Fal
     """The rigid chain an export writes (a fitted model of geometry, base and tool) and how it was made.
 
     The fit JSON's ``rigid_chain`` (fitted by ``jointcal fit`` to the whole model at the poses it was
-    fitted on, :func:`pipeline.robot.rigid.fit_rigid_chain`), or with ``with_tables`` its
+    fitted on, :func:`pipeline.robot.model.rigid.fit_rigid_chain`), or with ``with_tables`` its
     ``rigid_chain_with_tables`` (the chain for drives that apply the model's joint tables); for a fit
     JSON written before they were recorded, the chain fitted to the whole model here, over poses
     uniform in the sampled joint box at the payload the model was fitted at (0 kg when not recorded).

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..robot.effects import MRAD_ARCSEC, RobotData
-from ..robot.kinematics import build_error_model
+from ..robot.arm.effects import MRAD_ARCSEC, RobotData
+from ..robot.arm.kinematics import build_error_model
 from .chain import TABLE_EFFECTS, effect_slices
 
 

@@ -46,8 +46,8 @@ from ..encoder.compensate import compensation_table
 from ..encoder.effects import EncoderData
 from ..encoder.evaluate import fit_encoder_spec, model_from_result
 from ..encoder.ingest import ingest_encoder
-from ..robot.fit import robot_fit_result
-from ..robot.ingest import robot_data_sets
+from ..robot.model.fit import robot_fit_result
+from ..robot.campaign.ingest import robot_data_sets
 
 #: robust z above which a unit's residual is out of family
 Z_OUT = 3.5

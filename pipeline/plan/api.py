@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..robot.simulate import directions_from_sequence
+from ..robot.arm.kinematics import directions_from_sequence
 from .design import plan_poses, pool_data
 from .pool import Pool, format_plan_csv
 from .reveal import doubled_for_backlash, reveal_text, what_poses_need

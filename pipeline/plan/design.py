@@ -1,7 +1,7 @@
 """Choosing the poses to measure (contract section 9): D-optimal and Ds-optimal designs over a pool.
 
-The problem is the fit's own: :meth:`pipeline.robot.calibrate.RobotErrorModel.identification` of
-the estimator ``jointcal fit`` uses for the spec (:func:`pipeline.robot.evaluate.effects_estimator`)
+The problem is the fit's own: :meth:`pipeline.robot.model.calibrate.RobotErrorModel.identification` of
+the estimator ``jointcal fit`` uses for the spec (:func:`pipeline.robot.model.estimate.effects_estimator`)
 gives the identification Jacobian at the nominal robot (3 rows a pose, mm per internal unit) and
 the parameters the poses can determine (rank, weak determination: the fit's own tolerances). Only
 joint values (and payloads) are seen, never a measurement.
@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..robot.effects import RobotData
-from ..robot.evaluate import effects_estimator
-from ..robot.kinematics import Robot, gravity_torques
+from ..robot.arm.effects import RobotData
+from ..robot.model.estimate import effects_estimator
+from ..robot.arm.kinematics import Robot, gravity_torques
 from ..core.units import REFERENCE_TEMPERATURE_C
 
 #: Ridge added to the information matrix (scaled units: a pose adds about 1 per parameter)
@@ -422,8 +422,8 @@ def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
     columns ``A_model`` (n, 3, q) over the same poses, each scaled to unit RMS per pose; columns
     that vanish after the projection (the model has them) are dropped.
     """
-    from ..robot.calibrate import RobotErrorModel
-    from ..robot.effects import Chebyshev
+    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.arm.effects import Chebyshev
 
     nj = len(robot.joints)
     est = RobotErrorModel(robot, [Chebyshev(order=POTENTIAL_ORDER, joints=list(range(1, nj + 1)))],

@@ -64,7 +64,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     Parameters
     ----------
     program : Program
-    robot : pipeline.robot.kinematics.Robot
+    robot : pipeline.robot.arm.kinematics.Robot
         The nominal robot (six joints).
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` in the format's convention (:func:`pipeline.programs.formats.frame_pose`).
@@ -173,7 +173,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     max_correction_deg : float, deg
     """
     from ..correct.robot import correct_commands
-    from ..robot.simulate import directions_from_sequence
+    from ..robot.arm.kinematics import directions_from_sequence
 
     fmt = program.format
     chain = ik.chain_of(robot)

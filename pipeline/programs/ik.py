@@ -4,7 +4,7 @@ branch of a pose, and the branch flags a configuration names.
 For any serial arm of ``robot.toml`` (contract section 2), not one vendor's closed form:
 
 * forward kinematics and the geometric Jacobian of the flange, batched over many poses in numpy
-  (the same chain as pinocchio's :func:`pipeline.robot.kinematics.build_model`; a test compares them);
+  (the same chain as pinocchio's :func:`pipeline.robot.arm.kinematics.build_model`; a test compares them);
 * inverse kinematics by damped Newton (Levenberg-Marquardt on position and rotation vector) from
   several seeds at once: one per branch of the arm (found once per robot by classifying sampled
   joint values, each turned about joint 1 towards the target), then, where a wanted branch is still
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..robot.kinematics import Robot
+from ..robot.arm.kinematics import Robot
 
 #: a Newton solution is accepted within these of the pose (mm, rad)
 POS_TOL_MM, ROT_TOL_RAD = 1e-7, 1e-10

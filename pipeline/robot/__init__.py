@@ -1,12 +1,12 @@
-"""The robot side (paper 2): a six-axis robot measured with a laser tracker.
+"""The robot side (paper 2): any serial arm of 4–7 joints measured with a laser tracker.
 
-kinematics (robot.toml, pinocchio) -> ingest / importer -> calibrate (MDH) -> chebyshev (improved
-L-M, ``lm``) -> mapping -> closedloop -> evaluate -> report; ``fit`` and ``predict`` for a spec's
-whole model; ``simulate`` writes the virtual cell's campaigns. Registers the robot effects (here,
-and only here).
+By task, lowest layer first: ``arm`` (kinematics, effects) -> ``campaign`` (ingest, importer,
+frame, urdf) -> ``model`` (calibrate, lm, chebyshev, estimate, fit, predict ...) -> ``paper``
+(mapping, closedloop, evaluate) -> ``cell`` (simulate, measure, execute) -> ``reports``.
+Registers the robot effects (here, and only here).
 """
 
 from ..core.effect import REGISTRY
-from .effects import EFFECTS
+from .arm.effects import EFFECTS
 
 REGISTRY.register(*EFFECTS)

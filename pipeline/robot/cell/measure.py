@@ -1,7 +1,7 @@
 """Stage ``simulate measure`` (contract section 10): the virtual cell as a robot.
 
 Given commanded poses, the cell whose truth ``jointcal simulate robot`` wrote moves to them and its
-tracker measures the SMR - with the simulator's own physics (:class:`pipeline.robot.simulate.VirtualCell`:
+tracker measures the SMR - with the simulator's own physics (:class:`pipeline.robot.cell.simulate.VirtualCell`:
 true geometry and tool, transmission error, gravity compliance under the row's payload, backlash by
 the row's approach direction, repeatability jitter, the hidden effect, tracker noise). The result is a
 campaign folder of section 2 (``robot.toml``, ``poses.csv``, ``tracker.csv``; every pose ``target``
@@ -16,16 +16,16 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..core.units import REFERENCE_TEMPERATURE_C
-from .kinematics import Robot
-from .simulate import VirtualCell, directions_from_sequence, rng_for
+from ...core.units import REFERENCE_TEMPERATURE_C
+from ..arm.kinematics import Robot, directions_from_sequence
+from .simulate import VirtualCell, rng_for
 
 #: the generator's stream for measuring given programs (simulate.py uses 1-4)
 PROGRAM = 5
 
 
 def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
-    """The virtual cell a truth dict describes (:func:`pipeline.robot.simulate.cell_truth`).
+    """The virtual cell a truth dict describes (:func:`pipeline.robot.cell.simulate.cell_truth`).
 
     Parameters
     ----------

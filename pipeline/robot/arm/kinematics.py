@@ -36,8 +36,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from ..core.errors import InputError, parse_toml
-from ..core.files import read_text_input
+from ...core.errors import InputError, parse_toml
+from ...core.files import read_text_input
 
 JOINT_FIELDS = ("a_mm", "alpha_deg", "d_mm", "theta_offset_deg", "beta_deg", "lower_deg", "upper_deg")
 GRAVITY_FIELDS = ("mass_kg", "com_mm")
@@ -423,3 +423,26 @@ def inverse_kinematics(model: pin.Model, R_target, p_target_mm, q0_rad, frame="s
         J = pin.computeFrameJacobian(model, data, q, fid, pin.LOCAL)
         q = q + np.linalg.solve(J.T @ J + 1e-12 * np.eye(model.nv), J.T @ err)
     return q
+
+
+def directions_from_sequence(q_deg, start_deg=None, start_dir=None):
+    """Sign of each joint's last motion along a visiting sequence (carry the sign when unchanged).
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg, in visiting order
+    start_deg : ndarray, shape (N,), optional
+        Where the robot was before the first pose (first pose gets +1 when absent).
+    """
+    q = np.atleast_2d(q_deg)
+    d = np.empty(q.shape, int)
+    prev_q = None if start_deg is None else np.asarray(start_deg, float)
+    prev_d = np.ones(q.shape[1], int) if start_dir is None else np.asarray(start_dir, int)
+    for k in range(len(q)):
+        if prev_q is None:
+            d[k] = prev_d
+        else:
+            diff = q[k] - prev_q
+            d[k] = np.where(diff > 0, 1, np.where(diff < 0, -1, prev_d))
+        prev_q, prev_d = q[k], d[k]
+    return d

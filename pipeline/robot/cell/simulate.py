@@ -28,10 +28,10 @@ import numpy as np
 import pandas as pd
 import pinocchio as pin
 
-from ..core.files import to_resolution
-from .closedloop import JointPlant, run_loop
-from .effects import effect_class, effect_classes
-from .kinematics import Robot, build_model, gravity_torques, inverse_kinematics, placements, positions
+from ...core.files import to_resolution
+from ..paper.closedloop import JointPlant, run_loop
+from ..arm.effects import effect_class, effect_classes
+from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, inverse_kinematics, placements, positions
 
 # streams of the generator
 TRUTH, POSES, MEASURE, EXECUTE = 1, 2, 3, 4
@@ -267,7 +267,7 @@ def cell_truth(cell: VirtualCell) -> dict:
                     "dalpha_arcsec": (j1.alpha_deg - j0.alpha_deg) * 3600,
                     "dbeta_arcsec": (j1.beta_deg - j0.beta_deg) * 3600})
     # "generator": this module's name when the shipped truth (raw/truth) was written (pipeline.robot_simulate,
-    # now pipeline.robot.simulate); kept so that `make fixtures-robot` rewrites it byte for byte
+    # now pipeline.robot.cell.simulate); kept so that `make fixtures-robot` rewrites it byte for byte
     # drawn and derived numbers at a fixed resolution (TRUTH_DECIMALS): the tracker frame comes from an
     # SVD whose last bits differ between CPUs and BLAS builds (issue 15); the configuration is written as given
     return {"generator": "pipeline.robot_simulate", "synthetic": True, "config": cell.config, "hidden": cell.hidden,
@@ -327,29 +327,6 @@ def repeat_poses(robot: Robot, config: dict, model=None):
             starts[a] = np.rad2deg(inverse_kinematics(model, R0, p - config["approach_mm"] * u, q))
         out[f"P{k + 1}"] = {"q": np.rad2deg(q), "starts": starts, "xyz_mm": p}
     return out
-
-
-def directions_from_sequence(q_deg, start_deg=None, start_dir=None):
-    """Sign of each joint's last motion along a visiting sequence (carry the sign when unchanged).
-
-    Parameters
-    ----------
-    q_deg : ndarray, shape (n, N), deg, in visiting order
-    start_deg : ndarray, shape (N,), optional
-        Where the robot was before the first pose (first pose gets +1 when absent).
-    """
-    q = np.atleast_2d(q_deg)
-    d = np.empty(q.shape, int)
-    prev_q = None if start_deg is None else np.asarray(start_deg, float)
-    prev_d = np.ones(q.shape[1], int) if start_dir is None else np.asarray(start_dir, int)
-    for k in range(len(q)):
-        if prev_q is None:
-            d[k] = prev_d
-        else:
-            diff = q[k] - prev_q
-            d[k] = np.where(diff > 0, 1, np.where(diff < 0, -1, prev_d))
-        prev_q, prev_d = q[k], d[k]
-    return d
 
 
 # ---------------------------------------------------------------------------- campaign
@@ -443,7 +420,7 @@ def format_tracker_csv(tracker: pd.DataFrame) -> str:
 def hidden_robot_effect(text: str, seed: int, n_joints: int = 6) -> dict:
     """Parse ``EFFECT[:TARGET]`` and draw a realistic size (seeded) for a hidden effect.
 
-    Sizes are drawn by the effect's class (:meth:`~pipeline.robot.effects.RobotEffect.hidden`):
+    Sizes are drawn by the effect's class (:meth:`~pipeline.robot.arm.effects.RobotEffect.hidden`):
     thermal: 8-14 ppm/K with an 8 K temperature rise over the campaign; tool: 0.3-0.8 mm SMR
     offset; base: 0.3-0.8 mm and 20-60 arcsec; joint_harmonic:J: order 4-8 per turn, 15-40
     arcsec on joint J; backlash:J: 40-120 arcsec more play on joint J; compliance:J:

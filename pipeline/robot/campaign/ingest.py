@@ -8,9 +8,9 @@ metres, ``repeat`` rows without pose/approach/cycle, and ``campaign.toml`` (opti
 ``frame = "tracker"`` or ``"base"``).
 
 Then, on a campaign that passes those checks, the nominal-consistency check of contract
-section 2 (:func:`pipeline.robot.frame.consistency`): after the best rigid fit of the nominal
+section 2 (:func:`pipeline.robot.campaign.frame.consistency`): after the best rigid fit of the nominal
 SMR positions onto the measured ones (over the sample poses) the residual must be what a real
-robot's errors can be (:data:`pipeline.robot.frame.MAX_RMS_MM`); otherwise the campaign is
+robot's errors can be (:data:`pipeline.robot.campaign.frame.MAX_RMS_MM`); otherwise the campaign is
 refused with the likely cause (joint angles in radians, positions in metres, a joint's sign
 flipped, two joints swapped, a wrong tool, a few wild points, or, with ``frame = "base"``,
 points that are in the tracker's frame).
@@ -37,13 +37,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..core.errors import InputError, parse_toml
-from ..core.files import read_text_input
-from ..core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
+from ...core.errors import InputError, parse_toml
+from ...core.files import read_text_input
+from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
 from . import frame as rf
-from .effects import REFERENCE_TEMPERATURE_C, RobotData
-from .kinematics import Robot, build_model, gravity_torques, load_robot, positions
-from .simulate import directions_from_sequence
+from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData
+from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, load_robot, positions
 
 def poses_required(n: int = 6) -> dict:
     """Required poses.csv columns of an ``n``-joint robot: point_id, set, q1..qn."""
@@ -279,7 +278,7 @@ NO_CAUSE = ("none of the usual causes explains it (tried: joint angles in radian
 
 
 def consistency_error(folder, c: "rf.Consistency", point_ids, poses_lines, tracker_lines, robot: Robot) -> InputError:
-    """The one located line that refuses a campaign failing :func:`pipeline.robot.frame.consistency`.
+    """The one located line that refuses a campaign failing :func:`pipeline.robot.campaign.frame.consistency`.
 
     The error also carries ``hypothesis`` (the cause found: ``radians``, ``metres``, ``sign<j>``,
     ``swap<j><k>``, ``tool``, ``frame``, ``outlier``, or ``""`` when none explains the data) and
@@ -513,7 +512,7 @@ def check_ingested(table: pd.DataFrame, path, metadata: dict | None = None) -> N
 
     Cheap: one rigid fit of the stored nominal positions (xn/yn/zn_mm) onto the base-frame
     points (x/y/z_mm) over the sample poses; the fit must leave what a robot can (see
-    :func:`pipeline.robot.frame.consistency`) and be near identity (the table is in the base
+    :func:`pipeline.robot.campaign.frame.consistency`) and be near identity (the table is in the base
     frame). On failure the source campaign named in the metadata is checked again, so that
     the error names its file, line and likely cause; when that campaign is gone or now
     passes, the table itself is named (stale: ingest again). Also sets ``table.attrs[FRAME_ATTR]``
@@ -551,7 +550,7 @@ def check_ingested(table: pd.DataFrame, path, metadata: dict | None = None) -> N
 
 
 def robot_data(robot: Robot, frame: pd.DataFrame, use_gratings: bool = False) -> RobotData:
-    """The model's view of an ingested table (see :class:`pipeline.robot.effects.RobotData`).
+    """The model's view of an ingested table (see :class:`pipeline.robot.arm.effects.RobotData`).
 
     With ``use_gratings`` the grating readings replace the commanded angles of joints 1-3
     where they exist (the joint's true angle, read by the absolute grating).

@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
-from ..core.files import read_json_input
-from ..core.plotting import pdf_pages, plt, save, text_page
+from ...core.files import read_json_input
+from ...core.plotting import pdf_pages, plt, save, text_page
 
 SPECS = {"kinematic": "geometry + base + tool (specs/robot_kinematic.toml)",
          "paper": "the second paper's spec (specs/robot_paper.toml)",

@@ -24,7 +24,7 @@ from itertools import combinations
 
 import numpy as np
 
-from .kinematics import build_model, placements
+from ..arm.kinematics import build_model, placements
 
 # --------------------------------------------------------------------------- thresholds
 #: Largest RMS (mm) of the residual, over all poses, after the best rigid fit of the nominal SMR
@@ -318,7 +318,7 @@ def consistency(robot, q_deg, meas_mm, fit_rows=None, frame="base", model=None, 
 
     Parameters
     ----------
-    robot : pipeline.robot.kinematics.Robot
+    robot : pipeline.robot.arm.kinematics.Robot
     q_deg : array_like, shape (n, N), deg
         Joint angles as given in poses.csv (N = the robot's joint count).
     meas_mm : array_like, shape (n, 3), mm
@@ -329,7 +329,7 @@ def consistency(robot, q_deg, meas_mm, fit_rows=None, frame="base", model=None, 
     frame : {"base", "tracker"}
         The campaign's declared frame: with ``"base"`` a fit far from identity is refused too.
     model : pinocchio.Model, optional
-        ``pipeline.robot.kinematics.build_model(robot)`` when already built.
+        ``pipeline.robot.arm.kinematics.build_model(robot)`` when already built.
     explain : bool
         Look for the likely cause when the check fails (:func:`diagnose`).
 

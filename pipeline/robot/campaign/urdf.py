@@ -45,9 +45,9 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from ..core.errors import InputError
-from ..core.files import read_text_input
-from .kinematics import MAX_JOINTS, MIN_JOINTS, Joint, Robot, build_model, positions
+from ...core.errors import InputError
+from ...core.files import read_text_input
+from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, Joint, Robot, build_model, positions
 
 FK_TOLERANCE_MM = 1e-6
 FK_CHECKS = 64

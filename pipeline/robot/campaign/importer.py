@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import InputError, parse_toml
-from ..core.files import _UMASK, read_text_input
+from ...core.errors import InputError, parse_toml
+from ...core.files import _UMASK, read_text_input
 from .frame import apply, rigid_fit
 from .ingest import ingest_robot
-from .kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot, positions
+from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot, positions
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "columns", "split")
@@ -577,7 +577,7 @@ def check_limits(camp: Campaign, imap: ImportMap, robot, source: Source) -> None
 
 # ------------------------------------------------------------------ install (atomic)
 # what a nominal-consistency refusal most likely needs changed, and where in the map, by the
-# cause the check found (InputError.hypothesis, see pipeline.robot.frame)
+# cause the check found (InputError.hypothesis, see pipeline.robot.campaign.frame)
 _MAP_FIXES = {"frame": ("position", "frame", "[position] frame in the map"),
               "radians": ("joints", "unit", "[joints] unit in the map"),
               "metres": ("position", "unit", "[position] unit in the map"),

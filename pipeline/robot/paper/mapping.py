@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from .kinematics import Robot, build_model, pose_jacobians
+from ..arm.kinematics import Robot, build_model, pose_jacobians
 
 
 def joint_mapping(robot: Robot, q_deg, dP_mm, joints=(1, 2, 3), model=None):

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .calibrate import Design, RobotErrorModel, _empty_data
-from .effects import REFERENCE_TEMPERATURE_C, RobotData, effect_class
+from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData, effect_class
 
 #: the effects a rigid chain (URDF, UR's DH, the ROS driver's YAML) carries
 CHAIN_EFFECTS = ("geometry", "base", "tool")
@@ -170,7 +170,7 @@ def chain_document(chain: RobotErrorModel, info: dict, payloads, with_tables: bo
 
 def load_chain(robot, doc: dict) -> RobotErrorModel:
     """The chain of a fit JSON's ``rigid_chain`` entry (KeyError/ValueError when malformed)."""
-    from ..core.spec import parse_spec
+    from ...core.spec import parse_spec
 
     spec = parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(doc["spec_effects"]) + "\n", "rigid_chain")
     effects = list(spec.effects)

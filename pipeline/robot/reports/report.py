@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..core.plotting import pdf_pages, plt, save, text_page
-from .closedloop import KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG
+from ...core.plotting import pdf_pages, plt, save, text_page
+from ..paper.closedloop import KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG
 
 PAPER_VAP_NOTE = ("paper Fig. 6: without the loop vAP is more than 3x the repeatability (+-0.06 mm); "
                   "with the loop it drops at every pose")

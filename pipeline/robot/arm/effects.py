@@ -1,7 +1,7 @@
 """Robot effects (contract section 3, domain ``robot``).
 
 Every robot effect is linear in its parameters through *channels*: coordinates of the
-error model of :func:`pipeline.robot.kinematics.build_error_model` -
+error model of :func:`pipeline.robot.arm.kinematics.build_error_model` -
 
 * ``joints``: joint-angle offsets Delta q (rad), one per joint and pose,
 * ``links``: per-link small displacement twist (dx, dy, dz m; ex, ey, ez rad) applied in
@@ -26,8 +26,8 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
-from ..core.effect import REGISTRY, Effect
-from ..core.units import REFERENCE_TEMPERATURE_C
+from ...core.effect import REGISTRY, Effect
+from ...core.units import REFERENCE_TEMPERATURE_C
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
 MRAD_ARCSEC = 206.264806  # arcsec per mrad
@@ -143,7 +143,7 @@ class RobotEffect(Effect):
         ``jointcal simulate robot --hidden`` syntax, and a realistic size drawn for it.
     ``inject_truth``, ``inject_joint_error``, ``inject_conditions``, ``inject_measurement``
         (classmethods) how the simulator puts the hidden effect into its virtual cell
-        (:mod:`pipeline.robot.simulate`); each does nothing by default.
+        (:mod:`pipeline.robot.cell.simulate`); each does nothing by default.
     """
 
     domain = "robot"
@@ -242,7 +242,7 @@ class RobotEffect(Effect):
     def typical_sizes(self, robot: Robot) -> list[float]:
         """Typical size of each parameter on a real robot, in its reported unit (:meth:`units`):
         the yardstick of "nearest the nominal robot" where the measurements cannot tell parameters
-        apart (contract section 8; :func:`pipeline.robot.calibrate.physical_sizes`). By default
+        apart (contract section 8; :func:`pipeline.robot.model.calibrate.physical_sizes`). By default
         from the unit (:data:`TYPICAL_SIZE`); an effect whose parameters are of another size says so."""
         return [TYPICAL_SIZE.get(u, 1.0) for u, _ in self.units(robot)]
 
@@ -290,7 +290,7 @@ class Geometry(RobotEffect):
     def checked_values(self, robot, parameters, q_deg):
         """None one by one: where the measurements cannot tell them apart, a parameter may carry what
         another would; the fit judges how far the frames move and turn instead
-        (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
         return []
 
     def parameter_names(self, robot):
@@ -338,7 +338,7 @@ class Base(RobotEffect):
         return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
 
     def checked_values(self, robot, parameters, q_deg):
-        """Judged as the base frame's shift and turn (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        """Judged as the base frame's shift and turn (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
         return []
 
     def basis(self, robot, idx, data):
@@ -379,7 +379,7 @@ class Tool(RobotEffect):
         return [TOOL_TYPICAL_MM] * 3
 
     def checked_values(self, robot, parameters, q_deg):
-        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.calibrate.frame_deviations`)."""
+        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
         return []
 
     def basis(self, robot, idx, data):

@@ -1,34 +1,12 @@
-"""Evaluation of the robot stages (the second paper's Section 3, Table 2, Figures 6-11).
-
-* ``before``: the campaign's target points as measured with the nominal commands.
-* ``kinematic``: open loop with commands from the calibrated MDH model (inverse correction
-  so that the calibrated model reaches the nominal pose of the target).
-* ``feedback``: Chebyshev model + joint mapping (Eqs. 22-24) + grating closed loop on
-  joints 1-3 (Eq. 26); joints 4-6 stay open loop and keep their backlash.
-
-The commands are executed by the virtual cell (rebuilt from its seed, never from the truth
-file) or, for a real robot, measured again and passed as a tracker file whose point_ids
-are ``<point_id>@kinematic`` / ``<point_id>@feedback`` (targets) and
-``<point_id>@feedback`` (repeat rows, closed loop).
-
-ISO 9283 multi-directional pose accuracy variation at each pose P_j:
-``vAP = max over approach pairs (h, k) of || barycentre_h - barycentre_k ||`` (mm).
-"""
+"""A spec's effects fitted to a data set: the estimator, nested models, held-out fits, k-fold cross-validation."""
 
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 
-from ..core.crossval import CVResult
+from ...core.crossval import CVResult
 from .calibrate import Design, RobotErrorModel
 from .chebyshev import chebyshev_estimator
-from .simulate import EXECUTE, directions_from_sequence, rng_for
-
-PAPER_TABLE2 = {"before": {"min_mm": 0.10, "max_mm": 0.76, "mean_mm": 0.42, "std_mm": 0.16},
-                "kinematic": {"min_mm": 0.03, "max_mm": 0.42, "mean_mm": 0.24, "std_mm": 0.08},
-                "feedback": {"min_mm": 0.03, "max_mm": 0.19, "mean_mm": 0.10, "std_mm": 0.04},
-                "max_reduction_pct": 75.0}
 
 
 def error_stats(err_mm) -> dict:
@@ -36,73 +14,6 @@ def error_stats(err_mm) -> dict:
     n = np.linalg.norm(np.asarray(err_mm, float), axis=1)
     return {"min_mm": float(n.min()), "max_mm": float(n.max()), "mean_mm": float(n.mean()),
             "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0, "n": int(n.size)}
-
-
-def table2(before, kinematic, feedback) -> dict:
-    out = {"before": error_stats(before), "kinematic": error_stats(kinematic), "feedback": error_stats(feedback)}
-    out["max_reduction_pct"] = 100.0 * (1.0 - out["feedback"]["max_mm"] / out["before"]["max_mm"])
-    out["max_reduction_vs_kinematic_pct"] = 100.0 * (1.0 - out["feedback"]["max_mm"] / out["kinematic"]["max_mm"])
-    out["paper"] = PAPER_TABLE2
-    return out
-
-
-def vap(labels_pose, labels_approach, xyz_mm) -> dict:
-    """ISO 9283 multi-directional pose accuracy variation per pose (mm) and repeatability RP."""
-    df = pd.DataFrame({"pose": labels_pose, "approach": labels_approach})
-    xyz = np.asarray(xyz_mm, float)
-    out = {}
-    for pose, g in df.groupby("pose", sort=True):
-        bary, rp = {}, {}
-        for a, h in g.groupby("approach", sort=True):
-            p = xyz[h.index.to_numpy()]
-            c = p.mean(axis=0)
-            bary[a] = c
-            d = np.linalg.norm(p - c, axis=1)
-            rp[a] = float(d.mean() + 3 * d.std(ddof=1)) if len(d) > 1 else 0.0
-        keys = sorted(bary)
-        v = max((np.linalg.norm(bary[a] - bary[b]) for i, a in enumerate(keys) for b in keys[i + 1:]), default=0.0)
-        out[pose] = {"vAP_mm": float(v), "RP_mm": rp, "barycentres_mm": {k: bary[k].tolist() for k in keys}}
-    return out
-
-
-def execute_virtual(cell, robot, frame: pd.DataFrame, q_kinematic, q_feedback, seed) -> dict:
-    """Run the kinematic and feedback commands and the repeat test on the virtual cell.
-
-    Parameters
-    ----------
-    frame : DataFrame
-        Ingested campaign (all sets, visiting order).
-    q_kinematic, q_feedback : ndarray, shape (n_targets, 6), deg
-        Commands of the targets (in the frame's target order); for the feedback run,
-        joints 1-3 of ``q_feedback`` are also the grating loop's targets.
-
-    Returns
-    -------
-    dict with measured positions (mm) ``kinematic``, ``feedback`` (targets), ``repeat_loop``
-    (repeat rows, closed loop on joints 1-3) and the loop results.
-    """
-    tg = frame[frame["set"] == "target"]
-    payload = tg["payload_kg"].to_numpy(float)
-    temp = tg["temperature_c"].to_numpy(float)
-    mid = (robot.lower_deg + robot.upper_deg) / 2
-    rng = rng_for(seed, EXECUTE, 1)
-    dk = directions_from_sequence(q_kinematic, start_deg=mid)
-    Pk = cell.measure(cell.open_loop(q_kinematic, dk, payload, rng), rng, temp)
-    rng = rng_for(seed, EXECUTE, 2)
-    df = directions_from_sequence(q_feedback, start_deg=mid)
-    qt, loop = cell.closed_loop(q_feedback, df, q_feedback[:, :3], payload, rng)
-    Pf = cell.measure(qt, rng, temp)
-    rep = frame[frame["set"] == "repeat"]
-    out = {"kinematic": Pk, "feedback": Pf, "loop": loop}
-    if len(rep):
-        rng = rng_for(seed, EXECUTE, 3)
-        joints = range(1, cell.robot.n_joints + 1)
-        qr = rep[[f"q{j}" for j in joints]].to_numpy(float)
-        dr = rep[[f"dir{j}" for j in joints]].to_numpy(int)
-        qt, loop_r = cell.closed_loop(qr, dr, qr[:, :3], rep["payload_kg"].to_numpy(float), rng)
-        out["repeat_loop"] = cell.measure(qt, rng, rep["temperature_c"].to_numpy(float))
-        out["repeat_loop_cycles"] = loop_r["cycles"]
-    return out
 
 
 def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
@@ -117,7 +28,7 @@ def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
 
 
 #: A fit may leave its sample poses' RMS at most this much (relative) above a model nested in it:
-#: the solvers' own agreement (:data:`pipeline.robot.chebyshev.CROSS_CHECK_RTOL`); the conflicts it
+#: the solvers' own agreement (:data:`pipeline.robot.model.chebyshev.CROSS_CHECK_RTOL`); the conflicts it
 #: is there for are gross (issue 16: 0.06 mm for the nested model, 0.79 mm with one effect more).
 NESTED_RTOL = 0.01
 
@@ -151,7 +62,7 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
-    leading singular directions, as the Chebyshev stage does (:func:`pipeline.robot.chebyshev.chebyshev_estimator`).
+    leading singular directions, as the Chebyshev stage does (:func:`pipeline.robot.model.chebyshev.chebyshev_estimator`).
 
     With ``check_nested`` the fit is checked against the models nested in it (:func:`nested_models`):
     when it fits the sample poses worse than one of them (by more than :data:`NESTED_RTOL`), it is

@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..core.errors import InputError
-from ..core.spec import parse_spec
-from ..core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
+from ...core.errors import InputError
+from ...core.spec import parse_spec
+from ...core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
 
 #: Refits of the robust fit at most (it stops earlier when the set named no longer changes).
 MAX_REFITS = 5
@@ -155,7 +155,7 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
     InputError
         More than :data:`MAX_WILD_FRACTION` of the poses wild (not with ``keep``).
     """
-    from .evaluate import fit_effects
+    from .estimate import fit_effects
 
     ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
     if sample.n < max(20, 2 * NEIGHBOURS) or sample.measured_mm is None:

@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.errors import InputError
-from ..core.spec import parse_spec
+from ...core.errors import InputError
+from ...core.spec import parse_spec
 from .calibrate import RobotErrorModel
-from .frame import apply, rigid_fit, rotation_angle_deg, to_matrix
-from .kinematics import Robot, parse_robot
+from ..campaign.frame import apply, rigid_fit, rotation_angle_deg, to_matrix
+from ..arm.kinematics import Robot, parse_robot
 
 #: Largest difference (mm, deg) between two robot descriptions that are still "the same robot".
 SAME_ROBOT_TOL = 1e-6
@@ -84,7 +84,7 @@ def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | Non
         The poses the model was fitted on: then the document also says which angle each joint's
         model takes (``joint_angles``: ``"commanded"`` or the secondary encoder's column, e.g.
         ``"grating1_deg"``) and the payloads it was fitted at (``payloads_kg``), which ``jointcal
-        correct`` and ``jointcal export`` assume (:mod:`pipeline.robot.rigid`).
+        correct`` and ``jointcal export`` assume (:mod:`pipeline.robot.model.rigid`).
     """
     ident = getattr(model, "identifiability_", None) or {}
     reasons = ident.get("fixed_reasons", {})
@@ -201,7 +201,7 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
         Every pose of the other campaign (joint angles deg, directions, torques N m).
     sets : ndarray of str, shape (n,)
         ``sample`` / ``target`` / ``repeat`` of each pose; ``wild`` for a pose left out of the
-        registration and of the errors (:mod:`pipeline.robot.outliers`).
+        registration and of the errors (:mod:`pipeline.robot.model.outliers`).
     measured_mm : ndarray, shape (n, 3), mm
         Tracker points in the model's base frame (without ``register``), or in any frame
         (with ``register``: only a rigid transform onto the predictions is estimated).
@@ -233,7 +233,7 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
                         "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
     ev = sets == "target"
     if not ev.any():
-        ev = sets != "wild"     # every pose but the wild ones (pipeline.robot.outliers)
+        ev = sets != "wild"     # every pose but the wild ones (pipeline.robot.model.outliers)
     err = meas[ev] - pred[ev]
     out = error_summary(err)
     out["outside_sampled_range"] = int(outside_range(data.q_deg[ev], sampled).sum())

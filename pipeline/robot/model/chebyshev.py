@@ -7,16 +7,16 @@ joint angle mapped to [-1, 1] over the campaign's joint range (Eqs. 9-10):
 
     epsilon_{i,k} = sum_j lambda^{(i)}_{j,k} c_j(theta~_i),  delta_{i,k} = sum_j gamma^{(i)}_{j,k} c_j(theta~_i)
 
-This is the ``chebyshev`` effect of :mod:`pipeline.robot.effects` (E_i realised as an exact
+This is the ``chebyshev`` effect of :mod:`pipeline.robot.arm.effects` (E_i realised as an exact
 rigid transform by the error joints of the pinocchio error model; to first order it is the
 matrix of Eq. 8). The coefficients are identified on the sample poses by the improved
-Levenberg-Marquardt of Eqs. 14-21 (:mod:`pipeline.robot.lm`) with the analytic pinocchio Jacobian
+Levenberg-Marquardt of Eqs. 14-21 (:mod:`pipeline.robot.model.lm`) with the analytic pinocchio Jacobian
 (Eq. 13), and by ``scipy.optimize.least_squares`` as a cross-check.
 
 Identifiability: with 6 joints and order 3 there are 144 coefficients, many of them
 redundant (a translation along a joint axis is the same whichever link carries it; order-0
 terms of neighbouring links overlap). The rank of the scaled Jacobian is reported; the
-improved L-M's damping (mu_k, :mod:`pipeline.robot.lm`) and scipy's exact trust-region solves keep the
+improved L-M's damping (mu_k, :mod:`pipeline.robot.model.lm`) and scipy's exact trust-region solves keep the
 redundant directions where they start (0). Beyond the exact redundancies, many directions
 are only weakly identified (relative singular values 1e-4 to 1e-8): fitting them fits noise
 and the least-squares problem has no well-defined minimum (scipy's MINPACK keeps lowering the
@@ -28,8 +28,8 @@ same well-posed problem and reach the same cost.
 
 Cross-check (issue #10): :func:`identify` reports, and :func:`cross_check_problems` lists, what
 makes the result unusable: either solver not converged (iteration limit, never left the start,
-not stationary: :mod:`pipeline.robot.lm`), costs differing by more than :data:`CROSS_CHECK_RTOL`, or a
-fitted coefficient no real robot can have (:data:`pipeline.robot.lm.PLAUSIBLE_BOUNDS`).
+not stationary: :mod:`pipeline.robot.model.lm`), costs differing by more than :data:`CROSS_CHECK_RTOL`, or a
+fitted coefficient no real robot can have (:data:`pipeline.robot.model.lm.PLAUSIBLE_BOUNDS`).
 ``jointcal robot chebyshev`` then writes nothing and exits 1.
 """
 

@@ -52,7 +52,7 @@ def angle_variation(dQ_joints) -> np.ndarray:
 
 def over_budget(dq, budget) -> list[dict]:
     """The joints whose angle error varies beyond their budget, as ``{name, value, unit, bound}``
-    (arcsec; the format of :func:`pipeline.robot.lm.implausible_parameters`), worst first."""
+    (arcsec; the format of :func:`pipeline.robot.model.lm.implausible_parameters`), worst first."""
     dq, budget = np.asarray(dq, float), np.asarray(budget, float)
     over = np.flatnonzero(dq > budget)
     out = [{"name": f"joint {j + 1}'s angle error variation in the sampled joint box",
@@ -69,7 +69,7 @@ def model_over_budget(robot, design_class, effects, coef_by_name: dict, data, Je
 
     Parameters
     ----------
-    design_class : the model's design (``pipeline.robot.calibrate.Design``), passed in to keep this
+    design_class : the model's design (``pipeline.robot.model.calibrate.Design``), passed in to keep this
         module free of the estimator.
     effects : list of RobotEffect (prepared)
     coef_by_name : dict parameter name -> internal value
@@ -90,7 +90,7 @@ def model_over_budget(robot, design_class, effects, coef_by_name: dict, data, Je
                   temperature_c=np.full(n, float(np.median(data.temperature_c))),
                   torque_nm=np.zeros((n, nj)), measured_mm=None, point_id=np.array([], dtype=object))
     if any(e.name == "compliance" for e in angle):
-        from .kinematics import gravity_torques
+        from ..arm.kinematics import gravity_torques
 
         box = replace(box, torque_nm=gravity_torques(robot, qb, box.payload_kg))
     d = design_class(robot, angle, box)

@@ -1,12 +1,12 @@
 """Robot error models: one generic nonlinear least-squares fit over a sum of effects.
 
-:class:`RobotErrorModel` is the estimator. Given effects (``pipeline.robot.effects``) it
+:class:`RobotErrorModel` is the estimator. Given effects (``pipeline.robot.arm.effects``) it
 predicts the SMR position as the forward kinematics of the error model (``pipeline.robot``)
 at ``Q0 + sum_p x_p basis_p`` and fits ``x`` to tracker positions by
 
 * ``solver="gauss-newton"``: iterated least squares, Eq. 6 of the paper
   ``Delta X = (J^T J)^-1 J^T Delta P`` repeated at the updated parameters (MDH stage),
-* ``solver="lm"``: the paper's improved Levenberg-Marquardt (:mod:`pipeline.robot.lm`),
+* ``solver="lm"``: the paper's improved Levenberg-Marquardt (:mod:`pipeline.robot.model.lm`),
 * ``solver="scipy"``: ``scipy.optimize.least_squares`` (cross-check).
 
 Identifiability: the Jacobian at the start is scaled to unit columns and decomposed
@@ -16,7 +16,7 @@ are fixed at 0 and reported by name (:data:`WEAK_TOL`). What the measurements ca
 (combinations of parameters that move the measured point alike: with one SMR, the last joint's
 frame and the tool offset) is not settled by fixing some of them: the fit is the one nearest the
 nominal robot, every parameter counted in units of its typical size
-(:meth:`pipeline.robot.effects.RobotEffect.typical_sizes`, :func:`physical_subspace`); the fit's
+(:meth:`pipeline.robot.arm.effects.RobotEffect.typical_sizes`, :func:`physical_subspace`); the fit's
 ``identifiability_["redundant_groups"]`` says, group by group, what was held and why
 (docs/physical-redundancy.md).
 
@@ -34,8 +34,8 @@ import scipy.linalg
 
 from . import lm  # the solvers as lm.improved_lm: looked up at call time (tests wrap them)
 from .budget import model_over_budget
-from .effects import REFERENCE_TEMPERATURE_C, Base, Geometry, RobotData, RobotEffect
-from .kinematics import Robot, build_error_model, positions_and_jacobians, positions
+from ..arm.effects import REFERENCE_TEMPERATURE_C, Base, Geometry, RobotData, RobotEffect
+from ..arm.kinematics import Robot, build_error_model, positions_and_jacobians, positions
 from .lm import GAIN_REL_CONVERGED, implausible_parameters
 
 RANK_TOL = 1e-7   # singular value / largest singular value of the column-scaled Jacobian (numerical rank)
@@ -71,7 +71,7 @@ class Design:
         Error-model configuration with all parameters at 0 (joint angles in rad).
     names, units : parameter names and (unit, factor internal -> reported)
     sizes : ndarray, shape (p,), each parameter's typical size in internal units
-        (:meth:`pipeline.robot.effects.RobotEffect.typical_sizes`)
+        (:meth:`pipeline.robot.arm.effects.RobotEffect.typical_sizes`)
     """
 
     def __init__(self, robot: Robot, effects: list[RobotEffect], data: RobotData, model_and_index=None):
@@ -240,7 +240,7 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
 
 def frame_deviations(model, idx, Q, Q0) -> list[dict]:
     """How far the model's frames move and turn from the nominal robot's over the sampled poses, as
-    ``{name, value, unit}`` for the plausibility bounds (:data:`pipeline.robot.lm.PLAUSIBLE_BOUNDS`).
+    ``{name, value, unit}`` for the plausibility bounds (:data:`pipeline.robot.model.lm.PLAUSIBLE_BOUNDS`).
 
     Per frame, the largest over the poses of the shift (mm) and the turn (arcsec) of its placement
     relative to the frame before it (the base relative to the world; joint i's link frame relative
@@ -250,7 +250,7 @@ def frame_deviations(model, idx, Q, Q0) -> list[dict]:
 
     Parameters
     ----------
-    model : pin.Model, the error model (:func:`pipeline.robot.kinematics.build_error_model`)
+    model : pin.Model, the error model (:func:`pipeline.robot.arm.kinematics.build_error_model`)
     Q, Q0 : ndarray, shape (n, nq)
         Error-model configurations with the fitted parameters and with none (nominal).
     """
@@ -465,7 +465,7 @@ class RobotErrorModel:
     identifiability : bool
         Fix parameters beyond the numerical rank at 0 (and report them).
     lm_options : dict, optional
-        Constants of the improved L-M (see :func:`pipeline.robot.lm.improved_lm`).
+        Constants of the improved L-M (see :func:`pipeline.robot.model.lm.improved_lm`).
     max_iter : int
         Gauss-Newton iterations at most.
     weak_tol : float or None
@@ -478,7 +478,7 @@ class RobotErrorModel:
         not identifiable.
     start : dict, optional
         Parameter name -> value (internal units) to start the solver from (the solution of a model
-        nested in this one, :func:`pipeline.robot.evaluate.fit_effects`); default: nominal (0).
+        nested in this one, :func:`pipeline.robot.model.estimate.fit_effects`); default: nominal (0).
     reduction : {"fix", "svd"}
         What to do with the directions that are not identifiable: ``"fix"`` fixes the
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
@@ -633,7 +633,7 @@ class RobotErrorModel:
             # damping grows tenfold until a step does (from 1e-3 of the largest curvature) and falls
             # tenfold after each success, to 0 (a plain Gauss-Newton step again). Converged when a
             # full Gauss-Newton step would change the residuals by ||dF||^2 <= GN_PHI (or a
-            # GAIN_REL_CONVERGED fraction of ||F||^2): the improved L-M's test (pipeline.robot.lm).
+            # GAIN_REL_CONVERGED fraction of ||F||^2): the improved L-M's test (pipeline.robot.model.lm).
             # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
             GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
             xf = z0.copy()
@@ -702,7 +702,7 @@ class RobotErrorModel:
         self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
         self.solver_result_ = result
         # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
-        # whether a real robot can have the fitted parameters (pipeline.robot.lm.PLAUSIBLE_BOUNDS)
+        # whether a real robot can have the fitted parameters (pipeline.robot.model.lm.PLAUSIBLE_BOUNDS)
         params, checked, k = self.parameters(), [], 0
         for e in self.effects_:
             n = len(e.parameter_names(self.robot))
@@ -712,7 +712,7 @@ class RobotErrorModel:
         # a parameter that carried a direction the measurements cannot see)
         checked += frame_deviations(d.model, d.idx, d.configurations(self.coef_), d.Q0)
         # and whether a joint's angle error varies beyond the robot's own error budget in the sampled
-        # joint box (the yardstick diagnosis uses: pipeline.robot.budget)
+        # joint box (the yardstick diagnosis uses: pipeline.robot.model.budget)
         self.implausible_ = implausible_parameters(checked) + self._over_budget(d, data)
         self.plausible_ = not self.implausible_
         self.seconds_ = time.perf_counter() - t0

@@ -7,10 +7,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..core.errors import InputError
-from ..core.spec import _locate
-from .evaluate import cross_validate, fit_effects, fold_description, heldout_fit
-from .ingest import robot_data_sets
+from ...core.errors import InputError
+from ...core.spec import _locate
+from .estimate import cross_validate, fit_effects, fold_description, heldout_fit
+from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
 from .predict import model_document, outside_range, sampled_range
 from .rigid import chain_document, fit_rigid_chain, has_tables
@@ -56,7 +56,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
     reads it: robot, effects, every parameter with its unit and why it was left at nominal if it
     was, the sampled joint ranges, the tracker-to-base transform). ``loaded``: the campaign
     already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
-    ``wild``: the campaign's wild poses (:func:`pipeline.robot.outliers.find_wild`), left out of the
+    ``wild``: the campaign's wild poses (:func:`pipeline.robot.model.outliers.find_wild`), left out of the
     fit, the cross-validation and the held-out errors (given with them beside, ``heldout_with_outliers``).
     """
     frame_info = None

@@ -47,44 +47,6 @@ def _interim(path):
     return frame
 
 
-def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) -> list[dict]:
-    """Per joint, the targets whose angle lies outside the range the sample poses covered.
-
-    Parameters
-    ----------
-    sample_q, target_q : ndarray, shape (n, N), deg
-    target_ids : sequence of str, length n_targets
-    target_lines : sequence of int or None, optional
-        Line of each target in poses.csv.
-
-    Returns a list of ``{joint, count, beyond_deg, low_deg, high_deg, point_id, line}`` (the
-    worst target of each joint; ``line`` is its line in poses.csv when known).
-    """
-    import numpy as np
-
-    sample_q, target_q = np.asarray(sample_q, float), np.asarray(target_q, float)
-    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
-    out = []
-    for j in range(sample_q.shape[1]):
-        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
-        bad = beyond > 1e-9
-        if bad.any():
-            k = int(np.argmax(beyond))
-            out.append({"joint": j + 1, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo[j]),
-                        "high_deg": float(hi[j]), "point_id": str(target_ids[k]),
-                        "line": None if target_lines is None else target_lines[k]})
-    return out
-
-
-def outside_message(outside, worst: bool = False) -> str:
-    """The warning about :func:`outside_calibrated_range`'s targets (with the worst target of each
-    joint named when ``worst``)."""
-    return ("targets outside the joint range the sample poses covered (the model extrapolates there): "
-            + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
-                        f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" + (f" (worst {o['point_id']})" if worst else "")
-                        for o in outside))
-
-
 def _robot(path):
     from ..robot.arm.kinematics import load_robot
 
@@ -368,6 +330,8 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     tg = frame[frame["set"] == "target"]
     qcols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
     lines = [int(v) + 2 if np.isfinite(v) else None for v in tg["visit"]] if "visit" in tg else None
+    from ..robot.model.predict import outside_calibrated_range, outside_message
+
     outside = outside_calibrated_range(frame.loc[frame["set"] == "sample", qcols], tg[qcols],
                                        tg["point_id"].to_numpy(), lines)
     if outside:
@@ -716,6 +680,7 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
     from ..robot.model.fit import check_spec_joints, fit_problems, robot_fit_result
     from ..robot.campaign.ingest import robot_data_sets
     from ..robot.model.outliers import describe, find_wild
+    from ..robot.model.predict import outside_calibrated_range, outside_message
 
     _edge()
     spec.require_kind("robot", campaign)

@@ -66,6 +66,43 @@ def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
     return np.any((q < lo - tol_deg) | (q > hi + tol_deg), axis=1)
 
 
+
+def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) -> list[dict]:
+    """Per joint, the targets whose angle lies outside the range the sample poses covered.
+
+    Parameters
+    ----------
+    sample_q, target_q : ndarray, shape (n, N), deg
+    target_ids : sequence of str, length n_targets
+    target_lines : sequence of int or None, optional
+        Line of each target in poses.csv.
+
+    Returns a list of ``{joint, count, beyond_deg, low_deg, high_deg, point_id, line}`` (the
+    worst target of each joint; ``line`` is its line in poses.csv when known).
+    """
+    sample_q, target_q = np.asarray(sample_q, float), np.asarray(target_q, float)
+    lo, hi = sample_q.min(axis=0), sample_q.max(axis=0)
+    out = []
+    for j in range(sample_q.shape[1]):
+        beyond = np.maximum(lo[j] - target_q[:, j], target_q[:, j] - hi[j])
+        bad = beyond > 1e-9
+        if bad.any():
+            k = int(np.argmax(beyond))
+            out.append({"joint": j + 1, "count": int(bad.sum()), "beyond_deg": float(beyond[k]), "low_deg": float(lo[j]),
+                        "high_deg": float(hi[j]), "point_id": str(target_ids[k]),
+                        "line": None if target_lines is None else target_lines[k]})
+    return out
+
+
+def outside_message(outside, worst: bool = False) -> str:
+    """The warning about :func:`outside_calibrated_range`'s targets (with the worst target of each
+    joint named when ``worst``)."""
+    return ("targets outside the joint range the sample poses covered (the model extrapolates there): "
+            + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
+                        f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" + (f" (worst {o['point_id']})" if worst else "")
+                        for o in outside))
+
+
 def model_document(robot: Robot, effects, model, sample_q_deg, frame: dict | None = None, sample=None) -> dict:
     """The JSON-ready description of a fitted robot model (the part of ``fit.json`` that predict reads).
 

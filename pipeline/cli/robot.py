@@ -544,7 +544,7 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
 def report_cmd(results_dir, beyond_path, diagnosis_path, out):
     """Write reports/robot.pdf: Figures 6-11 and Table 2 beside the paper's numbers (mm, deg, arcsec);
     with --beyond, a page with what adding the effects diagnosis found does to Table 2."""
-    from ..robot.reports.report import robot_report
+    from ..robot.reporting.report import robot_report
 
     _edge()
     r = Path(results_dir)
@@ -574,7 +574,7 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
     import pandas as pd
 
     from ..core.files import write_json
-    from ..robot.reports.real_report import load_results, real_report
+    from ..robot.reporting.real_report import load_results, real_report
 
     series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
         if Path(campaigns_dir).is_dir() else []

@@ -23,26 +23,32 @@ JC = str(ROOT / ".venv" / "bin" / "jointcal")
 SPEC = (ROOT / "specs" / "robot_cell.toml").read_text()
 
 
+def fitted_cell(tmp: Path) -> dict:
+    """The fixture's KR210 virtual cell measured open loop (`simulate measure`, no gratings) and fitted with
+    every effect of its physics (specs/robot_cell.toml); returns the fit JSON, written to tmp/fit.json."""
+    cell = tmp / "cell"
+    cell.mkdir()
+    shutil.copy(ROOT / "raw/robot/kr210/robot.toml", cell / "robot.toml")
+    subprocess.run([JC, "simulate", "robot", "--campaign", cell, "--truth", tmp / "truth.json"], check=True,
+                   capture_output=True)
+    poses = pd.read_csv(cell / "poses.csv")
+    poses[poses["set"] != "repeat"].drop(columns=[c for c in poses if c.startswith("grating")]).to_csv(
+        tmp / "prog.csv", index=False)
+    subprocess.run([JC, "simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "prog.csv",
+                    "--campaign", tmp / "meas", "--robot", cell / "robot.toml"], check=True, capture_output=True)
+    (tmp / "spec.toml").write_text(SPEC)
+    subprocess.run([JC, "fit", "--campaign", tmp / "meas", "--spec", tmp / "spec.toml", "--out", tmp / "fit.json"],
+                   check=True, capture_output=True)
+    return json.loads((tmp / "fit.json").read_text())
+
+
 def run(n: int = 10_000, repeat: int = 3) -> dict:
     from pipeline.correct.robot import ModelKinematics, correct_commands
     from pipeline.robot.model.predict import load_model_document
 
     tmp = Path(tempfile.mkdtemp(prefix="jointcal-correct-bench-"))
     try:
-        cell = tmp / "cell"
-        cell.mkdir()
-        shutil.copy(ROOT / "raw/robot/kr210/robot.toml", cell / "robot.toml")
-        subprocess.run([JC, "simulate", "robot", "--campaign", cell, "--truth", tmp / "truth.json"], check=True,
-                       capture_output=True)
-        poses = pd.read_csv(cell / "poses.csv")
-        poses[poses["set"] != "repeat"].drop(columns=[c for c in poses if c.startswith("grating")]).to_csv(
-            tmp / "prog.csv", index=False)
-        subprocess.run([JC, "simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "prog.csv",
-                        "--campaign", tmp / "meas", "--robot", cell / "robot.toml"], check=True, capture_output=True)
-        (tmp / "spec.toml").write_text(SPEC)
-        subprocess.run([JC, "fit", "--campaign", tmp / "meas", "--spec", tmp / "spec.toml", "--out", tmp / "fit.json"],
-                       check=True, capture_output=True)
-        fit = json.loads((tmp / "fit.json").read_text())
+        fit = fitted_cell(tmp)
         lo, hi = np.array(fit["sampled_range"]["lower_deg"]), np.array(fit["sampled_range"]["upper_deg"])
         rng = np.random.default_rng(1)
         Q = rng.uniform(lo, hi, (n, len(lo)))

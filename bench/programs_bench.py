@@ -19,11 +19,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
+
+from .correct_bench import fitted_cell
 
 ROOT = Path(__file__).resolve().parents[1]
 JC = str(ROOT / ".venv" / "bin" / "jointcal")
-SPEC = (ROOT / "specs" / "robot_cell.toml").read_text()
 GOAL_S = 15.0
 
 
@@ -34,20 +34,7 @@ def run(n: int = 10_000, repeat: int = 2) -> dict:
 
     tmp = Path(tempfile.mkdtemp(prefix="jointcal-programs-bench-"))
     try:
-        cell = tmp / "cell"
-        cell.mkdir()
-        shutil.copy(ROOT / "raw/robot/kr210/robot.toml", cell / "robot.toml")
-        subprocess.run([JC, "simulate", "robot", "--campaign", cell, "--truth", tmp / "truth.json"], check=True,
-                       capture_output=True)
-        poses = pd.read_csv(cell / "poses.csv")
-        poses[poses["set"] != "repeat"].drop(columns=[c for c in poses if c.startswith("grating")]).to_csv(
-            tmp / "prog.csv", index=False)
-        subprocess.run([JC, "simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "prog.csv",
-                        "--campaign", tmp / "meas", "--robot", cell / "robot.toml"], check=True, capture_output=True)
-        (tmp / "spec.toml").write_text(SPEC)
-        subprocess.run([JC, "fit", "--campaign", tmp / "meas", "--spec", tmp / "spec.toml", "--out", tmp / "fit.json"],
-                       check=True, capture_output=True)
-        fit = json.loads((tmp / "fit.json").read_text())
+        fit = fitted_cell(tmp)
         lo, hi = np.array(fit["sampled_range"]["lower_deg"]), np.array(fit["sampled_range"]["upper_deg"])
         robot = load_robot(ROOT / "raw/robot/kr210/robot.toml")
         Q = np.random.default_rng(1).uniform(lo + 0.5, hi - 0.5, (n, 6))

@@ -198,6 +198,16 @@ def read_text_input(path, what: str = "file") -> str:
         raise InputError(path, f"{what} is not UTF-8 text ({exc.reason})", 1, 1) from None
 
 
+def read_bytes_input(path, what: str = "file", folder: str | None = None) -> bytes:
+    """The bytes of an input file, as they are; missing (or a folder) -> InputError."""
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise InputError(path, f"{what} not found") from None
+    except IsADirectoryError:
+        raise InputError(path, folder or f"{what}: a folder, not a file") from None
+
+
 def read_json_input(path, hint: str = "run the stage that makes it first, or `make all`"):
     """A stage's JSON result; missing or invalid -> InputError naming the line and column."""
     try:

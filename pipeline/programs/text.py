@@ -12,9 +12,8 @@ from __future__ import annotations
 import bisect
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
-from ..core.errors import InputError
+from ..core.files import read_bytes_input
 
 #: a number as the four languages spell it (``12``, ``-3.5``, ``.582``, ``9E+09``, ``1.5e-3``)
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -37,13 +36,7 @@ class Source:
 
 def read_source(path) -> Source:
     """Read a program file byte for byte (InputError when it is missing)."""
-    p = Path(path)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "program file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "a program file, not a folder") from None
+    data = read_bytes_input(path, "program file", "a program file, not a folder")
     return Source(str(path), data.decode("latin-1"))
 
 

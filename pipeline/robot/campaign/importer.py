@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.errors import InputError, parse_toml
-from ...core.files import _UMASK, read_text_input
+from ...core.files import _UMASK, read_bytes_input, read_text_input
 from .frame import apply, rigid_fit
 from .ingest import ingest_robot
 from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot, positions
@@ -314,12 +314,7 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
 
 def read_source_file(path, imap: ImportMap) -> Source:
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError(path, "source file not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "the source is a folder; give the exported file") from None
+    data = read_bytes_input(path, "source file", "the source is a folder; give the exported file")
     return parse_source(decode(data), imap, str(path), hashlib.sha256(data).hexdigest())
 
 

@@ -21,10 +21,14 @@ import re
 
 import numpy as np
 
-from ..core.spec import parse_spec
+from ..core.files import read_text_input
+from ..core.spec import load_spec, parse_spec
 from ..robot.arm.effects import jh_orders
 from ..robot.model.estimate import fit_effects
 from ..robot.campaign.frame import apply, rigid_fit
+from ..robot.campaign.ingest import robot_data_sets
+from ..robot.model.fit import check_spec_joints
+from ..robot.model.outliers import describe, find_wild
 from .engine import MIN_GAIN, diagnose, done_text, label
 from .robot import RobotAdapter
 
@@ -260,3 +264,42 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
     final = max((r for r in rounds if r.get("kept")), key=lambda r: r["round"])
     return {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
             "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+def loop_on_campaigns(campaign, spec_path, other_campaign=None, max_rounds: int = MAX_ROUNDS,
+                      keep_outliers: bool = False, progress=None, warn=_silent) -> dict:
+    """``jointcal robot diagnose-loop``: :func:`diagnosis_loop` on a robot campaign folder, judged also
+    on ``other_campaign`` (another series of the same robot) when given.
+
+    Each campaign's wild measurements are named (``warn``, one line each) and left out
+    (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``; the rounds' errors with the
+    campaign's wild targets beside are ``own_with_outliers``. The result names the campaigns, the
+    starting spec (``spec_path``) and the outliers (contract section 12).
+    """
+    spec = load_spec(spec_path)
+    spec.require_kind("robot", campaign)
+    robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
+    check_spec_joints(spec, robot)
+    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    if wild.outliers:
+        warn(f"{campaign}: {describe(wild)}")
+    target_all = target if (wild.target.any() and not wild.kept) else None
+    sample, target = wild.clean(sample, target)
+    other, wild_other = None, None
+    if other_campaign:
+        robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
+        wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
+        if wild_other.outliers:
+            warn(f"{other_campaign}: {describe(wild_other)}")
+        other = wild_other.clean(os_, ot)
+    result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, max_rounds, progress, repeat=repeat,
+                            target_all=target_all)
+    result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
+    result.update(wild.document())
+    if wild_other is not None:
+        result["other_outliers"] = wild_other.outliers
+    return result

@@ -507,6 +507,21 @@ def ingest_robot_with_frame(folder) -> tuple[Robot, pd.DataFrame, dict]:
     return robot, table, info
 
 
+def campaign_files(folder) -> list[Path]:
+    """The files of a robot campaign folder that its results depend on (their hashes are the
+    results' provenance): robot.toml, poses.csv, tracker.csv and campaign.toml when there is one."""
+    files = [Path(folder) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
+    return files + [f for f in [Path(folder) / "campaign.toml"] if f.exists()]
+
+
+def ingested_metadata(campaign, info: dict, provenance: dict) -> dict:
+    """The Parquet metadata ``jointcal ingest`` writes beside the table: the campaign, the
+    provenance of its files, its frame and tracker-to-base transform (4x4, mm) and the nominal fit
+    (mm); ``info`` as :func:`ingest_robot_with_frame` returns it."""
+    return {"campaign": str(campaign), **provenance, "frame": info["frame"], "tracker_to_base": info["tracker_to_base"],
+            "nominal_fit": {"rms_mm": info["nominal_rms_mm"], "max_mm": info["nominal_max_mm"]}}
+
+
 def check_ingested(table: pd.DataFrame, path, metadata: dict | None = None) -> None:
     """The nominal-consistency check on an already ingested table (``interim/robot/poses.parquet``).
 

@@ -394,6 +394,20 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     return poses, tracker, truth
 
 
+def simulated_campaign(robot: Robot, config: dict, hidden: dict | None = None) -> tuple[dict, dict, int]:
+    """:func:`simulate_robot` as the files ``jointcal simulate robot`` writes.
+
+    Returns
+    -------
+    (files, truth, n): the campaign's ``poses.csv`` and ``tracker.csv`` texts by name, the truth
+    (with the cell's nominal ``robot_toml``: ``jointcal simulate measure`` rebuilds the cell from it)
+    and the number of measured poses.
+    """
+    poses, tracker, truth = simulate_robot(robot, config, hidden)
+    truth["robot_toml"] = robot.to_toml()
+    return {"poses.csv": format_poses_csv(poses), "tracker.csv": format_tracker_csv(tracker)}, truth, len(poses)
+
+
 def format_poses_csv(poses: pd.DataFrame) -> str:
     out = poses.copy()
     j = 1

@@ -12,7 +12,8 @@ from ...core.spec import _locate
 from .estimate import cross_validate, fit_effects, fold_description, heldout_fit
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
-from .predict import model_document, outside_range, sampled_range
+from .outliers import describe, find_wild
+from .predict import model_document, outside_calibrated_range, outside_message, outside_range, sampled_range
 from .rigid import chain_document, fit_rigid_chain, has_tables
 
 
@@ -45,6 +46,36 @@ def stage_effects(spec, stage: str):
         raise InputError(spec.path, f"{key} names {missing[0]!r}, which has no [[effect]] table",
                          *_locate(text, rf"^\s*{key}\s*="))
     return [e for e in spec.effects if e.name in names]
+
+
+def unstaged_effects(spec) -> list[str]:
+    """Names of the spec's effects that neither stage of the paper's chain takes (``[model]
+    kinematic_effects`` / ``feedback_effects``; ``jointcal fit`` and ``diagnose`` take every effect)."""
+    staged = {id(e) for stage in ("kinematic", "feedback") for e in stage_effects(spec, stage)}
+    return list(dict.fromkeys(e.name for e in spec.effects if id(e) not in staged))
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent) -> dict:
+    """``jointcal fit --campaign``: :func:`robot_fit_result` of a robot campaign folder, its wild
+    measurements named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``.
+
+    ``warn`` receives each console line as it is found (target poses outside the sampled joint
+    ranges, the wild poses). The result has no provenance (the caller hashes the files).
+    """
+    spec.require_kind("robot", campaign)
+    robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
+    outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if sample.n and target.n else []
+    if outside:
+        warn(f"warning: {outside_message(outside, worst=True)}")
+    check_spec_joints(spec, robot)
+    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    if wild.outliers:
+        warn(describe(wild))
+    return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild)
 
 
 def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:

@@ -21,12 +21,16 @@ Errors are ``|measured - predicted|`` (mm) on the ``target`` poses, on every pos
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ...core.errors import InputError
 from ...core.spec import parse_spec
 from .calibrate import RobotErrorModel
-from ..campaign.frame import apply, rigid_fit, rotation_angle_deg, to_matrix
+from .outliers import describe, find_wild
+from ..campaign.frame import apply, from_matrix, rigid_fit, rotation_angle_deg, to_matrix
+from ..campaign.ingest import robot_data_sets
 from ..arm.kinematics import Robot, parse_robot
 
 #: Largest difference (mm, deg) between two robot descriptions that are still "the same robot".
@@ -279,3 +283,49 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     e = np.linalg.norm(err, axis=1)
     out["points"] = [{"point_id": str(p), "error_mm": float(v)} for p, v in zip(np.asarray(data.point_id)[ev], e)]
     return out
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+def predict_other_campaign(campaign, document: dict, model_path, register: bool, keep_outliers: bool = False,
+                           warn=_silent) -> dict:
+    """``jointcal predict``: a fitted model (``document``, the JSON of ``jointcal fit --campaign`` read
+    from ``model_path``) applied to every pose of another campaign of the same robot.
+
+    Without ``register`` a tracker-frame campaign's points go through the fit campaign's
+    tracker-to-base transform (the tracker has not moved). The campaign's wild measurements are
+    named (``warn``) and left out of the registration and of the errors (``with_outliers``: the
+    errors with the wild targets beside) unless ``keep_outliers``. The result has no provenance.
+    """
+    robot_m, effects, model, sampled, fit_frame = load_model_document(document, model_path)
+    robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
+                                                        with_table=True)
+    problem = same_robot_problem(robot_m, robot)
+    if problem:
+        raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
+    meas = data.measured_mm
+    if not register and frame_info and frame_info.get("frame") == "tracker":
+        # the tracker has not moved: its points go through the fit campaign's transform
+        raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
+        meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
+    sets = table["set"].to_numpy().astype(object)
+    wild = find_wild(robot, effects, data.subset(sets == "sample"), data.subset(sets == "target"), campaign,
+                     keep_outliers)
+    if wild.outliers:
+        warn(describe(wild))
+    if not wild.kept:
+        sets[np.flatnonzero(sets == "sample")[wild.sample]] = "wild"
+    clean = sets.copy()
+    if not wild.kept:
+        clean[np.flatnonzero(sets == "target")[wild.target]] = "wild"
+    try:
+        result = predict_campaign(model, data, clean, meas, sampled, register)
+        if wild.target.any() and not wild.kept:
+            full = predict_campaign(model, data, sets, meas, sampled, register)
+            result["with_outliers"] = {k: full[k] for k in ("n", "rms_mm", "max_mm", "mean_mm", "std_mm")}
+    except ValueError as exc:
+        raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
+    result.update(wild.document())
+    return result

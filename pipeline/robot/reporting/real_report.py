@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
+from ...core.errors import InputError
 from ...core.files import read_json_input
 from ...core.plotting import pdf_pages, plt, save, text_page
 
@@ -109,6 +110,16 @@ def _verdicts(table: dict) -> list[str]:
                 elif v < ref:
                     out.append(f"{spec} fitted on {s} carries over to {other}: {v:.3f} vs {ref:.3f} mm RMS.")
     return out
+
+
+def load_campaigns(campaigns_dir) -> dict:
+    """The imported campaign of every series (``<campaigns_dir>/<series>/poses.csv``, jointcal import),
+    by series name in sorted order; none is bad input."""
+    series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
+        if Path(campaigns_dir).is_dir() else []
+    if not series:
+        raise InputError(campaigns_dir, "no imported campaign (<series>/poses.csv): run `make real` or jointcal import")
+    return {s: pd.read_csv(Path(campaigns_dir) / s / "poses.csv", dtype={"point_id": str}) for s in series}
 
 
 def load_results(results_dir, series) -> dict:

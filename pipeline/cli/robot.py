@@ -11,7 +11,6 @@ Library imports are inside the commands: see :mod:`pipeline.cli.common` (start-u
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -56,13 +55,10 @@ def _robot(path):
 def _paper_robot(path, command: str):
     """The robot of a stage that runs the paper's virtual six-joint cell (gratings on joints 1-3):
     another joint count is refused with one line."""
-    from ..robot.arm.kinematics import PAPER_JOINTS
+    from ..robot.paper.chain import require_paper_robot
 
     robot = _robot(path)
-    if robot.n_joints != PAPER_JOINTS:
-        raise InputError(path, f"jointcal robot {command} runs the second paper's six-joint cell (gratings on joints "
-                         f"1-3, Eqs. 22-24); this robot has {robot.n_joints} joints: use jointcal fit / predict / "
-                         "diagnose, which take any arm of 4 to 7 joints", 1, 1)
+    require_paper_robot(robot, path, command)
     return robot
 
 
@@ -75,10 +71,9 @@ def _spec(path):
 
 def warn_unstaged(spec) -> None:
     """Warn about effects that neither stage of the paper's chain takes (``fit`` and ``diagnose`` do)."""
-    from ..robot.model.fit import stage_effects
+    from ..robot.model.fit import unstaged_effects
 
-    staged = {id(e) for stage in ("kinematic", "feedback") for e in stage_effects(spec, stage)}
-    left = list(dict.fromkeys(e.name for e in spec.effects if id(e) not in staged))
+    left = unstaged_effects(spec)
     if left:
         click.echo(f"jointcal: warning: {spec.path}: {', '.join(left)} in no stage of [model] kinematic_effects / "
                    "feedback_effects: this chain leaves them out (jointcal fit and diagnose use every effect)", err=True)
@@ -89,14 +84,10 @@ def ingest_robot_to(campaign, out):
     """``jointcal ingest`` for a robot campaign folder."""
     from ..core.files import provenance, write_parquet
     from ..robot.campaign.frame import describe, from_matrix
-    from ..robot.campaign.ingest import ingest_robot_with_frame
+    from ..robot.campaign.ingest import campaign_files, ingest_robot_with_frame, ingested_metadata
 
     robot, frame, info = ingest_robot_with_frame(campaign)
-    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
-    files = [f for f in files if f.name != "campaign.toml" or f.exists()]
-    write_parquet(out, frame, {"campaign": str(campaign), **provenance(files), "frame": info["frame"],
-                               "tracker_to_base": info["tracker_to_base"],
-                               "nominal_fit": {"rms_mm": info["nominal_rms_mm"], "max_mm": info["nominal_max_mm"]}})
+    write_parquet(out, frame, ingested_metadata(campaign, info, provenance(campaign_files(campaign))))
     counts = frame["set"].value_counts().to_dict()
     where = (f"tracker frame -> base: {describe(*from_matrix(info['tracker_to_base']))} (fitted on the sample poses)"
              if info["frame"] == "tracker" else "base frame")
@@ -147,7 +138,7 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base
     """
     from ..core.files import write_json, write_text
     from ..robot.campaign.importer import load_import_robot
-    from ..robot.cell.simulate import cell_config, format_poses_csv, format_tracker_csv, hidden_robot_effect, simulate_robot
+    from ..robot.cell.simulate import cell_config, hidden_robot_effect, simulated_campaign
 
     _edge()
     robot_text = None
@@ -160,14 +151,13 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base
         hid = hidden_robot_effect(hidden, config["seed"], robot.n_joints) if hidden else None
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--hidden") from None
-    poses, tracker, truth = simulate_robot(robot, config, hid)
-    truth["robot_toml"] = robot.to_toml()   # the cell's nominal robot: `simulate measure` rebuilds the cell from it
+    files, truth, n = simulated_campaign(robot, config, hid)
     if robot_text is not None:
         write_text(Path(campaign) / "robot.toml", robot_text)
-    write_text(Path(campaign) / "poses.csv", format_poses_csv(poses))
-    write_text(Path(campaign) / "tracker.csv", format_tracker_csv(tracker))
+    for name, text in files.items():
+        write_text(Path(campaign) / name, text)
     write_json(truth_path, truth)
-    click.echo(f"wrote {campaign}/poses.csv and tracker.csv ({len(poses)} poses){' with hidden ' + hidden if hidden else ''}",
+    click.echo(f"wrote {campaign}/poses.csv and tracker.csv ({n} poses){' with hidden ' + hidden if hidden else ''}",
                err=True)
 
 
@@ -213,21 +203,12 @@ def calibrate_cmd(interim, robot_path, spec_path, out):
     cannot identify (fixed at 0). Parameters in mm and arcsec.
     """
     from ..core.files import provenance, write_json
-    from ..robot.model.calibrate import calibrate_mdh
-    from ..robot.model.fit import fit_problems, stage_effects
-    from ..robot.campaign.ingest import robot_data
+    from ..robot.paper.chain import calibrate_stage
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
     warn_unstaged(spec)
-    effects = stage_effects(spec, "kinematic")
-    sample = frame[frame["set"] == "sample"]
-    model, report = calibrate_mdh(robot, robot_data(robot, sample), effects)
-    report["provenance"] = provenance([interim, robot_path], spec_path)
-    seconds = report.pop("seconds")  # wall time is not a result: same inputs, same bytes
-    report.update(converged=bool(model.converged_), convergence=model.convergence_, plausible=bool(model.plausible_),
-                  implausible=model.implausible_)
-    problems = fit_problems(report)
+    report, problems, seconds = calibrate_stage(robot, frame, spec, provenance([interim, robot_path], spec_path))
     if problems:
         _refuse(interim, f"MDH calibration unusable: {'; '.join(problems)}", out)
     write_json(out, report)
@@ -254,32 +235,14 @@ def chebyshev_cmd(interim, robot_path, spec_path, gratings, out):
     removed, so no stale model reaches map-joints) and the command exits 1 with one line saying why.
     """
     from ..core.files import provenance, write_json
-    from ..core.spec import _locate
-    from ..robot.model.chebyshev import cross_check_problems, identify
-    from ..robot.model.fit import stage_effects
-    from ..robot.campaign.ingest import has_gratings, robot_data
-    from ..robot.model.lm import lm_options_problem
+    from ..robot.paper.chain import chebyshev_stage
 
     _edge()
     robot, frame, spec = _robot(robot_path), _interim(interim), _spec(spec_path)
     warn_unstaged(spec)
-    effects = stage_effects(spec, "feedback")
-    if not effects:
-        raise InputError(spec_path, "the spec has no chebyshev effect (add [[effect]] name = \"chebyshev\")", 1, 1)
-    lm_problem = lm_options_problem(spec.model.get("lm", {}))
-    if lm_problem:
-        text = Path(spec.path).read_text(encoding="utf-8")
-        where = _locate(text, rf"^\s*{lm_problem[0]}\s*=")
-        raise InputError(spec_path, f"[model.lm]: {lm_problem[1]}",
-                         *(where if where[0] else _locate(text, r"^\s*\[model\.lm\]")))
-    sample = frame[frame["set"] == "sample"]
-    use = gratings and has_gratings(sample)
-    result = identify(robot, robot_data(robot, sample, use_gratings=use), effects, spec.model.get("lm", {}))
-    result["uses_gratings"] = bool(use)
-    result["provenance"] = provenance([interim, robot_path], spec_path)
+    result, problems, seconds = chebyshev_stage(robot, frame, spec, spec_path, gratings,
+                                                provenance([interim, robot_path], spec_path))
     lm, sp = result["lm"], result["scipy"]
-    seconds = {"lm": lm.pop("seconds"), "scipy": sp.pop("seconds")}  # wall time is not a result (same bytes)
-    problems = cross_check_problems(result)
     if problems:
         _refuse(interim, f"Chebyshev identification unusable: {'; '.join(problems)}", out)
     write_json(out, result)
@@ -314,74 +277,24 @@ def map_joints_cmd(interim, robot_path, spec_path, model_path, out, strict, max_
     the Eq. 23 angle errors; corrected = commanded - dq), dx_mm, dy_mm, dz_mm (predicted error).
     """
     import numpy as np
-    import pandas as pd
 
     from ..core.files import parquet_metadata, write_csv
-    from ..robot.model.chebyshev import model_from_json
-    from ..robot.model.fit import stage_effects
-    from ..robot.campaign.ingest import robot_data
-    from ..robot.paper.mapping import joint_mapping
-    from ..robot.arm.kinematics import directions_from_sequence
+    from ..robot.paper.chain import feedback_model, map_joints, outside_refusal, targets_outside
+    from ..robot.model.predict import outside_message
 
     _edge()
     robot, frame, spec = _paper_robot(robot_path, "map-joints"), _interim(interim), _spec(spec_path)
-    model = model_from_json(robot, stage_effects(spec, "feedback"), _read_json(model_path))
-
-    tg = frame[frame["set"] == "target"]
-    qcols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
-    lines = [int(v) + 2 if np.isfinite(v) else None for v in tg["visit"]] if "visit" in tg else None
-    from ..robot.model.predict import outside_calibrated_range, outside_message
-
-    outside = outside_calibrated_range(frame.loc[frame["set"] == "sample", qcols], tg[qcols],
-                                       tg["point_id"].to_numpy(), lines)
+    model = feedback_model(robot, spec, _read_json(model_path))
+    outside = targets_outside(robot, frame)
     if outside:
-        first = outside[0]
-        message = outside_message(outside)
         if strict:
-            source = parquet_metadata(interim).get("campaign")
-            where = (Path(source) / "poses.csv", first.get("line")) if source else (interim, None)
-            raise InputError(where[0], f"{message} (first: {first['point_id']}); refused by --strict",
-                             where[1], f"q{first['joint']}")
-        click.echo(f"jointcal: warning: {message}", err=True)
-    data = robot_data(robot, tg)
-    # the table is executed in its own order, from mid-range: a direction-aware effect
-    # (backlash) must be predicted with the directions of that run, not of the survey
-    data = replace(data, dir=directions_from_sequence(data.q_deg, start_deg=(robot.lower_deg + robot.upper_deg) / 2))
-    dP = model.predict_error(data)
-    joints = tuple(spec.model.get("grating_joints", [1, 2, 3]))
-    dth, qc = joint_mapping(robot, data.q_deg, dP, joints)
-    size = np.where(np.isfinite(dth), np.abs(dth), np.inf)
-    beyond = size > max_correction_deg
-    if beyond.any():
-        k, c = np.unravel_index(int(np.argmax(size)), size.shape)
-        _refuse(model_path, f"target {tg['point_id'].iloc[k]} needs joint {joints[c]} corrected by {dth[k, c]:.4g} deg, "
-                f"beyond --max-correction-deg {max_correction_deg:g} ({int(beyond.any(axis=1).sum())} of {len(tg)} "
-                "targets beyond; the model, or the mapping near a singular pose, is not plausible there)", out)
-    table = pd.DataFrame({"point_id": tg["point_id"].to_numpy()})
-    for j in range(robot.n_joints):
-        table[f"q{j + 1}"] = data.q_deg[:, j]
-    for k, j in enumerate(joints):
-        table[f"q{j}_corrected"] = qc[:, j - 1]
-    for k, j in enumerate(joints):
-        table[f"dq{j}"] = dth[:, k]
-    for k, c in enumerate("xyz"):
-        table[f"d{c}_mm"] = dP[:, k]
+            raise outside_refusal(outside, interim, parquet_metadata(interim))
+        click.echo(f"jointcal: warning: {outside_message(outside)}", err=True)
+    table, dth, refusal = map_joints(robot, frame, spec, model, max_correction_deg)
+    if refusal:
+        _refuse(model_path, refusal, out)
     write_csv(out, table, float_format="%.7f")
     click.echo(f"{out}: {len(table)} targets, |dq| up to {np.abs(dth).max() * 3600:.1f} arcsec", err=True)
-
-
-def _corrected(path, robot):
-    from ..core.tables import FLOAT, STR, read_table
-
-    joints = range(1, robot.n_joints + 1)
-    t = read_table(path, {"point_id": STR, **{f"q{j}": FLOAT for j in joints}},
-                   {f"q{j}_corrected": FLOAT for j in joints})
-    q = t[[f"q{j}" for j in joints]].to_numpy(float).copy()
-    for j in joints:
-        c = f"q{j}_corrected"
-        if c in t:
-            q[:, j - 1] = t[c].to_numpy(float)
-    return t["point_id"].to_numpy(object), q
 
 
 @robot_group.command("closed-loop")
@@ -397,36 +310,15 @@ def closed_loop_cmd(interim, robot_path, corrected, seed, out):
     Writes the loop's poles, cycles to converge per target and joint, and an error trace
     (deg per 12 ms cycle) for the convergence figure.
     """
-    import numpy as np
-
     from ..core.files import write_json
-    from ..robot.paper.closedloop import CYCLE_S, KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG, pd_poles
-    from ..robot.arm.kinematics import directions_from_sequence
-    from ..robot.cell.simulate import EXECUTE, ROBOT_FIXTURE, make_cell, rng_for
+    from ..robot.cell.stages import closed_loop_stage
+    from ..robot.paper.chain import read_corrected
 
     _edge()
     robot, frame = _paper_robot(robot_path, "closed-loop"), _interim(interim)
-    ids, q = _corrected(corrected, robot)
-    config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
-    cell = make_cell(robot, config)
-    tg = frame.set_index("point_id").loc[ids]
-    mid = (robot.lower_deg + robot.upper_deg) / 2
-    dirs = directions_from_sequence(q, start_deg=mid)
-    _, res = cell.closed_loop(q, dirs, q[:, :3], tg["payload_kg"].to_numpy(float), rng_for(config["seed"], EXECUTE, 2),
-                              trace=True)
-    cycles = res["cycles"].reshape(-1, 3)
-    k = int(np.argsort(cycles[:, 1])[len(cycles) // 2])       # a typical target (median cycles of joint 2)
-    stop = int(cycles[k].max()) + 25
-    poles = pd_poles()
-    out_json = {"cycle_s": CYCLE_S, "kP": KP, "kD": KD, "rough_step_deg": ROUGH_STEP_DEG, "rough_limit_deg": ROUGH_LIMIT_DEG,
-                "poles": [float(p) for p in poles], "stable": bool(np.all(np.abs(poles) < 1)),
-                "cycles_median": float(np.median(cycles)), "cycles_max": int(cycles.max()),
-                "seconds_max": float(cycles.max() * CYCLE_S),
-                "final_error_arcsec_max": float(np.abs(res["final_error_deg"]).max() * 3600),
-                "converged": bool(np.all(cycles < 6000)),
-                "trace_point": str(ids[k]),
-                "trace_error_deg": {f"joint{j + 1}": res["error_deg"][:stop, 3 * k + j].tolist() for j in range(3)},
-                "trace_fine": {f"joint{j + 1}": res["fine"][:stop, 3 * k + j].astype(int).tolist() for j in range(3)}}
+    ids, q = read_corrected(corrected, robot)
+    out_json = closed_loop_stage(robot, frame, ids, q, seed)
+    poles = out_json["poles"]
     write_json(out, out_json)
     click.echo(f"{out}: poles {', '.join(f'{p:.3f}' for p in poles)}; median {out_json['cycles_median']:.0f} cycles, "
                f"max {out_json['cycles_max']} ({out_json['seconds_max']:.1f} s); final |e| <= "
@@ -449,84 +341,23 @@ def evaluate_cmd(interim, robot_path, spec_path, mdh_path, corrected, tracker_pa
 
     Also writes <out dir>/target_errors.csv, iso9283.json and kinematic_commands.csv.
     """
-    import numpy as np
-    import pandas as pd
-
     from ..core.files import provenance, write_csv, write_json
-    from ..core.tables import FLOAT, STR, read_table
-    from ..robot.model.calibrate import RobotErrorModel
-    from ..robot.cell.execute import execute_virtual
-    from ..robot.paper.evaluate import table2, vap
-    from ..robot.model.fit import stage_effects
-    from ..robot.campaign.ingest import robot_data
-    from ..robot.paper.mapping import inverse_commands
-    from ..robot.cell.simulate import ROBOT_FIXTURE, make_cell
+    from ..robot.cell.stages import evaluate_stage
+    from ..robot.paper.chain import read_corrected
 
     _edge()
     robot, frame, spec = _paper_robot(robot_path, "evaluate"), _interim(interim), _spec(spec_path)
     mdh_json = _read_json(mdh_path)
-    mdh = RobotErrorModel.from_parameters(robot, stage_effects(spec, "kinematic"), mdh_json["parameters"])
-    tg = frame[frame["set"] == "target"].reset_index(drop=True)
-    data = robot_data(robot, tg)
-    qk = inverse_commands(mdh, robot, data)
-    ids, qf = _corrected(corrected, robot)
-    if list(ids) != list(tg["point_id"]):
-        raise InputError(corrected, "point_ids differ from the campaign's targets (run map-joints again)", 2, "point_id")
-    nominal = tg[["xn_mm", "yn_mm", "zn_mm"]].to_numpy(float)
-    before = tg[["x_mm", "y_mm", "z_mm"]].to_numpy(float) - nominal
-    rep = frame[frame["set"] == "repeat"].reset_index(drop=True)
-    if tracker_path:
-        t = read_table(tracker_path, {"point_id": STR, "x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT}).set_index("point_id")
-
-        def get(keys):
-            missing = [k for k in keys if k not in t.index]
-            if missing:
-                raise InputError(tracker_path, f"no measurement of '{missing[0]}'", None, "point_id")
-            return t.loc[keys, ["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-
-        Pk = get([f"{i}@kinematic" for i in tg["point_id"]])
-        Pf = get([f"{i}@feedback" for i in tg["point_id"]])
-        Pr = get([f"{i}@feedback" for i in rep["point_id"]]) if len(rep) else None
-        source = str(tracker_path)
-    else:
-        config = dict(ROBOT_FIXTURE, **({"seed": seed} if seed is not None else {}))
-        cell = make_cell(robot, config)
-        run = execute_virtual(cell, robot, frame, qk, qf, config["seed"])
-        Pk, Pf, Pr = run["kinematic"], run["feedback"], run.get("repeat_loop")
-        source = f"virtual cell, seed {config['seed']}"
-    result = table2(before, Pk - nominal, Pf - nominal)
-    result["source"] = source
-    iso = {}
-    if len(rep):
-        rep_meas = rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-        iso["open_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), rep_meas)
-        if Pr is not None:
-            iso["closed_loop"] = vap(rep["pose"].to_numpy(), rep["approach"].to_numpy(), Pr)
-        result["vAP_mm"] = {k: {p: v["vAP_mm"] for p, v in d.items()} for k, d in iso.items()}
+    ids, qf = read_corrected(corrected, robot)
+    result, tables = evaluate_stage(robot, frame, spec, mdh_json, ids, qf, corrected, tracker_path, seed)
     result["provenance"] = provenance([interim, robot_path, mdh_path, corrected] + ([tracker_path] if tracker_path else []),
                                       spec_path)
     outdir = Path(out).parent
-    errs = pd.DataFrame({"point_id": tg["point_id"]})
-    for name, e in (("before", before), ("kinematic", Pk - nominal), ("feedback", Pf - nominal)):
-        for k, c in enumerate("xyz"):
-            errs[f"{name}_d{c}_mm"] = e[:, k]
-        errs[f"{name}_abs_mm"] = np.linalg.norm(e, axis=1)
-    write_csv(outdir / "target_errors.csv", errs, float_format="%.5f")
-    kc = pd.DataFrame({"point_id": tg["point_id"]})
-    for j in range(robot.n_joints):
-        kc[f"q{j + 1}"] = qk[:, j]
-    write_csv(outdir / "kinematic_commands.csv", kc, float_format="%.7f")
-    if len(rep):
-        rows = {"open_loop": rep[["x_mm", "y_mm", "z_mm"]].to_numpy(float)}
-        if Pr is not None:
-            rows["closed_loop"] = Pr
-        rr = pd.DataFrame({"point_id": rep["point_id"], "pose": rep["pose"], "approach": rep["approach"],
-                           "cycle": rep["cycle"]})
-        for k, v in rows.items():
-            for i, c in enumerate("xyz"):
-                rr[f"{k}_{c}_mm"] = v[:, i]
-        write_csv(outdir / "repeat_positions.csv", rr, float_format="%.5f")
-        write_json(outdir / "iso9283.json", iso)
+    write_csv(outdir / "target_errors.csv", tables["target_errors"], float_format="%.5f")
+    write_csv(outdir / "kinematic_commands.csv", tables["kinematic_commands"], float_format="%.7f")
+    if "repeat_positions" in tables:
+        write_csv(outdir / "repeat_positions.csv", tables["repeat_positions"], float_format="%.5f")
+        write_json(outdir / "iso9283.json", tables["iso9283"])
     write_json(out, result)
     b, k, f = result["before"], result["kinematic"], result["feedback"]
     click.echo(f"{out}: max {b['max_mm']:.3f} -> kinematic {k['max_mm']:.3f} -> feedback {f['max_mm']:.3f} mm "
@@ -571,17 +402,11 @@ def real_report_cmd(results_dir, campaigns_dir, out_json, out):
     """Write reports/real.pdf: nominal / kinematic / paper-spec errors (mm) of every real series on its
     own held-out poses and on the other series (registered), and each held-out pose's error against
     each joint angle (deg)."""
-    import pandas as pd
-
     from ..core.files import write_json
-    from ..robot.reporting.real_report import load_results, real_report
+    from ..robot.reporting.real_report import load_campaigns, load_results, real_report
 
-    series = sorted(p.name for p in Path(campaigns_dir).iterdir() if (p / "poses.csv").exists()) \
-        if Path(campaigns_dir).is_dir() else []
-    if not series:
-        raise InputError(campaigns_dir, "no imported campaign (<series>/poses.csv): run `make real` or jointcal import")
-    results = load_results(results_dir, series)
-    campaigns = {s: pd.read_csv(Path(campaigns_dir) / s / "poses.csv", dtype={"point_id": str}) for s in series}
+    campaigns = load_campaigns(campaigns_dir)
+    results = load_results(results_dir, list(campaigns))
     table = real_report(results, campaigns, out)
     write_json(out_json, table)
     click.echo(f"{out}: written; {out_json}: " + "; ".join(
@@ -613,42 +438,19 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     A round may also swap a member of the model for the effect that overlaps it (joint_harmonic j,
     joint_map j, chebyshev j) when the model with the swap verifies better, every fold refitted, by
     pose and by region (rounds 1-2). Wild measurements of both series are named and left out."""
-    from ..core.files import read_text_input, write_json, write_text
-    from ..core.spec import load_spec
+    from ..core.files import write_json, write_text
     from ..diagnosis.engine import verified_text
-    from ..diagnosis.loop import diagnosis_loop
-    from ..robot.campaign.ingest import robot_data_sets
-    from ..robot.model.outliers import describe, find_wild
+    from ..diagnosis.loop import loop_on_campaigns
 
     _edge()
-    spec = load_spec(spec_path)
-    spec.require_kind("robot", campaign)
-    robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
-    from ..robot.model.fit import check_spec_joints
-
-    check_spec_joints(spec, robot)
-    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
-    if wild.outliers:
-        click.echo(f"jointcal: {campaign}: {describe(wild)}", err=True)
-    target_all = target if (wild.target.any() and not wild.kept) else None
-    sample, target = wild.clean(sample, target)
-    other, wild_other = None, None
-    if other_campaign:
-        robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
-        wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
-        if wild_other.outliers:
-            click.echo(f"jointcal: {other_campaign}: {describe(wild_other)}", err=True)
-        other = wild_other.clean(os_, ot)
 
     def say(msg):
         click.echo(f"  {msg}", err=True)
 
-    result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, rounds, say,
-                            repeat=repeat, target_all=target_all)
-    result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
-    result.update(wild.document())
-    if wild_other is not None:
-        result["other_outliers"] = wild_other.outliers
+    def warn(msg):
+        click.echo(f"jointcal: {msg}", err=True)
+
+    result = loop_on_campaigns(campaign, spec_path, other_campaign, rounds, keep_outliers, say, warn)
     write_json(json_out, result)
     if spec_out:
         write_text(spec_out, result["final_spec"])
@@ -677,25 +479,16 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`); wild measurements
     named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``."""
     from ..core.files import provenance, write_json
-    from ..robot.model.fit import check_spec_joints, fit_problems, robot_fit_result
-    from ..robot.campaign.ingest import robot_data_sets
-    from ..robot.model.outliers import describe, find_wild
-    from ..robot.model.predict import outside_calibrated_range, outside_message
+    from ..robot.campaign.ingest import campaign_files
+    from ..robot.model.fit import fit_campaign, fit_problems
 
     _edge()
-    spec.require_kind("robot", campaign)
-    robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
-    outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if sample.n and target.n else []
-    if outside:
-        click.echo(f"jointcal: warning: {outside_message(outside, worst=True)}", err=True)
-    check_spec_joints(spec, robot)
-    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
-    if wild.outliers:
-        click.echo(f"jointcal: {describe(wild)}", err=True)
-    result = robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild)
-    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv")]
-    files += [f for f in [Path(campaign) / "campaign.toml"] if f.exists()]
-    result["provenance"] = provenance(files, spec_path)
+
+    def warn(msg):
+        click.echo(f"jointcal: {msg}", err=True)
+
+    result = fit_campaign(campaign, spec, keep_outliers, warn)
+    result["provenance"] = provenance(campaign_files(campaign), spec_path)
     problems = fit_problems(result)
     if problems:
         _refuse(campaign, '; '.join(problems), out)
@@ -737,43 +530,16 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
     import numpy as np
 
     from ..core.files import provenance, write_json
-    from ..robot.campaign.frame import apply, from_matrix
-    from ..robot.campaign.ingest import robot_data_sets
-    from ..robot.model.outliers import describe, find_wild
-    from ..robot.model.predict import load_model_document, predict_campaign, same_robot_problem
+    from ..robot.campaign.ingest import campaign_files
+    from ..robot.model.predict import predict_other_campaign
 
     _edge()
-    robot_m, effects, model, sampled, fit_frame = load_model_document(_read_json(model_path), model_path)
-    robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
-                                                        with_table=True)
-    problem = same_robot_problem(robot_m, robot)
-    if problem:
-        raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
-    meas = data.measured_mm
-    if not register and frame_info and frame_info.get("frame") == "tracker":
-        # the tracker has not moved: its points go through the fit campaign's transform
-        raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
-        meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
-    sets = table["set"].to_numpy().astype(object)
-    wild = find_wild(robot, effects, data.subset(sets == "sample"), data.subset(sets == "target"), campaign,
-                     keep_outliers)
-    if wild.outliers:
-        click.echo(f"jointcal: {describe(wild)}", err=True)
-    if not wild.kept:
-        sets[np.flatnonzero(sets == "sample")[wild.sample]] = "wild"
-    clean = sets.copy()
-    if not wild.kept:
-        clean[np.flatnonzero(sets == "target")[wild.target]] = "wild"
-    try:
-        result = predict_campaign(model, data, clean, meas, sampled, register)
-        if wild.target.any() and not wild.kept:
-            full = predict_campaign(model, data, sets, meas, sampled, register)
-            result["with_outliers"] = {k: full[k] for k in ("n", "rms_mm", "max_mm", "mean_mm", "std_mm")}
-    except ValueError as exc:
-        raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
-    result.update(wild.document())
-    files = [Path(campaign) / n for n in ("robot.toml", "poses.csv", "tracker.csv", "campaign.toml")]
-    result["provenance"] = provenance([f for f in files if f.exists()] + [model_path])
+
+    def warn(msg):
+        click.echo(f"jointcal: {msg}", err=True)
+
+    result = predict_other_campaign(campaign, _read_json(model_path), model_path, register, keep_outliers, warn)
+    result["provenance"] = provenance(campaign_files(campaign) + [model_path])
     write_json(json_out, result)
     reg = result["registration"]
     click.echo(f"{json_out}: {result['n']} {result['evaluated_on']} poses: RMS {result['rms_mm']:.3f} mm, max "

@@ -353,6 +353,35 @@ def test_metres_far_from_the_tracker(invoke, tmp_path):
     assert m["line"] == "19" and 'unit = "m"' in r.stderr, r.stderr
 
 
+def test_one_unit_engine_for_import_and_ingest():
+    """Positions in metres, labelled mm: the import's unit check and the ingest's nominal-consistency check
+    read them through one engine (frame.unit_hypotheses, frame.refit) and agree on the reading and its RMS."""
+    from pipeline.core.errors import InputError
+    from pipeline.robot.campaign import frame as rf
+    from pipeline.robot.campaign import importer as im
+
+    src = _source().iloc[:300]
+    q = np.rad2deg(src[JOINTS].to_numpy(float))
+    m = src[["measurement_x", "measurement_y", "measurement_z"]].to_numpy(float) / 1000.0 - [0.0, 6.0, 0.0]
+    robot = load_robot(ROBOT)
+    # the readings, in the order tried; radians only when the caller allows them
+    assert rf.other_units(("rad", "mm")) == [("rad", "m"), ("deg", "mm"), ("deg", "m")]
+    assert rf.other_units(("deg", "mm"), radians=False) == [("deg", "m")]
+    readings = {r: (qq, mm) for r, qq, mm in rf.unit_hypotheses(q, m, ("deg", "mm"))}
+    assert list(readings) == [("deg", "m"), ("rad", "mm"), ("rad", "m")]
+    assert readings[("deg", "m")][0] is q and np.array_equal(readings[("deg", "m")][1], m * 1000.0)
+    np.testing.assert_array_equal(readings[("rad", "mm")][0], np.rad2deg(q))
+    # ingest's check: the "metres" hypothesis
+    c = rf.consistency(robot, q, m, frame="tracker")
+    assert not c.ok and c.hypothesis == "metres" and c.tried["metres"] < 2.0, (c.hypothesis, c.tried)
+    # the import (map: rad, mm, tracker): the map's [position] unit line, with the same refit's RMS
+    camp = im.Campaign({}, q, m, None, [], {})
+    with pytest.raises(InputError) as exc:
+        im.check_units(camp, im.parse_map(MAP.read_text(), str(MAP)), robot, None)
+    assert exc.value.line == 19 and exc.value.message.endswith('set [position] unit = "m"'), exc.value.message
+    assert f"by {c.tried['metres']:.4g} mm with rad and m;" in exc.value.message, exc.value.message
+
+
 def test_error_found_by_ingest_is_named_in_the_source(invoke, tmp_path):
     """ingest_robot runs on the built folder; what it refuses is named at the source's line and column."""
     src = _small_source(tmp_path, edit=lambda ls: _cell(ls, 9, 13, "-1,5"))

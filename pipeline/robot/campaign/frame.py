@@ -15,6 +15,12 @@ Two uses:
   errors, a tool a few cm off); a residual far beyond :data:`MAX_RMS_MM` is bad input, and
   :func:`diagnose` finds the likely cause by refitting under each hypothesis (joint angles in
   radians, positions in metres, a joint's sign flipped, two joints swapped, a wrong tool).
+
+The unit hypotheses (the values in the other joint unit, deg <-> rad, and the other length unit,
+mm <-> m: :func:`other_units`, :func:`unit_hypotheses`) and the refit of a hypothesis
+(:func:`refit`, its RMS :func:`fit_rms`) are one engine for two callers, each with its own
+acceptance rule and message: :func:`diagnose` here, and the unit check of ``jointcal import``
+(:func:`pipeline.robot.campaign.importer.check_units`), which names the map's unit line.
 """
 
 from __future__ import annotations
@@ -185,6 +191,38 @@ def fit_residuals(src, dst, fit_rows=None):
 def rms(err) -> float:
     err = np.asarray(err, float)
     return float(np.sqrt(np.mean(err ** 2))) if len(err) else 0.0
+
+
+def fit_rms(src, dst, fit_rows=None, rigid=True) -> float:
+    """RMS distance of ``src`` from ``dst`` after the best rigid fit of ``src`` onto ``dst`` (or as they are).
+
+    The one rigid-fit RMS of the nominal-consistency check's hypotheses and of the import's unit
+    check: ``rms(fit_residuals(src, dst, fit_rows)[2])``.
+
+    Parameters
+    ----------
+    src : array_like, shape (n, 3)
+        Points to be moved, e.g. nominal SMR positions in the base frame (mm).
+    dst : array_like, shape (n, 3)
+        Where they should land, same unit, e.g. measured SMR positions (mm).
+    fit_rows : array_like of bool, shape (n,), optional
+        Pairs the fit is estimated on (default all); the RMS is over every pair.
+    rigid : bool
+        False: no fit, the RMS of ``src - dst`` as they are (points already in one frame).
+
+    Returns
+    -------
+    float
+        RMS distance, unit of the points (0 for no points).
+
+    Raises
+    ------
+    ValueError
+        From :func:`rigid_fit` (fewer than 3 pairs, non-finite values, collinear points).
+    """
+    if not rigid:
+        return rms(np.linalg.norm(np.asarray(src, float) - np.asarray(dst, float), axis=1))
+    return rms(fit_residuals(src, dst, fit_rows)[2])
 
 
 # ------------------------------------------------------------------------ consistency check
@@ -385,12 +423,141 @@ def consistency(robot, q_deg, meas_mm, fit_rows=None, frame="base", model=None, 
     return out
 
 
+# ------------------------------------------------------------------------ unit hypotheses
+#: Factor to degrees of each joint-angle unit, and to mm of each length unit, that a campaign's
+#: values may be in (an import map names them; a campaign folder is in deg and mm).
+JOINT_UNITS = {"rad": 180.0 / np.pi, "deg": 1.0}
+LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}
+_OTHER_UNIT = {"rad": "deg", "deg": "rad", "mm": "m", "m": "mm"}
+
+
+def other_units(units, radians=True) -> list:
+    """Every other reading of data read in ``units``, in the order they are tried.
+
+    The same joint unit with the other length unit, then the other joint unit with the given
+    length unit and with the other one (both mislabelled).
+
+    Parameters
+    ----------
+    units : tuple of str
+        ``(joint unit, length unit)`` the data were read in: a key of :data:`JOINT_UNITS` and
+        one of :data:`LENGTH_UNITS`.
+    radians : bool
+        Whether angles read in degrees may be radians (the caller's rule, e.g. every value within
+        +-2 pi); False leaves out the readings in radians. Degrees are always a reading.
+
+    Returns
+    -------
+    list of tuple of str
+        ``(joint unit, length unit)`` pairs, the given one excluded.
+    """
+    joint, length = units
+    joints = [joint] + ([_OTHER_UNIT[joint]] if _OTHER_UNIT[joint] == "deg" or radians else [])
+    return [(j, m) for j in joints for m in (length, _OTHER_UNIT[length]) if (j, m) != (joint, length)]
+
+
+def unit_hypotheses(q_deg, meas_mm, units=("deg", "mm"), readings=None):
+    """The data as they would be had they been read in other units (deg <-> rad, mm <-> m).
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+        Joint angles read in ``units[0]`` and converted to degrees.
+    meas_mm : ndarray, shape (n, 3), mm
+        Positions read in ``units[1]`` and converted to mm.
+    units : tuple of str
+        ``(joint unit, length unit)`` they were read in (keys of :data:`JOINT_UNITS`,
+        :data:`LENGTH_UNITS`).
+    readings : iterable of tuple of str, optional
+        ``(joint unit, length unit)`` pairs to try, in order (default :func:`other_units`).
+
+    Yields
+    ------
+    reading : tuple of str
+        The ``(joint unit, length unit)`` of this hypothesis.
+    q : ndarray, shape (n, N), deg
+        The angles read in it (``q_deg`` itself, the same object, when the joint unit stays,
+        so that :func:`refit` reuses its forward kinematics).
+    meas : ndarray, shape (n, 3), mm
+        The positions read in it (``meas_mm`` itself when the length unit stays).
+    """
+    joint, length = units
+    for j, m in (other_units(units) if readings is None else readings):
+        q = q_deg if j == joint else q_deg / JOINT_UNITS[joint] * JOINT_UNITS[j]
+        meas = meas_mm if m == length else meas_mm / LENGTH_UNITS[length] * LENGTH_UNITS[m]
+        yield (j, m), q, meas
+
+
+def nominal_smr(robot, model, q_deg):
+    """Nominal SMR positions of the joint angles ``q_deg`` (one forward-kinematics pass).
+
+    Parameters
+    ----------
+    robot : pipeline.robot.arm.kinematics.Robot
+    model : pinocchio.Model
+        ``build_model(robot)``.
+    q_deg : ndarray, shape (n, N), deg
+
+    Returns
+    -------
+    ndarray, shape (n, 3), mm, in the base frame.
+    """
+    Rf, pf = _fk(model, q_deg)
+    return _smr(Rf, pf, robot.tool_xyz_mm)
+
+
+def refit(robot, model, q_deg, meas_mm, fit_rows=None, rigid=True, given=None):
+    """Refit one hypothesis: the nominal SMR positions of ``q_deg`` and the RMS of ``meas_mm`` about them.
+
+    Parameters
+    ----------
+    robot : pipeline.robot.arm.kinematics.Robot
+    model : pinocchio.Model
+        ``build_model(robot)``.
+    q_deg : ndarray, shape (n, N), deg
+        Joint angles under the hypothesis.
+    meas_mm : ndarray, shape (n, 3), mm
+        Measured positions under the hypothesis.
+    fit_rows : array_like of bool, shape (n,), optional
+        Poses the rigid fit is estimated on (default all); see :func:`fit_rms`.
+    rigid : bool
+        False: the points are compared as they are (base frame), no fit.
+    given : tuple, optional
+        ``(q, nominal)``: the angles of the data as given, (n, N) deg, and their nominal
+        positions, (n, 3) mm; when ``q_deg`` is ``q`` (the hypothesis keeps the angles) those
+        positions are used and no forward kinematics run.
+
+    Returns
+    -------
+    nominal : ndarray, shape (n, 3), mm
+    rms : float, mm
+
+    Raises
+    ------
+    ValueError
+        From :func:`rigid_fit`.
+    """
+    if given is not None and q_deg is given[0]:
+        nominal = given[1]
+    else:
+        nominal = nominal_smr(robot, model, q_deg)
+    return nominal, fit_rms(nominal, meas_mm, fit_rows, rigid)
+
+
+#: the unit hypotheses of the nominal-consistency check, by the reading of a campaign (deg, mm)
+#: they stand for: name, file and column it points at, the cause's text
+_UNIT_CAUSES = {
+    ("rad", "mm"): ("radians", "poses", "q1", ("the joint angles look like radians (q * 180/pi fits the nominal "
+                                               "kinematics{fit}); the contract says degrees")),
+    ("deg", "m"): ("metres", "tracker", "x_mm", ("x_mm/y_mm/z_mm look like metres (x 1000 fits the nominal "
+                                                "kinematics{fit}); the contract says mm")),
+}
+
+
 def _hypotheses(q, meas):
     """(name, file, column, description, q', meas') for every cause :func:`diagnose` tries."""
-    yield ("radians", "poses", "q1", "the joint angles look like radians (q * 180/pi fits the nominal kinematics{fit}); "
-           "the contract says degrees", np.rad2deg(q), meas)
-    yield ("metres", "tracker", "x_mm", "x_mm/y_mm/z_mm look like metres (x 1000 fits the nominal kinematics{fit}); "
-           "the contract says mm", q, meas * 1000.0)
+    for reading, qq, mm in unit_hypotheses(q, meas, ("deg", "mm"), _UNIT_CAUSES):
+        yield (*_UNIT_CAUSES[reading], qq, mm)
     for j in range(q.shape[1]):
         qq = q.copy()
         qq[:, j] = -qq[:, j]
@@ -407,25 +574,20 @@ def diagnose(robot, model, q, meas, rows, Rf, pf, out: Consistency) -> Consisten
     """Find the likely cause of a failed check; fills ``out.hypothesis/cause/file/column/tried``.
 
     Each hypothesis of :func:`_hypotheses` (joint angles in radians, positions in metres, each
-    joint's sign flipped, each pair of joints swapped) is refitted: a rigid fit, one FK pass
-    when it changes the angles. The one with the lowest RMS that is within :data:`MAX_RMS_MM`
+    joint's sign flipped, each pair of joints swapped) is refitted (:func:`refit`): a rigid fit,
+    one FK pass when it changes the angles. The one with the lowest RMS that is within :data:`MAX_RMS_MM`
     and at most :data:`EXPLAINS_FRACTION` of the data's RMS is the likely cause. When none is, a
     wrong tool is tried: a fit with the tool offset free (:func:`fit_tool`). ``out.tried``
     records every hypothesis's RMS (mm).
     """
     best = None
     limit = min(MAX_RMS_MM, EXPLAINS_FRACTION * out.rms_mm)
+    given = (q, _smr(Rf, pf, robot.tool_xyz_mm))
     for name, file, column, text, qq, mm in _hypotheses(q, meas):
-        if qq is q:
-            nominal = _smr(Rf, pf, robot.tool_xyz_mm)
-        else:
-            R2, p2 = _fk(model, qq)
-            nominal = _smr(R2, p2, robot.tool_xyz_mm)
         try:
-            _, _, err = fit_residuals(nominal, mm, rows)
+            _, r = refit(robot, model, qq, mm, rows, given=given)
         except ValueError:
             continue
-        r = rms(err)
         out.tried[name] = r
         if r <= limit and (best is None or r < best[0]):
             best = (r, name, file, column, text.replace("{fit}", f": RMS {r:.1f} mm"))

@@ -35,9 +35,9 @@ import numpy as np
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import _UMASK, read_bytes_input, read_text_input
-from .frame import apply, rigid_fit
+from .frame import JOINT_UNITS, LENGTH_UNITS, other_units, refit, unit_hypotheses
 from .ingest import ingest_robot
-from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot, positions
+from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "columns", "split")
@@ -45,8 +45,6 @@ KEYS = {"source": ("delimiter", "decimal"), "joints": ("columns", "unit"), "posi
         "split": ("sample_fraction", "seed", "column")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
     f"dir{j}" for j in range(1, MAX_JOINTS + 1))
-JOINT_UNITS = {"rad": 180.0 / np.pi, "deg": 1.0}
-LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}
 FRAMES = ("tracker", "base")
 NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 # a rigid-fit residual beyond this is no robot's error: a unit mix-up is looked for (mm RMS)
@@ -468,29 +466,33 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
 
 
 # -------------------------------------------------------------- plausibility (unit hints)
-def rigid_fit_rms(nominal: np.ndarray, measured: np.ndarray) -> float:
-    """RMS distance (mm) after the best rigid transform of ``nominal`` onto ``measured``."""
-    R, t = rigid_fit(nominal, measured)
-    r = measured - apply(R, t, nominal)
-    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
-
-
+# The other readings of the units and their refit are pipeline.robot.campaign.frame's (the engine of
+# the nominal-consistency check's hypotheses); what fits well enough, and the message, are the import's.
 def _spread(P: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((P - P.mean(0)) ** 2, axis=1)))) if len(P) else 0.0
 
 
+def _relative(rms: float, nominal: np.ndarray, measured: np.ndarray) -> float:
+    """``rms`` relative to the smaller spread of the two point clouds (0: perfect, ~1: nothing fits)."""
+    scale = min(_spread(nominal), _spread(measured))
+    return rms / scale if scale > 0 else np.inf
+
+
 def nominal_fit(robot, q_deg, xyz_mm, frame: str) -> tuple[float, float]:
     """Nominal-vs-measured RMS (mm) after a rigid fit (tracker frame) or as it is (base frame),
-    and that RMS relative to the smaller spread of the two point clouds (0: perfect, ~1: nothing fits)."""
+    and that RMS relative to the smaller spread of the two point clouds (0: perfect, ~1: nothing fits).
+
+    Parameters
+    ----------
+    robot : pipeline.robot.arm.kinematics.Robot
+    q_deg : ndarray, shape (n, N), deg
+    xyz_mm : ndarray, shape (n, 3), mm
+        Poses with a non-finite angle or coordinate are left out.
+    frame : {"tracker", "base"}
+    """
     ok = np.isfinite(q_deg).all(1) & np.isfinite(xyz_mm).all(1)
-    nom, meas = positions(build_model(robot), np.deg2rad(q_deg[ok])), xyz_mm[ok]
-    if frame == "tracker":
-        rms = rigid_fit_rms(nom, meas)
-    else:
-        d = nom - meas
-        rms = float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
-    scale = min(_spread(nom), _spread(meas))
-    return rms, (rms / scale if scale > 0 else np.inf)
+    nominal, rms = refit(robot, build_model(robot), q_deg[ok], xyz_mm[ok], rigid=frame == "tracker")
+    return rms, _relative(rms, nominal, xyz_mm[ok])
 
 
 def nominal_rms(robot, q_deg, xyz_mm, frame: str) -> float:
@@ -505,7 +507,9 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
     labelled m), then, when the nominal kinematics fit the data implausibly badly, the other
     units are tried (deg -> rad only when every value is within +-2 pi): if one reading fits
     well (RMS below 20 mm and a tenth of the points' spread), the map's unit line is named
-    with the fix. Anything else is left to the nominal-consistency check of ingest.
+    with the fix. Anything else is left to the nominal-consistency check of ingest. The
+    readings and their refit are :func:`pipeline.robot.campaign.frame.unit_hypotheses` and
+    :func:`pipeline.robot.campaign.frame.refit`.
     """
     where = imap.where
     ax = np.abs(camp.xyz_mm[np.isfinite(camp.xyz_mm)])
@@ -515,23 +519,21 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
     if imap.position_unit == "m" and len(ax) and ax.max() > 1e6:
         _fail(imap.path, where, "position", "unit", f"positions up to {ax.max() / 1000:.4g} with unit = \"m\" are beyond "
               "1 km: they look like millimetres; set unit = \"mm\"")
-    rms, rel = nominal_fit(robot, camp.q_deg, camp.xyz_mm, imap.frame)
+    model, rigid = build_model(robot), imap.frame == "tracker"
+    ok = np.isfinite(camp.q_deg).all(1) & np.isfinite(camp.xyz_mm).all(1)
+    q, xyz = camp.q_deg[ok], camp.xyz_mm[ok]
+    nominal, rms = refit(robot, model, q, xyz, rigid=rigid)
     if rms <= IMPLAUSIBLE_RMS_MM:
         return rms
     jmax = float(np.nanmax(np.abs(camp.q_deg / JOINT_UNITS[imap.joint_unit])))
-    other_j = {"deg": "rad", "rad": "deg"}[imap.joint_unit]
-    other_p = {"mm": "m", "m": "mm"}[imap.position_unit]
-    junits = [imap.joint_unit] + ([other_j] if other_j == "deg" or jmax <= 2 * np.pi + 1e-9 else [])
+    units = (imap.joint_unit, imap.position_unit)
+    readings = other_units(units, radians=jmax <= 2 * np.pi + 1e-9)
     best = None
-    for ju in junits:
-        for pu in (imap.position_unit, other_p):
-            if (ju, pu) == (imap.joint_unit, imap.position_unit):
-                continue
-            q = camp.q_deg / JOINT_UNITS[imap.joint_unit] * JOINT_UNITS[ju]
-            xyz = camp.xyz_mm / LENGTH_UNITS[imap.position_unit] * LENGTH_UNITS[pu]
-            alt, alt_rel = nominal_fit(robot, q, xyz, imap.frame)
-            if alt < IMPLAUSIBLE_RMS_MM and alt_rel < 0.1 and (best is None or alt_rel < best[3]):
-                best = (ju, pu, alt, alt_rel)
+    for (ju, pu), q_alt, xyz_alt in unit_hypotheses(q, xyz, units, readings):
+        nom, alt = refit(robot, model, q_alt, xyz_alt, rigid=rigid, given=(q, nominal))
+        alt_rel = _relative(alt, nom, xyz_alt)
+        if alt < IMPLAUSIBLE_RMS_MM and alt_rel < 0.1 and (best is None or alt_rel < best[3]):
+            best = (ju, pu, alt, alt_rel)
     if best is None:
         return rms
     ju, pu, alt, _ = best

@@ -5,7 +5,9 @@ Chain (the second paper): ingest -> calibrate (MDH, Eqs. 3-6) -> chebyshev (Eqs.
 Also ``jointcal predict`` and the robot side of ``ingest``, ``validate`` and ``fit`` (the helpers
 :func:`ingest_robot_to`, :func:`validate_robot`, :func:`fit_robot`).
 
-Library imports are inside the commands: see :mod:`pipeline.cli.common` (start-up time).
+Each command reads its inputs, calls one library function (the stages: :mod:`pipeline.robot.paper.chain`,
+:mod:`pipeline.robot.cell.stages`), writes what it returns and prints one line. Library imports are
+inside the commands: see :mod:`pipeline.cli.common` (start-up time).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 By task, lowest layer first: ``arm`` (kinematics, effects) -> ``campaign`` (ingest, importer,
 frame, urdf) -> ``model`` (calibrate, lm, chebyshev, estimate, fit, predict ...) -> ``paper``
-(mapping, closedloop, evaluate) -> ``cell`` (simulate, measure, execute) -> ``reporting``.
+(chain, mapping, closedloop, evaluate) -> ``cell`` (simulate, measure, execute, stages) -> ``reporting``.
 Registers the robot effects (here, and only here).
 """
 

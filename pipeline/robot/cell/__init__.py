@@ -1,2 +1,2 @@
-"""The virtual cell: a hidden robot that writes campaigns (simulate), measures programs (measure)
-and executes corrected commands (execute)."""
+"""The virtual cell: a hidden robot that writes campaigns (simulate), measures programs (measure),
+executes corrected commands (execute) and runs the paper's closed-loop and evaluate stages (stages)."""

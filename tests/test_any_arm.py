@@ -200,6 +200,21 @@ def test_joint_count_mismatch_refused(tmp_path, invoke, robot_path, n_robot):
     assert not (tmp_path / "x.parquet").exists()
 
 
+@pytest.mark.parametrize("header, n, extra, missing", [
+    (["point_id", "q1", "q2", "q4"], 3, ["q4"], ["q3"]),
+    (["point_id", "set", "q1", "q2", "q3", "q4", "q5", "q6", "q7"], 6, ["q7"], []),
+    (["q1", "q2", "q3", "q4", "dir1", "dir5", "q0", "q1_corrected", "x_mm"], 4, ["dir5", "q0"], []),
+    (["point_id", "q1", "q2", "q3", "q4", "q5", "q6", "dir1", "dir6"], 6, [], []),
+])
+def test_find_joint_columns_names_the_missing_and_the_extra(header, n, extra, missing):
+    """The one finding behind the poses', the pool's and the targets' joint-count checks."""
+    from pipeline.core.tables import find_joint_columns
+
+    found = find_joint_columns(header, n)
+    assert (found.extra, found.missing) == (extra, missing)
+    assert found.q == [int(c[1:]) for c in header if re.fullmatch(r"q\d+", c)]
+
+
 def test_import_map_with_other_joint_count_refused(tmp_path, invoke):
     robot, poses, tracker, _ = _clean_campaign(tmp_path / "sim", PANDA, None)
     source, mp = _export(tmp_path, robot, poses, tracker)

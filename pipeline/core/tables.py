@@ -7,6 +7,8 @@ Readers collect *all* problems (``jointcal validate`` lists them); stages raise 
 from __future__ import annotations
 
 import difflib
+import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,56 @@ class Problems(list):
     def raise_first(self):
         if self:
             raise self[0]
+
+
+_JOINT_COLUMN = re.compile(r"(q|dir)(\d+)")
+
+
+@dataclass(frozen=True)
+class JointColumns:
+    """The joint columns (``q<k>``, ``dir<k>``) of a table's header against a robot's ``n`` joints.
+
+    Attributes
+    ----------
+    q : list of int
+        ``k`` of every ``q<k>`` column, in header order (a column given twice counts twice).
+    extra : list of str
+        The ``q<k>`` and ``dir<k>`` columns naming no joint ``1 … n``, in header order.
+    missing : list of str
+        The columns ``q1 … qn`` the header lacks, in joint order.
+    """
+
+    q: list
+    extra: list
+    missing: list
+
+    @property
+    def in_order(self) -> bool:
+        """The ``q`` columns are exactly ``q1 … qn`` for ``n = len(q)`` (whatever the robot's count)."""
+        return sorted(self.q) == list(range(1, len(self.q) + 1))
+
+
+def find_joint_columns(header, n: int) -> JointColumns:
+    """Which joint columns of ``header`` (stripped column names) are missing or in excess for a robot of
+    ``n`` joints: the one finding behind each reader's joint-count check (the poses, the pool, the
+    targets; each words its own refusal).
+
+    Examples
+    --------
+    >>> find_joint_columns(["point_id", "q1", "q2", "q4"], 3)
+    JointColumns(q=[1, 2, 4], extra=['q4'], missing=['q3'])
+    """
+    q, extra = [], []
+    for c in header:
+        m = _JOINT_COLUMN.fullmatch(c)
+        if m is None:
+            continue
+        k = int(m.group(2))
+        if m.group(1) == "q":
+            q.append(k)
+        if not 1 <= k <= n:
+            extra.append(c)
+    return JointColumns(q, extra, [f"q{k}" for k in range(1, n + 1) if k not in q])
 
 
 def read_table(path, required: dict, optional: dict | None = None, problems: Problems | None = None):

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import csv
 import io
-import re
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..core.files import read_text_input
+from ..core.tables import find_joint_columns
 
 
 @dataclass
@@ -39,11 +39,12 @@ def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") ->
     if not rows or not any(c.strip() for c in rows[0]):
         raise InputError(path, "empty file: a pool needs a header point_id, q1 … qN and one row per pose", 1, None)
     header = [c.strip() for c in rows[0]]
-    qcols = sorted((int(m.group(1)) for c in header if (m := re.fullmatch(r"q(\d+)", c))))
+    joints = find_joint_columns(header, n_joints)
+    qcols = sorted(joints.q)
     if "point_id" not in header:
         raise InputError(path, "no point_id column (a pool has point_id, q1 … qN, optional payload_kg)", 1, "point_id")
-    if len(qcols) != n_joints or qcols != list(range(1, len(qcols) + 1)):
-        found = f"q1 … q{len(qcols)}" if qcols == list(range(1, len(qcols) + 1)) else ", ".join(f"q{k}" for k in qcols)
+    if len(qcols) != n_joints or not joints.in_order:
+        found = f"q1 … q{len(qcols)}" if joints.in_order else ", ".join(f"q{k}" for k in qcols)
         raise InputError(path, f"the pool has {len(qcols)} joint columns ({found or 'none'}) but the robot has "
                          f"{n_joints} joints (q1 … q{n_joints})", 1,
                          f"q{n_joints + 1}" if len(qcols) > n_joints else f"q{len(qcols) + 1}")

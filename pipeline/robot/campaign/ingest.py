@@ -39,7 +39,7 @@ import pandas as pd
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import read_text_input
-from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, read_table
+from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, find_joint_columns, read_table
 from . import frame as rf
 from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData
 from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, load_robot, positions
@@ -160,9 +160,6 @@ def load_robot_campaign(folder, problems: Problems | None = None):
     return robot, poses, tracker
 
 
-_JOINT_COLUMN = re.compile(r"^(?:q|dir)(\d+)$")
-
-
 def _header(path) -> list[str]:
     try:
         with open(path, encoding="utf-8", newline="") as fh:
@@ -176,8 +173,7 @@ def _header(path) -> list[str]:
 
 def _header_joint_count(path) -> int:
     """Highest k of the q<k> columns in a CSV header (0 when none)."""
-    ks = [int(m.group(1)) for c in _header(path) if (m := re.match(r"^q(\d+)$", c))]
-    return max(ks, default=0)
+    return max(find_joint_columns(_header(path), 0).q, default=0)
 
 
 def check_joint_columns(path, n: int, robot_name: str, problems: Problems | None = None) -> bool:
@@ -185,12 +181,13 @@ def check_joint_columns(path, n: int, robot_name: str, problems: Problems | None
 
     One located problem naming both counts (header line, the first column in excess, or the
     first missing q<k>); True when the header is fine (or unreadable: the table reader says why).
+    The finding is :func:`pipeline.core.tables.find_joint_columns`'s.
     """
     header = _header(path)
     if not header:
         return True
-    qs = [int(m.group(1)) for c in header if (m := re.match(r"^q(\d+)$", c))]
-    extra = [c for c in header if (m := _JOINT_COLUMN.match(c)) and not 1 <= int(m.group(1)) <= n]
+    joints = find_joint_columns(header, n)
+    qs, extra = joints.q, joints.extra
     found = max(qs, default=0)
     if extra or (qs and found < n):
         column = extra[0] if extra else f"q{found + 1}"

@@ -6,7 +6,9 @@ Readers collect *all* problems (``jointcal validate`` lists them); stages raise 
 
 from __future__ import annotations
 
+import csv
 import difflib
+import io
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,6 +81,41 @@ def find_joint_columns(header, n: int) -> JointColumns:
         if not 1 <= k <= n:
             extra.append(c)
     return JointColumns(q, extra, [f"q{k}" for k in range(1, n + 1) if k not in q])
+
+
+def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str]]]]:
+    """The records of a CSV text with their file lines: the one row reader of the contract tables.
+
+    Parameters
+    ----------
+    text : str
+        The file's text (newlines translated).
+
+    Returns
+    -------
+    header : list of str or None
+        The first record that is not blank, its names stripped (None: no such record).
+    header_line : int
+        Its 1-based line (0 without a header).
+    rows : list of (int, list of str)
+        Every later record that is not blank (a blank record: no field with more than white
+        space), with its 1-based line; fields as written (a field after a comma may start
+        with spaces, which are dropped).
+    """
+    header, header_line, rows = None, 0, []
+    for line, record in enumerate(csv.reader(io.StringIO(text), skipinitialspace=True), start=1):
+        if not record or not any(c.strip() for c in record):
+            continue
+        if header is None:
+            header, header_line = [c.strip() for c in record], line
+        else:
+            rows.append((line, record))
+    return header, header_line, rows
+
+
+def fields_problem(header, record) -> str:
+    """What is wrong with a record that has not one field per column of the header ('' when it has)."""
+    return f"{len(record)} fields, the header has {len(header)}" if len(record) != len(header) else ""
 
 
 def read_table(path, required: dict, optional: dict | None = None, problems: Problems | None = None):

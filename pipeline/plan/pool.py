@@ -3,15 +3,13 @@ and the plan written as the start of a ``poses.csv``."""
 
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..core.files import read_text_input
-from ..core.tables import find_joint_columns
+from ..core.tables import csv_rows, fields_problem, find_joint_columns
 
 
 @dataclass
@@ -35,10 +33,9 @@ class Pool:
 def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") -> Pool:
     """Read a pool CSV (``point_id, q1 … qN``, optional ``payload_kg``); bad input raises InputError
     naming the line (the header is line 1) and the column."""
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows or not any(c.strip() for c in rows[0]):
+    header, header_line, rows = csv_rows(text)
+    if header is None or header_line != 1:
         raise InputError(path, "empty file: a pool needs a header point_id, q1 … qN and one row per pose", 1, None)
-    header = [c.strip() for c in rows[0]]
     joints = find_joint_columns(header, n_joints)
     qcols = sorted(joints.q)
     if "point_id" not in header:
@@ -55,11 +52,10 @@ def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") ->
     has_payload = "payload_kg" in col
     ids, Q, pay, seen = [], [], [], {}
     lower, upper = np.asarray(lower_deg, float), np.asarray(upper_deg, float)
-    for ln, row in enumerate(rows[1:], start=2):
-        if not row or not any(c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise InputError(path, f"{len(row)} fields, the header has {len(header)}", ln, None)
+    for ln, row in rows:
+        ragged = fields_problem(header, row)
+        if ragged:
+            raise InputError(path, ragged, ln, None)
         pid = row[col["point_id"]].strip()
         if not pid:
             raise InputError(path, "empty point_id", ln, "point_id")

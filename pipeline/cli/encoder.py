@@ -6,7 +6,6 @@ Library imports are inside the commands: see :mod:`pipeline.cli.common` (start-u
 
 from __future__ import annotations
 
-import io
 import sys
 from pathlib import Path
 
@@ -184,32 +183,29 @@ def correct(model_path, input_path, column, output_path):
     """
     import pandas as pd
 
-    from ..core.files import write_csv
-    from ..core.tables import FLOAT, read_table
+    from ..core.files import read_text_input, write_csv
+    from ..core.tables import FLOAT, read_table, text_table
     from ..encoder.compensate import correct_readings
     from ..encoder.evaluate import model_from_result
 
     model = model_from_result(read_json(model_path))
     if input_path == "-":
-        text = sys.stdin.read()
         tmp_name = "<stdin>"
-        buf = io.StringIO(text)
-        try:
-            raw = pd.read_csv(buf, dtype=str, keep_default_na=False)
-        except pd.errors.EmptyDataError:
+        table = text_table(sys.stdin.read(), tmp_name)
+        if table is None:
             raise InputError(tmp_name, "no input on standard input", 1, None) from None
+        raw, lines = table
         if column not in raw.columns:
             raise InputError(tmp_name, f"missing column '{column}'", 1, column)
         values = pd.to_numeric(raw[column], errors="coerce")
         if values.isna().any() or not values.map(lambda v: abs(v) < float("inf")).all():
             i = int(values.isna().to_numpy().argmax())
-            raise InputError(tmp_name, f"'{raw[column].iloc[i]}' is not a finite number", i + 2, column)
+            raise InputError(tmp_name, f"'{raw[column].iloc[i]}' is not a finite number", int(lines[i]), column)
         frame = raw
         readings = values.to_numpy(float)
     else:
-        frame = read_table(input_path, {column: FLOAT})
-        readings = frame[column].to_numpy(float)
-        frame = pd.read_csv(input_path, dtype=str, keep_default_na=False)
+        readings = read_table(input_path, {column: FLOAT})[column].to_numpy(float)
+        frame = text_table(read_text_input(input_path, "input"), input_path)[0]
     corrected, correction = correct_readings(model, readings)
     frame = frame.copy()
     frame["corrected_deg"] = [f"{v:.7f}" for v in corrected]

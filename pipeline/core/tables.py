@@ -89,7 +89,7 @@ def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str
     Parameters
     ----------
     text : str
-        The file's text (newlines translated).
+        The file's text (newlines translated; a leading byte-order mark is dropped).
 
     Returns
     -------
@@ -103,6 +103,7 @@ def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str
         with spaces, which are dropped).
     """
     header, header_line, rows = None, 0, []
+    text = text[1:] if text.startswith("\ufeff") else text
     for line, record in enumerate(csv.reader(io.StringIO(text), skipinitialspace=True), start=1):
         if not record or not any(c.strip() for c in record):
             continue
@@ -116,6 +117,32 @@ def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str
 def fields_problem(header, record) -> str:
     """What is wrong with a record that has not one field per column of the header ('' when it has)."""
     return f"{len(record)} fields, the header has {len(header)}" if len(record) != len(header) else ""
+
+
+def text_table(text: str, path) -> tuple[pd.DataFrame, np.ndarray] | None:
+    """Every column of a CSV text as written (str, names stripped), blank rows left out, and each
+    row's 1-based file line, shape (n,); None without a header. A row with the wrong number of
+    fields raises InputError at its line. For a table passed through as it is (``jointcal correct``
+    of encoder readings); a table of declared columns is :func:`read_table`'s."""
+    header, _, rows = csv_rows(text)
+    if header is None:
+        return None
+    for line, record in rows:
+        problem = fields_problem(header, record)
+        if problem:
+            raise InputError(path, problem, line, None)
+    return (pd.DataFrame([r for _, r in rows], columns=header, dtype=str),
+            np.array([line for line, _ in rows], int))
+
+
+def csv_header(path) -> list[str]:
+    """The header of a CSV file (names stripped); [] when it cannot be read or has none (the
+    table's reader then says why)."""
+    try:
+        header = csv_rows(Path(path).read_text(encoding="utf-8-sig"))[0]
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []
+    return header or []
 
 
 def read_table(path, required: dict, optional: dict | None = None, problems: Problems | None = None):
@@ -141,24 +168,28 @@ def read_table(path, required: dict, optional: dict | None = None, problems: Pro
     path = Path(path)
     start = len(problems)
     try:
-        raw = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-    except pd.errors.EmptyDataError:
-        problems.add(path, "file is empty; expected a header line with columns " + ", ".join(required), 1, None)
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        header, _, rows = csv_rows(path.read_text(encoding="utf-8-sig"))
+    except (UnicodeDecodeError, csv.Error) as exc:
         problems.add(path, f"not a readable CSV file ({' '.join(str(exc).split())})", None, None)
     else:
-        raw.columns = [c.strip() for c in raw.columns]
-        frame = _check_columns(path, raw, required, optional, problems)
-        if frame is not None and len(problems) == start:
-            if own:
-                problems.raise_first()
-            return frame
+        ragged = next(((line, fields_problem(header, r)) for line, r in rows if fields_problem(header, r)), None)
+        if header is None:
+            problems.add(path, "file is empty; expected a header line with columns " + ", ".join(required), 1, None)
+        elif ragged:
+            problems.add(path, ragged[1], ragged[0], None)
+        else:
+            raw = pd.DataFrame([r for _, r in rows], columns=header, dtype=str)
+            frame = _check_columns(path, raw, np.array([line for line, _ in rows], int), required, optional, problems)
+            if frame is not None and len(problems) == start:
+                if own:
+                    problems.raise_first()
+                return frame
     if own:
         problems.raise_first()
     return None
 
 
-def _check_columns(path, raw, required, optional, problems):
+def _check_columns(path, raw, lines, required, optional, problems):
     known = {**required, **optional}
     for col in required:
         if col not in raw.columns:
@@ -173,28 +204,28 @@ def _check_columns(path, raw, required, optional, problems):
     if len(raw) == 0:
         problems.add(path, "header only, no data rows", 1, None)
         return None
-    out = pd.DataFrame({"_line": np.arange(2, len(raw) + 2)})
+    out = pd.DataFrame({"_line": lines})
     for col, kind in known.items():
         if col not in raw.columns:
             continue
-        out[col] = _convert(path, raw[col], col, kind, problems, optional=col in optional)
+        out[col] = _convert(path, raw[col], lines, col, kind, problems, optional=col in optional)
     return out
 
 
-def _convert(path, series, col, kind, problems, optional):
+def _convert(path, series, lines, col, kind, problems, optional):
     text = series.str.strip()
     blank = text == ""
     if kind == STR:
         if not optional and blank.any():
             i = int(np.argmax(blank.to_numpy()))
-            problems.add(path, f"empty value; '{col}' is required", i + 2, col)
+            problems.add(path, f"empty value; '{col}' is required", int(lines[i]), col)
         return text
     if kind == TIME:
         values = pd.to_datetime(text.where(~blank), errors="coerce", utc=True, format="ISO8601")
         bad = values.isna() & ~blank
         if bad.any():
             i = int(np.argmax(bad.to_numpy()))
-            problems.add(path, f"'{series.iloc[i]}' is not an ISO-8601 time", i + 2, col)
+            problems.add(path, f"'{series.iloc[i]}' is not an ISO-8601 time", int(lines[i]), col)
         return values
     values = pd.to_numeric(text.where(~blank), errors="coerce")
     bad_text = values.isna() & ~blank
@@ -202,25 +233,25 @@ def _convert(path, series, col, kind, problems, optional):
         i = int(np.argmax(bad_text.to_numpy()))
         low = series.iloc[i].strip().lower()
         what = "NaN" if low in ("nan", "-nan", "+nan") else f"'{series.iloc[i]}' is not a number"
-        problems.add(path, f"{what}; expected a finite {'integer' if kind in (INT, SIGN) else 'number'}", i + 2, col)
+        problems.add(path, f"{what}; expected a finite {'integer' if kind in (INT, SIGN) else 'number'}", int(lines[i]), col)
     arr = values.to_numpy(dtype=float)
     nonfinite = ~np.isfinite(arr) & ~values.isna().to_numpy()
     if nonfinite.any():
         i = int(np.argmax(nonfinite))
-        problems.add(path, f"'{series.iloc[i]}' is not finite; expected a finite number", i + 2, col)
+        problems.add(path, f"'{series.iloc[i]}' is not finite; expected a finite number", int(lines[i]), col)
     if blank.any() and not optional:
         i = int(np.argmax(blank.to_numpy()))
-        problems.add(path, f"empty value; '{col}' is required", i + 2, col)
+        problems.add(path, f"empty value; '{col}' is required", int(lines[i]), col)
     if kind in (INT, SIGN):
         ok = np.isfinite(arr)
         finite = np.where(ok, arr, 0.0)  # inf - round(inf) would warn on stderr beside the one error line
         frac = ok & (np.abs(finite - np.round(finite)) > 1e-9)
         if frac.any():
             i = int(np.argmax(frac))
-            problems.add(path, f"'{series.iloc[i]}' is not an integer", i + 2, col)
+            problems.add(path, f"'{series.iloc[i]}' is not an integer", int(lines[i]), col)
         if kind == SIGN:
             badsign = ok & ~np.isin(arr, (-1.0, 1.0))
             if badsign.any():
                 i = int(np.argmax(badsign))
-                problems.add(path, f"'{series.iloc[i]}' must be +1 or -1", i + 2, col)
+                problems.add(path, f"'{series.iloc[i]}' must be +1 or -1", int(lines[i]), col)
     return arr

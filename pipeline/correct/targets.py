@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.tables import FLOAT, SIGN, STR, find_joint_columns, read_table
+from ..core.tables import FLOAT, SIGN, STR, csv_header, find_joint_columns, read_table
 from ..core.units import REFERENCE_TEMPERATURE_C
 
 #: A point to reach this far (mm) from the nominal kinematics of its own joint values is not the same
@@ -47,13 +47,11 @@ def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: floa
         Payload of a row without ``payload_kg`` (``jointcal correct``: the payload the model was
         fitted at, when it was one).
     """
-    import pandas as pd
-
     qcols = [f"q{j}" for j in range(1, n_joints + 1)]
     optional = {"x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT, "payload_kg": FLOAT, "temperature_c": FLOAT,
                 **{f"dir{j}": SIGN for j in range(1, n_joints + 1)}}
     frame = read_table(path, {"point_id": STR, **{c: FLOAT for c in qcols}}, optional)
-    header = list(pd.read_csv(path, nrows=0, dtype=str).columns.str.strip())
+    header = csv_header(path)
     extra = [c for c in find_joint_columns(header, n_joints).extra if c.startswith("q") and int(c[1:]) > n_joints]
     if extra:
         raise InputError(path, f"column '{extra[0]}': the model's robot has {n_joints} joints (q1 … q{n_joints})",

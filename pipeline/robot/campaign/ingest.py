@@ -39,7 +39,7 @@ import pandas as pd
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import read_text_input
-from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, find_joint_columns, read_table
+from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, csv_header, find_joint_columns, read_table
 from . import frame as rf
 from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData
 from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, load_robot, positions
@@ -160,20 +160,9 @@ def load_robot_campaign(folder, problems: Problems | None = None):
     return robot, poses, tracker
 
 
-def _header(path) -> list[str]:
-    try:
-        with open(path, encoding="utf-8", newline="") as fh:
-            first = fh.readline()
-    except (OSError, UnicodeDecodeError):
-        return []
-    import csv
-    row = next(csv.reader([first]), [])
-    return [c.strip() for c in row]
-
-
 def _header_joint_count(path) -> int:
     """Highest k of the q<k> columns in a CSV header (0 when none)."""
-    return max(find_joint_columns(_header(path), 0).q, default=0)
+    return max(find_joint_columns(csv_header(path), 0).q, default=0)
 
 
 def check_joint_columns(path, n: int, robot_name: str, problems: Problems | None = None) -> bool:
@@ -183,7 +172,7 @@ def check_joint_columns(path, n: int, robot_name: str, problems: Problems | None
     first missing q<k>); True when the header is fine (or unreadable: the table reader says why).
     The finding is :func:`pipeline.core.tables.find_joint_columns`'s.
     """
-    header = _header(path)
+    header = csv_header(path)
     if not header:
         return True
     joints = find_joint_columns(header, n)

@@ -32,14 +32,15 @@ frame, unit or robot is not a handful of outliers).
 
 from __future__ import annotations
 
+import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ...core.errors import InputError
 from ...core.spec import parse_spec
+from ...core.tables import text_table
 from ...core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
 
 #: Refits of the robust fit at most (it stops earlier when the set named no longer changes).
@@ -129,10 +130,12 @@ def tracker_lines(campaign) -> dict:
     """point_id -> line of its row in the campaign's tracker.csv (the header is line 1)."""
     path = Path(campaign) / "tracker.csv"
     try:
-        ids = pd.read_csv(path, dtype=str, usecols=["point_id"], skipinitialspace=True)["point_id"].str.strip()
-    except (OSError, ValueError):
+        table = text_table(path.read_text(encoding="utf-8-sig"), path)
+    except (OSError, ValueError, InputError, csv.Error):
         return {}
-    return {p: k + 2 for k, p in enumerate(ids)}
+    if table is None or "point_id" not in table[0]:
+        return {}
+    return {p: int(line) for p, line in zip(table[0]["point_id"].str.strip(), table[1])}
 
 
 def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False) -> Wild:

@@ -255,23 +255,6 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
 
 
 # ------------------------------------------------------------------------------ simulate measure
-def _measure_robot(truth_path, campaign, robot_path):
-    """The cell's nominal robot: --robot, else the truth's own (robot_toml), else the campaign folder's,
-    else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml)."""
-    from ..robot.arm.kinematics import load_robot, parse_robot
-
-    if robot_path:
-        return load_robot(robot_path)
-    truth = read_json(truth_path)
-    if isinstance(truth, dict) and isinstance(truth.get("robot_toml"), str):
-        return parse_robot(truth["robot_toml"], f"{truth_path} (robot_toml)")
-    for cand in (Path(campaign) / "robot.toml",
-                 Path(truth_path).parent.parent.parent / "robot" / Path(truth_path).stem / "robot.toml"):
-        if cand.is_file():
-            return load_robot(cand)
-    raise InputError(truth_path, "the truth does not name its robot: give the cell's robot.toml with --robot", 1, 1)
-
-
 @click.command("measure")
 @click.option("--truth", "truth_path", default="raw/truth/robot/kr210.json", show_default=True,
               type=click.Path(dir_okay=False), help="Truth of the virtual cell, as `jointcal simulate robot` wrote it.")
@@ -310,9 +293,7 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
     \b
       jointcal simulate measure --poses corrected.csv --campaign /tmp/check
     """
-    import numpy as np
-
-    from ..core.tables import FLOAT, SIGN, STR, read_table
+    from ..robot.cell.measure import measure_cell, read_commanded_poses
 
     if bool(poses_path) == bool(program_path):
         raise click.UsageError("give --poses FILE or --program FILE (one of them)")
@@ -320,54 +301,15 @@ def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop,
         return _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_text, base_text, payload_kg,
                                 closed_loop)
     _need_file(poses_path, "the commanded poses: point_id, q1 … qN")
-    robot, cell = _measure_cell(truth_path, campaign, robot_path)
-    nj = len(robot.joints)
-    qcols = [f"q{j}" for j in range(1, nj + 1)]
-    frame = read_table(poses_path, {"point_id": STR, **{c: FLOAT for c in qcols}},
-                       {"payload_kg": FLOAT, "temperature_c": FLOAT, "set": STR,
-                        **{f"dir{j}": SIGN for j in range(1, nj + 1)}})
-    lines = frame["_line"].to_numpy(int)
-    dup = frame["point_id"].duplicated().to_numpy()
-    if dup.any():
-        k = int(np.argmax(dup))
-        raise InputError(poses_path, f"point_id '{frame['point_id'].iloc[k]}' appears twice", lines[k], "point_id")
-    sets = frame["set"].replace("", "target").to_numpy(str) if "set" in frame else np.full(len(frame), "target")
-    bad = ~np.isin(sets, ("sample", "target", "repeat"))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError(poses_path, f"set '{sets[k]}' must be sample, target or repeat", lines[k], "set")
-    q = frame[qcols].to_numpy(float)
-    out = np.any((q < robot.lower_deg) | (q > robot.upper_deg), axis=1)
-    if out.any():
-        k = int(np.argmax(out))
-        j = int(np.argmax((q[k] < robot.lower_deg) | (q[k] > robot.upper_deg)))
-        raise InputError(poses_path, f"q{j + 1} = {q[k, j]:g} deg is beyond the robot's joint range "
-                         f"({robot.lower_deg[j]:g} to {robot.upper_deg[j]:g} deg): the cell cannot go there",
-                         lines[k], f"q{j + 1}")
-    dcols = [f"dir{j}" for j in range(1, nj + 1)]
-    dirs = None
-    if all(c in frame for c in dcols) and not frame[dcols].isna().any().any():
-        dirs = frame[dcols].to_numpy(int)
-    payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
-    temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
-    closed = _write_measured(campaign, robot, cell, frame["point_id"].to_numpy(str), sets, q, dirs, payload, temp, seed,
-                             closed_loop)
+    robot, cell = measure_cell(truth_path, campaign, robot_path)
+    p = read_commanded_poses(poses_path, robot)
+    q, sets = p["q_deg"], p["set"]
+    closed = _write_measured(campaign, robot, cell, p["point_id"], sets, q, p["dirs"], p["payload_kg"],
+                             p["temperature_c"], seed, closed_loop)
     loop = (f"joints {' '.join(map(str, closed))} closed loop on their gratings, the others open loop" if closed
             else "every joint open loop")
     click.echo(f"{campaign}: measured {len(q)} poses on the cell of {truth_path} "
                f"({int((sets == 'sample').sum())} sample, {int((sets == 'target').sum())} target; {loop})", err=True)
-
-
-def _measure_cell(truth_path, campaign, robot_path):
-    """The nominal robot and the virtual cell its truth describes (see :func:`_measure_robot`)."""
-    from ..robot.cell.measure import cell_from_truth
-
-    robot = _measure_robot(truth_path, campaign, robot_path)
-    try:
-        return robot, cell_from_truth(robot, read_json(truth_path))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
-                         f"{exc}", 1, 1) from None
 
 
 def _write_measured(campaign, robot, cell, point_id, sets, q, dirs, payload, temp, seed, closed_loop) -> list[int]:
@@ -395,9 +337,10 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
 
     from ..programs.filtering import play
     from ..programs.io import read_program
+    from ..robot.cell.measure import measure_cell
 
     _need_file(program_path, "the robot program")
-    robot, cell = _measure_cell(truth_path, campaign, robot_path)
+    robot, cell = measure_cell(truth_path, campaign, robot_path)
     program = read_program(program_path)
     played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
                   _frame_option(base_text, "--base", program.format))

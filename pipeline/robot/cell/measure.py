@@ -13,11 +13,16 @@ A simulator, not the pipeline: it reads the truth. The cell is rebuilt from the 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
+from ...core.errors import InputError
+from ...core.files import read_json_input
+from ...core.tables import FLOAT, SIGN, STR, read_table
 from ...core.units import REFERENCE_TEMPERATURE_C
-from ..arm.kinematics import Robot, directions_from_sequence
+from ..arm.kinematics import Robot, directions_from_sequence, load_robot, parse_robot
 from .simulate import VirtualCell, rng_for
 
 #: the generator's stream for measuring given programs (simulate.py uses 1-4)
@@ -129,3 +134,76 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
         tracker[c] = [f"{v:.6f}" for v in np.asarray(xyz_mm)[:, k]]
     tracker["sigma_mm"] = f"{sigma_mm:g}"
     return poses.to_csv(index=False, lineterminator="\n"), tracker.to_csv(index=False, lineterminator="\n")
+
+
+# ------------------------------------------------------------------------ the command's inputs
+_HINT = "run the stage that makes it first, or `make all`"
+
+
+def measure_robot(truth_path, campaign, robot_path=None) -> Robot:
+    """The cell's nominal robot: ``robot_path``, else the truth's own (``robot_toml``), else the
+    campaign folder's robot.toml, else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml)."""
+    if robot_path:
+        return load_robot(robot_path)
+    truth = read_json_input(truth_path, _HINT)
+    if isinstance(truth, dict) and isinstance(truth.get("robot_toml"), str):
+        return parse_robot(truth["robot_toml"], f"{truth_path} (robot_toml)")
+    for cand in (Path(campaign) / "robot.toml",
+                 Path(truth_path).parent.parent.parent / "robot" / Path(truth_path).stem / "robot.toml"):
+        if cand.is_file():
+            return load_robot(cand)
+    raise InputError(truth_path, "the truth does not name its robot: give the cell's robot.toml with --robot", 1, 1)
+
+
+def measure_cell(truth_path, campaign, robot_path=None) -> tuple[Robot, VirtualCell]:
+    """The nominal robot (:func:`measure_robot`) and the virtual cell its truth file describes; a file
+    that is not such a truth is bad input."""
+    robot = measure_robot(truth_path, campaign, robot_path)
+    try:
+        return robot, cell_from_truth(robot, read_json_input(truth_path, _HINT))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
+                         f"{exc}", 1, 1) from None
+
+
+def read_commanded_poses(path, robot: Robot) -> dict:
+    """The commanded poses of ``jointcal simulate measure --poses``, read and checked (one located line
+    for the first problem: a point_id twice, an unknown set, a joint beyond the robot's range).
+
+    Returns
+    -------
+    dict: ``point_id`` (n,) str, ``set`` (n,) str (``target`` where empty), ``q_deg`` (n, N) deg,
+    ``dirs`` (n, N) +1/-1 or None (from the visiting order), ``payload_kg`` (n,) kg (0 where empty),
+    ``temperature_c`` (n,) degC (20 where empty).
+    """
+    nj = len(robot.joints)
+    qcols = [f"q{j}" for j in range(1, nj + 1)]
+    frame = read_table(path, {"point_id": STR, **{c: FLOAT for c in qcols}},
+                       {"payload_kg": FLOAT, "temperature_c": FLOAT, "set": STR,
+                        **{f"dir{j}": SIGN for j in range(1, nj + 1)}})
+    lines = frame["_line"].to_numpy(int)
+    dup = frame["point_id"].duplicated().to_numpy()
+    if dup.any():
+        k = int(np.argmax(dup))
+        raise InputError(path, f"point_id '{frame['point_id'].iloc[k]}' appears twice", lines[k], "point_id")
+    sets = frame["set"].replace("", "target").to_numpy(str) if "set" in frame else np.full(len(frame), "target")
+    bad = ~np.isin(sets, ("sample", "target", "repeat"))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(path, f"set '{sets[k]}' must be sample, target or repeat", lines[k], "set")
+    q = frame[qcols].to_numpy(float)
+    out = np.any((q < robot.lower_deg) | (q > robot.upper_deg), axis=1)
+    if out.any():
+        k = int(np.argmax(out))
+        j = int(np.argmax((q[k] < robot.lower_deg) | (q[k] > robot.upper_deg)))
+        raise InputError(path, f"q{j + 1} = {q[k, j]:g} deg is beyond the robot's joint range "
+                         f"({robot.lower_deg[j]:g} to {robot.upper_deg[j]:g} deg): the cell cannot go there",
+                         lines[k], f"q{j + 1}")
+    dcols = [f"dir{j}" for j in range(1, nj + 1)]
+    dirs = None
+    if all(c in frame for c in dcols) and not frame[dcols].isna().any().any():
+        dirs = frame[dcols].to_numpy(int)
+    payload = frame["payload_kg"].fillna(0.0).to_numpy(float) if "payload_kg" in frame else np.zeros(len(q))
+    temp = frame["temperature_c"].fillna(20.0).to_numpy(float) if "temperature_c" in frame else np.full(len(q), 20.0)
+    return {"point_id": frame["point_id"].to_numpy(str), "set": sets, "q_deg": q, "dirs": dirs, "payload_kg": payload,
+            "temperature_c": temp}

@@ -334,6 +334,33 @@ def test_bad_source(invoke, tmp_path, case):
     assert text in r.stderr, r.stderr
 
 
+def _degrees(lines):
+    head = lines[0].split(";")
+    ix = [head.index(c) for c in JOINTS]
+    for k in range(1, len(lines)):
+        parts = lines[k].split(";")
+        for i in ix:
+            parts[i] = f"{np.rad2deg(float(parts[i].replace(',', '.'))):.6f}".replace(".", ",")
+        lines[k] = ";".join(parts)
+    return lines
+
+
+def test_degrees_labelled_radians_name_the_unit_line_and_one_wild_value_does_not(invoke, tmp_path):
+    # every joint value in degrees while the map says rad: most poses beyond the UR10's +-360 deg,
+    # all of them inside in degrees -> the map's unit is named as the fix
+    src = _small_source(tmp_path, edit=_degrees)
+    out = tmp_path / "out"
+    r = invoke("import", "--source", src, "--map", MAP, "--robot", ROBOT, "--out", out)
+    m = _fails(r, out)
+    assert m["file"] == str(src) and "range" in r.stderr, r.stderr
+    assert 'every one is inside them in deg: set [joints] unit = "deg"' in r.stderr, r.stderr
+    # one value out of range in radians data: no unit hint (as degrees it would fit, but the others are radians)
+    src = _small_source(tmp_path, edit=lambda ls: _cell(ls, 5, 8, "7,5"))
+    r = invoke("import", "--source", src, "--map", MAP, "--robot", ROBOT, "--out", out)
+    _fails(r, out)
+    assert "unit" not in r.stderr, r.stderr
+
+
 def test_metres_far_from_the_tracker(invoke, tmp_path):
     """Metres labelled mm beyond 5 m still show: the nominal fits them only as metres."""
     def far(lines):

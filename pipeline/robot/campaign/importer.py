@@ -554,22 +554,34 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
 
 
 def check_limits(camp: Campaign, imap: ImportMap, robot, source: Source) -> None:
-    """Joint angles outside robot.toml's ranges, named at the source line and column."""
+    """Joint angles outside robot.toml's ranges, named at the source line and column.
+
+    When most poses are outside the ranges in the map's joint unit and every pose is inside them in
+    the other one (degrees labelled radians, or radians labelled degrees), the message names the
+    map's unit line as the likely fix; a single wild value gets no such hint.
+    """
+    lo, hi = np.asarray(robot.lower_deg, float), np.asarray(robot.upper_deg, float)
+
+    def outside(q_deg):
+        return np.isfinite(q_deg) & ((q_deg < lo - 1e-6) | (q_deg > hi + 1e-6))
+
+    other = {"deg": "rad", "rad": "deg"}[imap.joint_unit]
+    as_other = camp.q_deg / JOINT_UNITS[imap.joint_unit] * JOINT_UNITS[other]
+    beyond = outside(camp.q_deg)
+    poses_out = beyond.any(axis=1)
+    hint = ""
+    if poses_out.mean() > 0.5 and not outside(as_other).any():
+        hint = (f"; {int(poses_out.sum())} of {len(poses_out)} poses are outside the joint ranges in {imap.joint_unit} "
+                f"and every one is inside them in {other}: set [joints] unit = \"{other}\"")
     for j in range(robot.n_joints):
-        q = camp.q_deg[:, j]
-        lo, hi = robot.lower_deg[j], robot.upper_deg[j]
-        out = (q < lo - 1e-6) | (q > hi + 1e-6)
+        out = beyond[:, j]
         if out.any():
             i = int(np.argmax(out))
-            raw = q[i] / JOINT_UNITS[imap.joint_unit]
-            hint = ""
-            if imap.joint_unit == "deg" and lo <= np.rad2deg(raw) <= hi:
-                hint = "; as radians it would fit: [joints] unit = \"rad\"?"
-            elif imap.joint_unit == "rad" and lo <= raw <= hi:
-                hint = "; as degrees it would fit: [joints] unit = \"deg\"?"
-            raise InputError(source.path, f"{raw:g} {imap.joint_unit} = {q[i]:g} deg is outside joint {j + 1}'s range "
-                             f"[{lo:g}, {hi:g}] deg of the robot ({Path(robot.path).name})", source.lines[i],
-                             imap.joint_columns[j])
+            q = camp.q_deg[i, j]
+            raw = q / JOINT_UNITS[imap.joint_unit]
+            raise InputError(source.path, f"{raw:g} {imap.joint_unit} = {q:g} deg is outside joint {j + 1}'s range "
+                             f"[{lo[j]:g}, {hi[j]:g}] deg of the robot ({Path(robot.path).name}){hint}",
+                             source.lines[i], imap.joint_columns[j])
 
 
 # ------------------------------------------------------------------ install (atomic)

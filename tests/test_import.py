@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import re
-import time
 from pathlib import Path
 
 import numpy as np
@@ -60,11 +59,8 @@ def _fails(result, out, name=None):
 # ------------------------------------------------------------------------- the real data
 def test_series_c_import(invoke, tmp_path):
     out = tmp_path / "ur10c"
-    t0 = time.perf_counter()
     result = invoke("import", "--source", SERIES_C, "--map", MAP, "--robot", ROBOT, "--out", out)
-    elapsed = time.perf_counter() - t0
-    assert result.exit_code == 0, result.output
-    assert elapsed < 2.0, elapsed
+    assert result.exit_code == 0, result.output     # its speed: `make bench` (bench/real_bench.py, import_seconds)
     assert sorted(p.name for p in out.iterdir()) == sorted(FILES)
     poses, tracker = _read(out)
     src = _source()

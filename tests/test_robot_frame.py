@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import shutil
-import time
 
 import numpy as np
 import pandas as pd
@@ -373,7 +372,8 @@ def test_real_robot_errors_pass_and_corruption_fails_in_library():
     assert not bad.ok and bad.hypothesis == "radians" and abs(bad.tried["radians"] - c.rms_mm) < 1e-6
 
 
-def test_check_is_fast():
+def test_every_hypothesis_is_tried_when_none_explains():
+    # its speed (goal 0.1 s clean, 1 s with every hypothesis) is measured by `make bench` (bench/real_bench.py)
     from pipeline.robot.arm.kinematics import build_model, load_robot
 
     robot = load_robot(KR210 / "robot.toml")
@@ -382,15 +382,9 @@ def test_check_is_fast():
     t = _csv(KR210 / "tracker.csv").set_index("point_id").loc[poses["point_id"], ["x_mm", "y_mm", "z_mm"]]
     meas = t.astype(float).to_numpy()
     model = build_model(robot)
-    rf.consistency(robot, q, meas, model=model)
-    t0 = time.perf_counter()
     assert rf.consistency(robot, q, meas, model=model).ok
-    clean = time.perf_counter() - t0
-    t0 = time.perf_counter()
     bad = rf.consistency(robot, -q, meas, model=model)     # no single cause: every hypothesis tried
     assert not bad.ok and not bad.hypothesis and len(bad.tried) == 1 + 1 + 6 + 15 + 1
-    worst = time.perf_counter() - t0
-    assert clean < 0.1 and worst < 1.0, (clean, worst)
 
 
 # ------------------------------------------------------------------ already ingested tables

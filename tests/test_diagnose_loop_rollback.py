@@ -74,3 +74,19 @@ def test_nothing_helps_alone_keeps_the_round_before(monkeypatch):
     assert [r["kept"] for r in out["rounds"]] == [True, False]
     assert out["final_round"] == 1 and _key(loop_mod.parse_spec(out["final_spec"]).effects) == ()
     assert "rolled back" in out["done"]
+
+
+def test_a_kept_round_that_raises_a_held_out_max_is_named():
+    from pipeline.diagnosis.loop import _flag_max_rises
+
+    def stats(rms, mx):
+        return {"rms_mm": rms, "max_mm": mx}
+
+    rounds = [{"round": 1, "kept": True, "own": stats(0.20, 0.90), "other": stats(0.80, 1.54)},
+              {"round": 2, "kept": False, "own": stats(0.30, 2.00), "other": stats(0.90, 3.00)},   # rolled back
+              {"round": 3, "kept": True, "own": stats(0.10, 0.80), "other": stats(0.75, 1.62)},
+              {"round": 4, "kept": True, "own": stats(0.09, 0.8005), "other": None}]
+    _flag_max_rises(rounds)
+    assert "max_rose" not in rounds[0] and "max_rose" not in rounds[1] and "max_rose" not in rounds[3]
+    assert rounds[2]["max_rose"] == ["the max error on the other series' targets rose from 1.540 to 1.620 mm "
+                                     "(RMS 0.800 -> 0.750 mm) since round 1"]

@@ -468,6 +468,9 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
         if r.get("own_with_outliers"):
             w = r["own_with_outliers"]
             click.echo(f"  with the wild targets: held-out RMS {w['rms_mm']:.3f} mm (max {w['max_mm']:.3f})", err=True)
+        for note in r.get("max_rose", []):
+            click.echo(f"  round {r['round']}: warning: {note}; the loop decides on the cross-validated RMS",
+                       err=True)
         if (r.get("swap") or {}).get("from"):
             click.echo(f"  round {r['round']}: swap {r['swap']['why']}", err=True)
         if r.get("rolled_back"):

@@ -261,9 +261,34 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
             best = added
         if best:
             text += "\n" + "\n\n".join(c["spec_line"] for c in best) + "\n"
+    _flag_max_rises(rounds)
     final = max((r for r in rounds if r.get("kept")), key=lambda r: r["round"])
     return {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
             "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}
+
+
+#: A held-out maximum that rises by more than this (mm) from one kept round to the next is named.
+MAX_RISE_MM = 0.001
+
+
+def _flag_max_rises(rounds: list[dict]) -> None:
+    """Name, in each kept round's ``max_rose``, the held-out maxima (own target poses, the other series)
+    that rose from the kept round before: the loop decides on the campaign's cross-validated RMS, so a
+    round can lower the RMS and still move some pose further off; the user should know."""
+    before = None
+    for r in rounds:
+        if not r.get("kept"):
+            continue
+        if before is not None:
+            notes = []
+            for key, what in (("own", "this series' held-out targets"), ("other", "the other series' targets")):
+                a, b = before.get(key), r.get(key)
+                if a and b and b["max_mm"] > a["max_mm"] + MAX_RISE_MM:
+                    notes.append(f"the max error on {what} rose from {a['max_mm']:.3f} to {b['max_mm']:.3f} mm "
+                                 f"(RMS {a['rms_mm']:.3f} -> {b['rms_mm']:.3f} mm) since round {before['round']}")
+            if notes:
+                r["max_rose"] = notes
+        before = r
 
 
 def _silent(message: str) -> None:

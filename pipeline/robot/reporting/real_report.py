@@ -261,6 +261,8 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                 sw = x.get("swap") or {}
                 if sw.get("from"):
                     lines += _wrap(f"round {x['round']}: swap {sw['why']}")
+                for note in x.get("max_rose", []):   # the loop decides on the cross-validated RMS alone
+                    lines += _wrap(f"round {x['round']}: {note}")
             for x in loop["rounds"]:
                 v = x.get("verified_set") or {}
                 if v.get("checked"):

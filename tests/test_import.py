@@ -252,15 +252,20 @@ def _cell(lines, row, col, value):
     return lines
 
 
-def _metres(lines):
+def _rewrite(lines, columns, fn, fmt):
+    """The source's lines with every value of ``columns`` replaced by ``fn(value)`` (decimal commas kept)."""
     head = lines[0].split(";")
-    ix = [head.index(c) for c in ("measurement_x", "measurement_y", "measurement_z")]
+    ix = [head.index(c) for c in columns]
     for k in range(1, len(lines)):
         parts = lines[k].split(";")
         for i in ix:
-            parts[i] = f"{float(parts[i].replace(',', '.')) / 1000:.9f}".replace(".", ",")
+            parts[i] = format(fn(float(parts[i].replace(',', '.'))), fmt).replace(".", ",")
         lines[k] = ";".join(parts)
     return lines
+
+
+def _metres(lines):
+    return _rewrite(lines, ("measurement_x", "measurement_y", "measurement_z"), lambda v: v / 1000, ".9f")
 
 
 BAD_MAPS = {
@@ -331,14 +336,7 @@ def test_bad_source(invoke, tmp_path, case):
 
 
 def _degrees(lines):
-    head = lines[0].split(";")
-    ix = [head.index(c) for c in JOINTS]
-    for k in range(1, len(lines)):
-        parts = lines[k].split(";")
-        for i in ix:
-            parts[i] = f"{np.rad2deg(float(parts[i].replace(',', '.'))):.6f}".replace(".", ",")
-        lines[k] = ";".join(parts)
-    return lines
+    return _rewrite(lines, JOINTS, np.rad2deg, ".6f")
 
 
 def test_degrees_labelled_radians_name_the_unit_line_and_one_wild_value_does_not(invoke, tmp_path):

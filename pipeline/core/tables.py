@@ -83,6 +83,11 @@ def find_joint_columns(header, n: int) -> JointColumns:
     return JointColumns(q, extra, [f"q{k}" for k in range(1, n + 1) if k not in q])
 
 
+def _filled(record) -> bool:
+    """A CSV record with a field of more than white space (others are blank lines, left out)."""
+    return bool(record) and bool("".join(record).strip())
+
+
 def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str]]]]:
     """The records of a CSV text with their file lines: the one row reader of the contract tables.
 
@@ -102,16 +107,13 @@ def csv_rows(text: str) -> tuple[list[str] | None, int, list[tuple[int, list[str
         space), with its 1-based line; fields as written (a field after a comma may start
         with spaces, which are dropped).
     """
-    header, header_line, rows = None, 0, []
     text = text[1:] if text.startswith("\ufeff") else text
-    for line, record in enumerate(csv.reader(io.StringIO(text), skipinitialspace=True), start=1):
-        if not record or not any(c.strip() for c in record):
-            continue
-        if header is None:
-            header, header_line = [c.strip() for c in record], line
-        else:
-            rows.append((line, record))
-    return header, header_line, rows
+    reader = csv.reader(io.StringIO(text), skipinitialspace=True)
+    records = [(line, record) for line, record in enumerate(reader, start=1) if _filled(record)]
+    if not records:
+        return None, 0, []
+    (header_line, header), rows = records[0], records[1:]
+    return [c.strip() for c in header], header_line, rows
 
 
 def fields_problem(header, record) -> str:
@@ -122,8 +124,8 @@ def fields_problem(header, record) -> str:
 def text_table(text: str, path) -> tuple[pd.DataFrame, np.ndarray] | None:
     """Every column of a CSV text as written (str, names stripped), blank rows left out, and each
     row's 1-based file line, shape (n,); None without a header. A row with the wrong number of
-    fields raises InputError at its line. For a table passed through as it is (``jointcal correct``
-    of encoder readings); a table of declared columns is :func:`read_table`'s."""
+    fields raises InputError at its line. The rows :func:`read_table` types, and a table passed
+    through as it is (``jointcal correct`` of encoder readings)."""
     header, _, rows = csv_rows(text)
     if header is None:
         return None
@@ -136,13 +138,14 @@ def text_table(text: str, path) -> tuple[pd.DataFrame, np.ndarray] | None:
 
 
 def csv_header(path) -> list[str]:
-    """The header of a CSV file (names stripped); [] when it cannot be read or has none (the
-    table's reader then says why)."""
+    """The header of a CSV file (names stripped; the file is read up to it); [] when it cannot be
+    read or has none (the table's reader then says why)."""
     try:
-        header = csv_rows(Path(path).read_text(encoding="utf-8-sig"))[0]
+        with open(path, encoding="utf-8-sig", newline="") as fh:
+            first = next((r for r in csv.reader(fh, skipinitialspace=True) if _filled(r)), None)
     except (OSError, UnicodeDecodeError, csv.Error):
         return []
-    return header or []
+    return [c.strip() for c in first] if first else []
 
 
 def read_table(path, required: dict, optional: dict | None = None, problems: Problems | None = None):
@@ -168,18 +171,16 @@ def read_table(path, required: dict, optional: dict | None = None, problems: Pro
     path = Path(path)
     start = len(problems)
     try:
-        header, _, rows = csv_rows(path.read_text(encoding="utf-8-sig"))
+        table = text_table(path.read_text(encoding="utf-8"), path)
     except (UnicodeDecodeError, csv.Error) as exc:
         problems.add(path, f"not a readable CSV file ({' '.join(str(exc).split())})", None, None)
+    except InputError as exc:           # a row with the wrong number of fields
+        problems.append(exc)
     else:
-        ragged = next(((line, fields_problem(header, r)) for line, r in rows if fields_problem(header, r)), None)
-        if header is None:
+        if table is None:
             problems.add(path, "file is empty; expected a header line with columns " + ", ".join(required), 1, None)
-        elif ragged:
-            problems.add(path, ragged[1], ragged[0], None)
         else:
-            raw = pd.DataFrame([r for _, r in rows], columns=header, dtype=str)
-            frame = _check_columns(path, raw, np.array([line for line, _ in rows], int), required, optional, problems)
+            frame = _check_columns(path, *table, required, optional, problems)
             if frame is not None and len(problems) == start:
                 if own:
                     problems.raise_first()

@@ -130,7 +130,7 @@ def tracker_lines(campaign) -> dict:
     """point_id -> line of its row in the campaign's tracker.csv (the header is line 1)."""
     path = Path(campaign) / "tracker.csv"
     try:
-        table = text_table(path.read_text(encoding="utf-8-sig"), path)
+        table = text_table(path.read_text(encoding="utf-8"), path)
     except (OSError, ValueError, InputError, csv.Error):
         return {}
     if table is None or "point_id" not in table[0]:

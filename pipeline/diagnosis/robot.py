@@ -219,7 +219,7 @@ class RobotAdapter:
         import time
 
         say = say or (lambda s: None)
-        lin = self.linear(base_effects, data)
+        self.linear(base_effects, data)     # the baseline fitted here, once: forked workers share it
         out, t0, last = [], time.perf_counter(), 0.0
         if self.workers > 1 and len(cands) > 1:
             import multiprocessing as mp

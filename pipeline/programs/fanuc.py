@@ -65,7 +65,7 @@ class _Pos:
 
     @staticmethod
     def _entry(src, lines, offsets, head, body):
-        gp1, text_at = [], []
+        gp1 = []
         in_gp1 = False
         for i in body:
             s = lines[i]

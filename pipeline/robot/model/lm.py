@@ -247,7 +247,7 @@ def improved_lm(fun, jac, x0, *, v1=1.0, m=1e-6, p0=1e-4, p1=0.25, p2=0.75, phi=
             ok, gain = is_stationary(F, J, phi)
             converged = moved and ok
             reason = (f"no step lowers the cost (v_k > {V_MAX:g}); a Gauss-Newton step would change F by "
-                      f"||dF||^2 = {gain:.2g}" + ("" if ok else f" > phi (not stationary)"))
+                      f"||dF||^2 = {gain:.2g}" + ("" if ok else " > phi (not stationary)"))
             break
     if not moved:
         converged, reason = False, f"never left the start (no step accepted in {k} iteration(s)): {reason}"

@@ -166,7 +166,7 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
             t = table[s]
             lines += [f"Series {s}: {t['n_sample']} sample, {t['n_target']} target poses"]
             if t.get("outliers"):
-                lines += _wrap(f"  wild measurements, left out of every fit and error below (docs/wild-points.md): "
+                lines += _wrap("  wild measurements, left out of every fit and error below (docs/wild-points.md): "
                                + ", ".join(f"{w['point_id']} ({w['set']}, tracker.csv line {w['line']}, "
                                            f"{w['error_mm']:.2f} mm)" for w in t["outliers"]))
             lines.append(head)

@@ -478,9 +478,17 @@ def _relative(rms: float, nominal: np.ndarray, measured: np.ndarray) -> float:
     return rms / scale if scale > 0 else np.inf
 
 
-def nominal_fit(robot, q_deg, xyz_mm, frame: str) -> tuple[float, float]:
-    """Nominal-vs-measured RMS (mm) after a rigid fit (tracker frame) or as it is (base frame),
-    and that RMS relative to the smaller spread of the two point clouds (0: perfect, ~1: nothing fits).
+def _as_given(robot, model, q_deg, xyz_mm, frame: str):
+    """The poses with finite angles and positions, their nominal SMR positions (mm) and the
+    nominal-vs-measured RMS (mm) after a rigid fit (tracker frame) or as it is (base frame)."""
+    ok = np.isfinite(q_deg).all(1) & np.isfinite(xyz_mm).all(1)
+    q, xyz = q_deg[ok], xyz_mm[ok]
+    nominal, rms = refit(robot, model, q, xyz, rigid=frame == "tracker")
+    return q, xyz, nominal, rms
+
+
+def nominal_rms(robot, q_deg, xyz_mm, frame: str) -> float:
+    """Nominal-vs-measured RMS (mm): after a rigid fit (tracker frame) or as it is (base frame).
 
     Parameters
     ----------
@@ -490,14 +498,7 @@ def nominal_fit(robot, q_deg, xyz_mm, frame: str) -> tuple[float, float]:
         Poses with a non-finite angle or coordinate are left out.
     frame : {"tracker", "base"}
     """
-    ok = np.isfinite(q_deg).all(1) & np.isfinite(xyz_mm).all(1)
-    nominal, rms = refit(robot, build_model(robot), q_deg[ok], xyz_mm[ok], rigid=frame == "tracker")
-    return rms, _relative(rms, nominal, xyz_mm[ok])
-
-
-def nominal_rms(robot, q_deg, xyz_mm, frame: str) -> float:
-    """Nominal-vs-measured RMS (mm): after a rigid fit (tracker frame) or as it is (base frame)."""
-    return nominal_fit(robot, q_deg, xyz_mm, frame)[0]
+    return _as_given(robot, build_model(robot), q_deg, xyz_mm, frame)[3]
 
 
 def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float:
@@ -520,9 +521,7 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
         _fail(imap.path, where, "position", "unit", f"positions up to {ax.max() / 1000:.4g} with unit = \"m\" are beyond "
               "1 km: they look like millimetres; set unit = \"mm\"")
     model, rigid = build_model(robot), imap.frame == "tracker"
-    ok = np.isfinite(camp.q_deg).all(1) & np.isfinite(camp.xyz_mm).all(1)
-    q, xyz = camp.q_deg[ok], camp.xyz_mm[ok]
-    nominal, rms = refit(robot, model, q, xyz, rigid=rigid)
+    q, xyz, nominal, rms = _as_given(robot, model, camp.q_deg, camp.xyz_mm, imap.frame)
     if rms <= IMPLAUSIBLE_RMS_MM:
         return rms
     jmax = float(np.nanmax(np.abs(camp.q_deg / JOINT_UNITS[imap.joint_unit])))

@@ -140,12 +140,13 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
 _HINT = "run the stage that makes it first, or `make all`"
 
 
-def measure_robot(truth_path, campaign, robot_path=None) -> Robot:
+def measure_robot(truth_path, campaign, robot_path=None, truth=None) -> Robot:
     """The cell's nominal robot: ``robot_path``, else the truth's own (``robot_toml``), else the
-    campaign folder's robot.toml, else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml)."""
+    campaign folder's robot.toml, else the fixture layout (raw/truth/robot/X.json -> raw/robot/X/robot.toml).
+    ``truth``: the truth file's contents when already read."""
     if robot_path:
         return load_robot(robot_path)
-    truth = read_json_input(truth_path, _HINT)
+    truth = read_json_input(truth_path, _HINT) if truth is None else truth
     if isinstance(truth, dict) and isinstance(truth.get("robot_toml"), str):
         return parse_robot(truth["robot_toml"], f"{truth_path} (robot_toml)")
     for cand in (Path(campaign) / "robot.toml",
@@ -158,9 +159,11 @@ def measure_robot(truth_path, campaign, robot_path=None) -> Robot:
 def measure_cell(truth_path, campaign, robot_path=None) -> tuple[Robot, VirtualCell]:
     """The nominal robot (:func:`measure_robot`) and the virtual cell its truth file describes; a file
     that is not such a truth is bad input."""
-    robot = measure_robot(truth_path, campaign, robot_path)
+    truth = None if robot_path else read_json_input(truth_path, _HINT)   # read once (after --robot's robot.toml)
+    robot = measure_robot(truth_path, campaign, robot_path, truth)
+    truth = read_json_input(truth_path, _HINT) if truth is None else truth
     try:
-        return robot, cell_from_truth(robot, read_json_input(truth_path, _HINT))
+        return robot, cell_from_truth(robot, truth)
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(truth_path, f"not the truth of a virtual robot cell (`jointcal simulate robot` writes one): "
                          f"{exc}", 1, 1) from None

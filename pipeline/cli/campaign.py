@@ -74,7 +74,11 @@ def validate(campaign):
                    "the spec's [select] rule on the modelling runs.")
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="Model JSON to write.")
 @click.option("--keep-outliers", is_flag=True, help="Robot campaign: " + WILD_HELP)
-def fit(interim, campaign, spec_path, orders_path, out, keep_outliers):
+@click.option("--positions-only", is_flag=True,
+              help="Robot campaign with a 6-DoF probe's orientations (tracker.csv qw..qz): fit the positions alone "
+                   "(the probe's mounting is then registered on the orientations); the held-out orientation error "
+                   "is still given. Default: positions and orientations, weighed by variance components.")
+def fit(interim, campaign, spec_path, orders_path, out, keep_outliers, positions_only):
     """Fit the spec's model and judge it on data it was not fitted on (encoder or robot).
 
     \b
@@ -84,7 +88,10 @@ def fit(interim, campaign, spec_path, orders_path, out, keep_outliers):
     Robot campaign (--campaign with robot.toml): fitted on the `sample` poses, evaluated on the
       `target` poses: error before (nominal) and after (mm), the 5-fold cross-validated RMS over
       the sample poses, the parameters left at nominal and why; the JSON is a model that
-      `jointcal predict` applies to other measurements.
+      `jointcal predict` applies to other measurements. With a 6-DoF probe (tracker.csv qw, qx,
+      qy, qz) the orientations are fitted too: each pose's residual is its position (mm) and its
+      orientation error (mrad) times a weight (mm per mrad) estimated from the residuals
+      (variance components, `weighting` in the JSON); held-out orientation errors in arcsec.
 
     Either way, the effect of a line added to the spec shows in both numbers.
     """
@@ -98,7 +105,7 @@ def fit(interim, campaign, spec_path, orders_path, out, keep_outliers):
         raise click.UsageError("give exactly one of --interim or --campaign")
     if campaign is not None:
         if campaign_kind(campaign) == "robot":
-            fit_robot(campaign, spec, spec_path, out, keep_outliers)
+            fit_robot(campaign, spec, spec_path, out, keep_outliers, orientation=not positions_only)
             return
         frame = ingest_encoder(campaign)
     else:

@@ -43,4 +43,13 @@ def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
     how = "after a rigid fit of the tracker frame" if s["frame"] == "tracker" else "in the base frame"
     click.echo(f"{out_dir}: {s['n']} poses ({s['sample']} sample, {s['target']} target) from {source_path}; "
                f"nominal kinematics miss them by {s['nominal_rms_mm']:.3f} mm RMS {how}", err=True)
+    o = s.get("orientation")
+    if o:
+        rpy = ", ".join(f"{v:.3f}" for v in o["mounting_rpy_deg"])
+        given = ", ".join(f"{v:g}" for v in o["robot_rpy_deg"])
+        used = ("robot.toml's is used" if o["mounting_from"] == "robot.toml"
+                else "the estimate is written to the campaign's robot.toml")
+        click.echo(f"  orientation: the nominal flange frames miss the measured probe frames by {o['rms_deg']:.3f} deg "
+                   f"RMS after the best mounting; probe mounting estimated from the data rpy_deg = [{rpy}], "
+                   f"robot.toml's [{given}], {o['apart_deg']:.3f} deg apart: {used}", err=True)
 

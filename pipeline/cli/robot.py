@@ -480,7 +480,7 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     click.echo(f"{json_out}: {result['done']}; the spec of round {result['final_round']} is the result", err=True)
 
 
-def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
+def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=True):
     """``jointcal fit --campaign`` for a robot campaign (see :func:`robot_fit_result`); wild measurements
     named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``."""
     from ..core.files import provenance, write_json
@@ -492,7 +492,7 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
     def warn(msg):
         click.echo(f"jointcal: {msg}", err=True)
 
-    result = fit_campaign(campaign, spec, keep_outliers, warn)
+    result = fit_campaign(campaign, spec, keep_outliers, warn, orientation=orientation)
     result["provenance"] = provenance(campaign_files(campaign), spec_path)
     problems = fit_problems(result)
     if problems:
@@ -505,6 +505,15 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
     if hw:
         held += (f"with the {hw['n_target'] - h['n_target']} wild target(s): max {hw['after']['max_mm']:.3f} mm, "
                  f"RMS {hw['rms_after_mm']:.3f} mm; ")
+    if h and "orientation_rms_after_arcsec" in h:
+        held += (f"orientation RMS {h['orientation_rms_before_arcsec']:.1f} -> {h['orientation_rms_after_arcsec']:.1f} "
+                 f"arcsec ({h['orientation_rms_after_arcsec'] / 3600:.4f} deg); ")
+    wt = result.get("weighting")
+    if wt and "orientation_weight_mm_per_mrad" in wt:
+        held += (f"weighed by {wt['method']}: {wt['orientation_weight_mm_per_mrad']:.3g} mm per mrad "
+                 f"({wt['iterations']} fits); ")
+    elif wt:
+        held += f"{wt['method']}; "
     fixed = result["not_identified"]
     weak = [n for n, why in fixed.items() if why.startswith("weakly")]
     click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "

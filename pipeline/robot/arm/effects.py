@@ -20,7 +20,7 @@ Jacobian columns are of order 1 mm per unit) and reported in the contract's unit
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -100,6 +100,13 @@ class RobotData:
     lower_deg, upper_deg : ndarray, shape (N,), deg
         Joint range of the campaign (robot.toml), used by the Chebyshev variable (Eq. 10).
     point_id : ndarray of str, shape (n,)
+    measured_R : ndarray, shape (n, 3, 3), or None
+        A 6-DoF probe's measured orientation: the probe frame in the robot base frame (contract
+        section 13); None for a campaign of positions only.
+    sigma_mm : ndarray, shape (n,), mm, or None
+        Stated 1-sigma uncertainty of each position (tracker.csv ``sigma_mm``), None when not stated.
+    sigma_arcsec : ndarray, shape (n,), arcsec, or None
+        Stated 1-sigma uncertainty of each orientation, per axis (``sigma_arcsec``).
     """
 
     q_deg: np.ndarray
@@ -111,16 +118,28 @@ class RobotData:
     upper_deg: np.ndarray
     measured_mm: np.ndarray | None = None
     point_id: np.ndarray = field(default_factory=lambda: np.array([], dtype=object))
+    measured_R: np.ndarray | None = None
+    sigma_mm: np.ndarray | None = None
+    sigma_arcsec: np.ndarray | None = None
 
     @property
     def n(self) -> int:
         return len(self.q_deg)
 
+    @property
+    def has_orientation(self) -> bool:
+        """Whether the poses carry a measured orientation (a 6-DoF probe)."""
+        return self.measured_R is not None
+
     def subset(self, mask) -> "RobotData":
         cut = lambda a: None if a is None else a[mask]  # noqa: E731
-        return RobotData(self.q_deg[mask], self.dir[mask], self.payload_kg[mask], self.temperature_c[mask],
-                         self.torque_nm[mask], self.lower_deg, self.upper_deg, cut(self.measured_mm),
-                         self.point_id[mask] if len(self.point_id) == self.n else self.point_id)
+        out = RobotData(self.q_deg[mask], self.dir[mask], self.payload_kg[mask], self.temperature_c[mask],
+                        self.torque_nm[mask], self.lower_deg, self.upper_deg, cut(self.measured_mm),
+                        self.point_id[mask] if len(self.point_id) == self.n else self.point_id,
+                        cut(self.measured_R), cut(self.sigma_mm), cut(self.sigma_arcsec))
+        if hasattr(self, "grating_joints"):
+            out.grating_joints = self.grating_joints
+        return out
 
 
 def _joints(params, default=ALL_JOINTS):
@@ -357,9 +376,18 @@ class Base(RobotEffect):
         return xyz_mm @ R.T + np.asarray(hidden["shift_mm"])
 
 
+#: Typical size of the probe frame's turn on the flange (arcsec): a 6-DoF probe's mounting is known from
+#: a drawing or the hand-eye measurement to about 0.1 deg (the IPA UR10's T-Mac sits within 0.1 deg of
+#: its nominal mounting).
+TOOL_TYPICAL_ARCSEC = 360.0
+
+
 class Tool(RobotEffect):
+    """The SMR (or the probe's origin) offset on the flange; with ``orientation = true`` (set by the
+    fit when the campaign has a 6-DoF probe's orientations) also the probe frame's turn on the flange."""
+
     name = "tool"
-    allowed_params = ()
+    allowed_params = ("orientation",)
     diagnosis_order = 2
     per_joint = False
     acts_on = "tool"
@@ -369,21 +397,38 @@ class Tool(RobotEffect):
     explanation = "The SMR sits elsewhere on the end effector than robot.toml says (tool offset error)."
     signature = "an error that rotates with the flange: depends on the wrist orientation, not on position"
 
+    def oriented(self) -> bool:
+        """Whether the probe frame's turn on the flange is a parameter too (a 6-DoF campaign)."""
+        return bool(self.params.get("orientation", False))
+
+    def check(self):
+        problems = super().check()
+        if not isinstance(self.params.get("orientation", False), bool):
+            problems.append("effect 'tool': orientation must be true or false")
+        return problems
+
+    def prepared(self, robot, data):
+        """On a campaign with orientations the probe frame's turn is fitted too (``orientation = true``)."""
+        if getattr(data, "has_orientation", False) and "orientation" not in self.params:
+            return Tool(**{**self.params, "orientation": True})
+        return self
+
     def parameter_names(self, robot):
-        return [f"tool_{t}" for t in TWIST[:3]]
+        return [f"tool_{t}" for t in TWIST[:6 if self.oriented() else 3]]
 
     def units(self, robot):
-        return [("mm", 1.0)] * 3
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * (3 if self.oriented() else 0)
 
     def typical_sizes(self, robot):
-        return [TOOL_TYPICAL_MM] * 3
+        return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
 
     def checked_values(self, robot, parameters, q_deg):
         """Judged as the SMR's shift on the flange (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
         return []
 
     def basis(self, robot, idx, data):
-        return [[(c, 1e-3)] for c in idx.tool]
+        rot = [[(c, 1e-3)] for c in idx.tool_rot] if self.oriented() else []
+        return [[(c, 1e-3)] for c in idx.tool] + rot
 
     @classmethod
     def hidden(cls, rng, target, joint):
@@ -393,8 +438,7 @@ class Tool(RobotEffect):
 
     @classmethod
     def inject_truth(cls, hidden, true_robot, compliance_deg_per_nm, backlash_deg):
-        return Robot(true_robot.name, true_robot.joints, tuple(np.add(true_robot.tool_xyz_mm, hidden["shift_mm"])),
-                     true_robot.path)
+        return replace(true_robot, tool_xyz_mm=tuple(np.add(true_robot.tool_xyz_mm, hidden["shift_mm"])))
 
 
 def chebyshev_variable(q_deg, lower_deg, upper_deg):

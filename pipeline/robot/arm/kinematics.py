@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import difflib
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +72,9 @@ class Robot:
     joints: tuple
     tool_xyz_mm: tuple
     path: str = "<robot>"
+    #: orientation of the probe frame (a 6-DoF probe) in the flange frame, URDF's rpy in deg:
+    #: R = Rz(yaw) Ry(pitch) Rx(roll) (``[tool] rpy_deg``; 0, 0, 0 when not given)
+    tool_rpy_deg: tuple = (0.0, 0.0, 0.0)
 
     @property
     def n_joints(self) -> int:
@@ -90,10 +93,17 @@ class Robot:
         """A copy with joint ``i`` (0-based) changed; for perturbed (true) robots."""
         joints = list(self.joints)
         joints[i] = Joint(**{**joints[i].__dict__, **changes})
-        return Robot(self.name, tuple(joints), self.tool_xyz_mm, self.path)
+        return replace(self, joints=tuple(joints))
+
+    @property
+    def tool_rotation(self) -> np.ndarray:
+        """The probe frame's rotation in the flange frame, shape (3, 3) (identity without ``rpy_deg``)."""
+        return pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(self.tool_rpy_deg, float)))
 
     def to_toml(self) -> str:
         lines = [f'name = "{self.name}"', "", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
+        if any(float(v) != 0.0 for v in self.tool_rpy_deg):
+            lines.append(f"rpy_deg = [{', '.join(_num(v) for v in self.tool_rpy_deg)}]")
         for j in self.joints:
             lines += ["", "[[joint]]"]
             for f in JOINT_FIELDS + ("mass_kg",):
@@ -187,8 +197,15 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
             or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in tool)):
         line = next((k + 1 for k, s in enumerate(text.splitlines()) if re.match(r"^\s*\[tool\]", s)), 1)
         raise InputError(path, "missing or bad [tool] xyz_mm = [x, y, z] (SMR in the flange frame, mm)", line, 1)
+    rpy = doc["tool"].get("rpy_deg", [0.0, 0.0, 0.0])
+    if (not isinstance(rpy, list) or len(rpy) != 3
+            or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in rpy)):
+        line, col = _key_line(text, next((k + 1 for k, s in enumerate(text.splitlines())
+                                          if re.match(r"^\s*\[tool\]", s)), 1), "rpy_deg")
+        raise InputError(path, "bad [tool] rpy_deg = [roll, pitch, yaw] (the probe frame in the flange frame, deg, "
+                         "R = Rz(yaw) Ry(pitch) Rx(roll))", line, col)
     name = str(doc.get("name", Path(str(path)).parent.name or "robot"))
-    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path))
+    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path), tuple(float(c) for c in rpy))
 
 
 def load_robot(path) -> Robot:
@@ -236,7 +253,7 @@ def build_model(robot: Robot) -> pin.Model:
         model.addFrame(pin.Frame(f"link{i + 1}", jid, 0, L, pin.FrameType.OP_FRAME))
         parent, prev_L = jid, L
     model.addFrame(pin.Frame("flange", parent, 0, prev_L, pin.FrameType.OP_FRAME))
-    tool = pin.SE3(np.eye(3), np.asarray(robot.tool_xyz_mm, float) / 1000.0)
+    tool = pin.SE3(robot.tool_rotation, np.asarray(robot.tool_xyz_mm, float) / 1000.0)
     model.addFrame(pin.Frame("smr", parent, 0, prev_L * tool, pin.FrameType.OP_FRAME))
     model.gravity = pin.Motion(np.array([0.0, 0.0, -G, 0.0, 0.0, 0.0]))
     return model
@@ -244,13 +261,14 @@ def build_model(robot: Robot) -> pin.Model:
 
 @dataclass(frozen=True)
 class ErrorModelIndex:
-    """Positions of the channels in the error model's configuration vector (nq = nv = 7 N + 9; 51 for six joints)."""
+    """Positions of the channels in the error model's configuration vector (nq = nv = 7 N + 12; 54 for six joints)."""
 
     joints: np.ndarray        # (N,) main joints q1..qN
     links: np.ndarray         # (N, 6) link i error twist dx dy dz ex ey ez
     base: np.ndarray          # (6,) base error twist
     tool: np.ndarray          # (3,) tool offset dx dy dz
     nq: int
+    tool_rot: np.ndarray = None   # (3,) the probe frame's turn ex ey ez (about its own axes, at its origin)
 
 
 def build_error_model(robot: Robot) -> tuple[pin.Model, ErrorModelIndex]:
@@ -287,10 +305,17 @@ def build_error_model(robot: Robot) -> tuple[pin.Model, ErrorModelIndex]:
     for k, kind in enumerate(kinds[:3]):
         parent = add(parent, kind, pin.SE3.Identity(), f"tool_{TWIST[k]}")
         tool.append(parent)
-    model.addFrame(pin.Frame("smr", parent, 0, pin.SE3(np.eye(3), np.asarray(robot.tool_xyz_mm, float) / 1000.0),
-                             pin.FrameType.OP_FRAME))
+    # the probe frame's turn on the flange (a 6-DoF probe's orientation): three rotations about the
+    # probe's own axes at its origin, so that they turn the probe frame and move no measured point
+    tool_rot = []
+    placement = pin.SE3(robot.tool_rotation, np.asarray(robot.tool_xyz_mm, float) / 1000.0)
+    for k, kind in enumerate(kinds[3:]):
+        parent = add(parent, kind, placement if k == 0 else pin.SE3.Identity(), f"tool_{TWIST[3 + k]}")
+        tool_rot.append(parent)
+    model.addFrame(pin.Frame("smr", parent, 0, pin.SE3.Identity(), pin.FrameType.OP_FRAME))
     # every joint is 1-dof: configuration index = joint id - 1
-    idx = ErrorModelIndex(np.array(joints) - 1, np.array(links) - 1, np.array(base) - 1, np.array(tool) - 1, model.nq)
+    idx = ErrorModelIndex(np.array(joints) - 1, np.array(links) - 1, np.array(base) - 1, np.array(tool) - 1, model.nq,
+                          np.array(tool_rot) - 1)
     return model, idx
 
 

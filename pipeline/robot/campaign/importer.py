@@ -9,6 +9,11 @@ Contract section 6. The map (``map.toml``) says how to read the export::
                 payload_kg, timestamp, sigma_mm, dir1..dirN)
     [split]     sample_fraction = 0.6  seed = 1          (seeded random split; default seed 0)
                 or column = "set"                        (values sample / target)
+    [orientation]  columns = [3 or 4 source columns]  kind = "euler" | "quaternion" | "rotvec"
+                sequence = "XYZ" (euler: upper case intrinsic, lower case extrinsic)  unit = "deg" | "rad"
+                                                         (optional: a 6-DoF probe, contract section 13)
+    [uncertainty]  position_columns = [3]  orientation_columns = [3]   (optional: per-pose 1-sigma,
+                per axis, in the position's and the orientation's units)
 
 Everything here is pure (text in, text out) except :func:`read_source_file` and
 :func:`install_campaign`. The source's row order is kept (it is the visiting order);
@@ -40,9 +45,10 @@ from .ingest import ingest_robot
 from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
-SECTIONS = ("source", "joints", "position", "columns", "split")
+SECTIONS = ("source", "joints", "position", "orientation", "uncertainty", "columns", "split")
 KEYS = {"source": ("delimiter", "decimal"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
-        "split": ("sample_fraction", "seed", "column")}
+        "split": ("sample_fraction", "seed", "column"), "orientation": ("columns", "kind", "sequence", "unit"),
+        "uncertainty": ("position_columns", "orientation_columns")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
     f"dir{j}" for j in range(1, MAX_JOINTS + 1))
 FRAMES = ("tracker", "base")
@@ -110,6 +116,10 @@ class ImportMap:
     seed: int
     split_column: str | None
     where: _Locator = field(repr=False)
+    #: ``{"columns", "kind", "sequence", "unit"}`` of a 6-DoF probe's orientation, or None
+    orientation: dict | None = None
+    #: ``{"position_columns", "orientation_columns"}`` (each a list or None), or None
+    uncertainty: dict | None = None
 
     def locate_column(self, name: str):
         """Line and column in the map where the source column ``name`` is named."""
@@ -119,6 +129,11 @@ class ImportMap:
         for key, src in self.columns.items():
             if src == name:
                 return self.where.value("columns", key, name)
+        if self.orientation and name in self.orientation["columns"]:
+            return self.where.value("orientation", "columns", name)
+        for key, values in (self.uncertainty or {}).items():
+            if values and name in values:
+                return self.where.value("uncertainty", key, name)
         if self.split_column == name:
             return self.where.value("split", "column", name)
         return 1, 1
@@ -240,8 +255,55 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
         seed = split.get("seed", 0)
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             _fail(path, where, "split", "seed", f"[split] seed = {seed!r} must be a non-negative integer")
+    orientation = _orientation_section(path, where, doc)
+    uncertainty = None
+    if "uncertainty" in doc:
+        uncertainty = {}
+        for key, what in (("position_columns", "the 1-sigma of x, y, z"),
+                          ("orientation_columns", "the 1-sigma of the three orientation angles")):
+            uncertainty[key] = (_string_list(path, where, doc, "uncertainty", key, 3, what)
+                                if key in doc["uncertainty"] else None)
+        if uncertainty["orientation_columns"] and orientation is None:
+            _fail(path, where, "uncertainty", "orientation_columns",
+                  "[uncertainty] orientation_columns without an [orientation] section to say what they belong to")
+        if uncertainty["position_columns"] and "sigma_mm" in columns:
+            _fail(path, where, "uncertainty", "position_columns",
+                  "[uncertainty] position_columns and [columns] sigma_mm both give the position's uncertainty: keep one")
     return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
-                     int(seed or 0), column, where)
+                     int(seed or 0), column, where, orientation, uncertainty)
+
+
+def _orientation_section(path, where, doc):
+    """The map's ``[orientation]`` (contract sections 6 and 13), checked; None when absent."""
+    from .orientation import KINDS, ORIENTATION_UNITS, SEQUENCES
+
+    if "orientation" not in doc:
+        return None
+    kind = _choice(path, where, doc, "orientation", "kind", KINDS)
+    n = 4 if kind == "quaternion" else 3
+    what = {"euler": "three Euler angles, in the order of the sequence", "quaternion": "w, x, y, z",
+            "rotvec": "a rotation vector's x, y, z"}[kind]
+    cols = _string_list(path, where, doc, "orientation", "columns", n, what)
+    sec = doc["orientation"]
+    sequence = None
+    if kind == "euler":
+        if "sequence" not in sec:
+            line, col = where.section("orientation")
+            raise InputError(path, "[orientation] kind = \"euler\" needs sequence = \"XYZ\" (the axes in the order of "
+                             "the columns; upper case intrinsic, lower case extrinsic)", line, col)
+        sequence = sec["sequence"]
+        if not isinstance(sequence, str) or sequence not in SEQUENCES:
+            _fail(path, where, "orientation", "sequence", f"[orientation] sequence = {sequence!r} is not an Euler "
+                  "sequence: three of x, y, z with no axis twice in a row, all upper case (intrinsic, e.g. \"XYZ\") "
+                  "or all lower case (extrinsic, e.g. \"zyx\")")
+    elif "sequence" in sec:
+        _fail(path, where, "orientation", "sequence", f"[orientation] sequence is for kind = \"euler\"; kind is {kind!r}")
+    unit = None
+    if kind != "quaternion":
+        unit = _choice(path, where, doc, "orientation", "unit", ORIENTATION_UNITS)
+    elif "unit" in sec:
+        _fail(path, where, "orientation", "unit", "[orientation] a quaternion has no unit")
+    return {"columns": cols, "kind": kind, "sequence": sequence, "unit": unit}
 
 
 # --------------------------------------------------------------------------- the source
@@ -285,7 +347,9 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
     for h in header:
         counts[h] = counts.get(h, 0) + 1
     needed = [c for c in imap.joint_columns + imap.position_columns + list(imap.columns.values())
-              + ([imap.split_column] if imap.split_column else [])]
+              + ([imap.split_column] if imap.split_column else [])
+              + (imap.orientation["columns"] if imap.orientation else [])
+              + [c for v in (imap.uncertainty or {}).values() for c in (v or [])]]
     for name in needed:
         if name not in counts:
             line, col = imap.locate_column(name)
@@ -383,6 +447,59 @@ class Campaign:
     sets: np.ndarray
     point_id: list
     columns: dict        # contract column (poses/tracker) -> source column
+    R_meas: np.ndarray | None = None     # (n, 3, 3) a 6-DoF probe's frames, as measured (the positions' frame)
+
+
+def read_orientations(source: Source, imap: ImportMap) -> np.ndarray:
+    """The probe frames (n, 3, 3) the map's ``[orientation]`` reads; a quaternion that is not unit is refused."""
+    from . import orientation as ro
+
+    o = imap.orientation
+    v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
+    if o["kind"] == "quaternion":
+        norm = np.linalg.norm(v, axis=1)
+        bad = ~(np.abs(norm - 1.0) <= ro.QUATERNION_NORM_TOL)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(source.path, f"the quaternion ({', '.join(o['columns'])}) has norm {norm[i]:.6g}, not 1 "
+                             "(a unit quaternion, w first, is a rotation): are these columns a quaternion, in the order "
+                             "w, x, y, z?", source.lines[i], o["columns"][0])
+        return ro.quaternions_to_matrices(v / norm[:, None])
+    if o["kind"] == "rotvec":
+        return ro.rotvecs_to_matrices(v, o["unit"])
+    return ro.euler_to_matrices(v, o["sequence"], o["unit"])
+
+
+def orientation_readings(source: Source, imap: ImportMap) -> dict:
+    """The probe frames under the map's reading and under every other of its kind (the import's check):
+    label -> (n, 3, 3)."""
+    from . import orientation as ro
+
+    o = imap.orientation
+    v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
+    out = {}
+    if o["kind"] == "euler":
+        for unit in ro.ORIENTATION_UNITS:
+            for seq in ro.SEQUENCES:
+                out[f'sequence = "{seq}", unit = "{unit}"'] = ro.euler_to_matrices(v, seq, unit)
+    elif o["kind"] == "rotvec":
+        for unit in ro.ORIENTATION_UNITS:
+            out[f'unit = "{unit}"'] = ro.rotvecs_to_matrices(v, unit)
+    else:
+        norm = np.linalg.norm(v, axis=1, keepdims=True)
+        out["columns in the order w, x, y, z"] = ro.quaternions_to_matrices(v / norm)
+        out["columns in the order x, y, z, w"] = ro.quaternions_to_matrices((v / norm)[:, [3, 0, 1, 2]])
+    return out
+
+
+def stated_reading(imap: ImportMap) -> str:
+    """The label of :func:`orientation_readings` that is the map's own."""
+    o = imap.orientation
+    if o["kind"] == "euler":
+        return f'sequence = "{o["sequence"]}", unit = "{o["unit"]}"'
+    if o["kind"] == "rotvec":
+        return f'unit = "{o["unit"]}"'
+    return "columns in the order w, x, y, z"
 
 
 def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, provenance: list) -> Campaign:
@@ -433,6 +550,20 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
     extra_pose = [c for c in ("payload_kg", "temperature_c", "timestamp") + tuple(f"dir{j}" for j in range(1, n_joints + 1))
                   if c in imap.columns]
     values = {}
+    unc = imap.uncertainty or {}
+    if unc.get("position_columns"):
+        stds = np.column_stack([numbers(source, imap, c, required=False) for c in unc["position_columns"]])
+        values["sigma_mm"] = [_fmt(x, 9) for x in np.sqrt(np.mean(stds ** 2, axis=1)) * LENGTH_UNITS[imap.position_unit]]
+    R_meas = read_orientations(source, imap) if imap.orientation else None
+    quats = None
+    if R_meas is not None:
+        from .orientation import matrices_to_quaternions
+
+        quats = matrices_to_quaternions(R_meas)
+        if unc.get("orientation_columns"):
+            stds = np.column_stack([numbers(source, imap, c, required=False) for c in unc["orientation_columns"]])
+            per = 3600.0 if imap.orientation["unit"] == "deg" else 3600.0 * 180.0 / np.pi
+            values["sigma_arcsec"] = [_fmt(x, 6) for x in np.sqrt(np.mean(stds ** 2, axis=1)) * per]
     for c in extra_pose + (["sigma_mm"] if "sigma_mm" in imap.columns else []):
         src = imap.columns[c]
         if c == "timestamp":
@@ -455,6 +586,11 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
     track_header = ["point_id", "x_mm", "y_mm", "z_mm"] + (["sigma_mm"] if "sigma_mm" in values else [])
     track_rows = [[pid[i]] + [_fmt(x, 9) for x in xyz[i]] + ([values["sigma_mm"][i]] if "sigma_mm" in values else [])
                   for i in range(n)]
+    if quats is not None:
+        track_header += ["qw", "qx", "qy", "qz"] + (["sigma_arcsec"] if "sigma_arcsec" in values else [])
+        for i in range(n):
+            track_rows[i] += [_fmt(x, 12) for x in quats[i]] + ([values["sigma_arcsec"][i]]
+                                                                 if "sigma_arcsec" in values else [])
     n_s = int((sets == "sample").sum())
     camp = ["# Robot campaign written by `jointcal import` (contract sections 2 and 6).", *provenance,
             f"# {n} poses in the source's row order: {n_s} sample, {n - n_s} target ([split] {imap.describe_split()})",
@@ -462,7 +598,7 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
             f'frame = "{imap.frame}"', ""]
     files = {"robot.toml": robot_text, "poses.csv": _csv(pose_header, pose_rows),
              "tracker.csv": _csv(track_header, track_rows), "campaign.toml": "\n".join(camp)}
-    return Campaign(files, q, xyz, sets, pid, cols)
+    return Campaign(files, q, xyz, sets, pid, cols, R_meas)
 
 
 # -------------------------------------------------------------- plausibility (unit hints)
@@ -550,6 +686,74 @@ def check_units(camp: Campaign, imap: ImportMap, robot, source: Source) -> float
           f"{' and '.join(why)}: the robot's nominal kinematics miss the measured points by {rms:.4g} mm RMS {fit} "
           f"as the map says, by {alt:.4g} mm with {ju} and {pu}; set {' and '.join(fixes)}")
     return rms
+
+
+def check_orientation(camp: Campaign, imap: ImportMap, robot, robot_text: str, source: Source):
+    """A 6-DoF probe's orientations checked as the units are, and the probe's mounting estimated.
+
+    The tracker's rotation comes from the positions (the rigid fit of the nominal SMR positions, or
+    none with frame = "base"); under the map's reading and every other of its kind (each Euler
+    sequence, intrinsic and extrinsic, in deg and rad; a rotation vector in deg and rad; a quaternion
+    w first or last) the probe's mounting on the flange is the best rotation onto the measured frames
+    (:func:`pipeline.robot.campaign.orientation.mounting`). The map's reading is refused, naming the
+    better one, when it leaves more than :data:`~pipeline.robot.campaign.orientation.STATED_BAD_DEG`
+    RMS and another fits :data:`~pipeline.robot.campaign.orientation.BETTER_FACTOR` times better.
+
+    Returns
+    -------
+    robot, robot_text : the campaign's robot, with the estimated mounting as ``[tool] rpy_deg`` when
+        robot.toml's is more than :data:`~pipeline.robot.campaign.orientation.MOUNTING_TOL_DEG` away
+    summary : dict (mounting_rpy_deg, robot_rpy_deg, apart_deg, rms_deg, mounting_from)
+    """
+    from . import orientation as ro
+    from .frame import fit_residuals
+    from ..arm.kinematics import placements, positions
+
+    ok = np.isfinite(camp.q_deg).all(1) & np.isfinite(camp.xyz_mm).all(1)
+    rows = (camp.sets[ok] == "sample") if (camp.sets[ok] == "sample").sum() >= 3 else np.ones(int(ok.sum()), bool)
+    model = build_model(robot)
+    q = np.deg2rad(camp.q_deg[ok])
+    Rf, _ = placements(model, q, "flange")
+    R_tb = np.eye(3)
+    if imap.frame == "tracker":
+        R, _, _ = fit_residuals(positions(model, q), camp.xyz_mm[ok], rows)
+        R_tb = R.T
+    readings = {k: v[ok] for k, v in orientation_readings(source, imap).items()}
+    hyps = ro.orientation_hypotheses(readings, Rf, R_tb, rows)
+    by = {label: (r, M) for label, r, M in hyps}
+    stated = stated_reading(imap)
+    rms, M = by[stated]
+    best_label, best_rms, _ = hyps[0]
+    o = imap.orientation
+    key = {"euler": "sequence", "rotvec": "unit", "quaternion": "columns"}[o["kind"]]
+    if best_label != stated and rms > ro.STATED_BAD_DEG and best_rms * ro.BETTER_FACTOR < rms:
+        fix = best_label if o["kind"] != "quaternion" else "columns = [w, x, y, z] in that order"
+        if o["kind"] == "euler" and best_label.split(",")[1].strip() == f'unit = "{o["unit"]}"':
+            fix = best_label.split(",")[0]
+        elif o["kind"] == "euler" and best_label.split(",")[0].strip() == f'sequence = "{o["sequence"]}"':
+            fix, key = best_label.split(",")[1].strip(), "unit"
+        _fail(imap.path, imap.where, "orientation", key,
+              f"the orientations fit the robot's nominal flange frames to {rms:.3g} deg RMS as the map reads them "
+              f"({stated}), to {best_rms:.3g} deg with {best_label}, after the best probe mounting: set [orientation] "
+              f"{fix}")
+    if rms > ro.MAX_ORIENTATION_RMS_DEG:
+        _fail(imap.path, imap.where, "orientation", "columns",
+              f"the orientations fit the robot's nominal flange frames to {rms:.3g} deg RMS after the best probe "
+              f"mounting, where a real robot's orientation errors stay below {ro.MAX_ORIENTATION_RMS_DEG:g} deg, and no "
+              f"other reading fits (best: {best_label}, {best_rms:.3g} deg): check the columns and that they are the "
+              "probe frame in the positions' frame")
+    apart = float(ro.angles_deg(M, robot.tool_rotation))
+    summary = {"mounting_rpy_deg": ro.rpy_deg(M).tolist(), "robot_rpy_deg": list(robot.tool_rpy_deg),
+               "apart_deg": apart, "rms_deg": rms, "mounting_from": "robot.toml"}
+    if apart > ro.MOUNTING_TOL_DEG:
+        rpy = tuple(round(float(v), 3) + 0.0 for v in ro.rpy_deg(M))
+        robot = replace(robot, tool_rpy_deg=rpy)
+        head, _, _ = robot_text.partition('name = "')
+        robot_text = (head + f"# [tool] rpy_deg: the probe's mounting estimated from the orientations by `jointcal "
+                      f"import` (robot file's: {list(summary['robot_rpy_deg'])}, {apart:.2f} deg away)\n"
+                      + robot.to_toml())
+        summary["mounting_from"] = "estimated"
+    return robot, robot_text, summary
 
 
 def check_limits(camp: Campaign, imap: ImportMap, robot, source: Source) -> None:
@@ -783,6 +987,10 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     camp = build_campaign(source, imap, robot, robot_text, prov)
     check_limits(camp, imap, robot, source)
     rms = check_units(camp, imap, robot, source)
+    oriented = None
+    if imap.orientation:
+        robot, robot_text, oriented = check_orientation(camp, imap, robot, robot_text, source)
+        camp.files["robot.toml"] = robot_text
     robot_where = (None, None)
     if is_urdf(robot_path):
         robot_where = tag_line(Path(robot_path).read_text(encoding="utf-8"), "link", tip)
@@ -796,4 +1004,4 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     install_campaign(out_dir, camp.files, validate)
     n_s = int((camp.sets == "sample").sum())
     return {"n": len(camp.sets), "sample": n_s, "target": len(camp.sets) - n_s, "frame": imap.frame,
-            "nominal_rms_mm": rms}
+            "nominal_rms_mm": rms, "orientation": oriented}

@@ -59,7 +59,11 @@ def poses_optional(n: int = 6) -> dict:
 POSES_REQUIRED = poses_required(6)
 POSES_OPTIONAL = poses_optional(6)
 TRACKER_REQUIRED = {"point_id": STR, "x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT}
-TRACKER_OPTIONAL = {"sigma_mm": FLOAT}
+TRACKER_OPTIONAL = {"sigma_mm": FLOAT, "qw": FLOAT, "qx": FLOAT, "qy": FLOAT, "qz": FLOAT, "sigma_arcsec": FLOAT}
+#: a 6-DoF probe's orientation in tracker.csv: a unit quaternion, scalar first (contract section 13)
+QUATERNION = ("qw", "qx", "qy", "qz")
+#: the raw (tracker-frame) quaternion of a ``frame = "tracker"`` campaign
+RAW_QUATERNION = ("qw_tracker", "qx_tracker", "qy_tracker", "qz_tracker")
 SETS = ("sample", "target", "repeat")
 FRAMES = ("base", "tracker")
 #: key of ``DataFrame.attrs`` holding ``{"frame": "base" | "tracker", "tracker_to_base": 4x4 list (mm)}``
@@ -142,6 +146,7 @@ def load_robot_campaign(folder, problems: Problems | None = None):
         if "sigma_mm" in tracker and (tracker["sigma_mm"] <= 0).any():
             i = int(np.argmax((tracker["sigma_mm"] <= 0).to_numpy()))
             problems.add(tp, "sigma_mm must be positive", int(tracker["_line"].iloc[i]), "sigma_mm")
+        _check_quaternions(tp, tracker, problems)
     if poses is not None and tracker is not None:
         no_pose = ~tracker["point_id"].isin(poses["point_id"])
         if no_pose.any():
@@ -158,6 +163,32 @@ def load_robot_campaign(folder, problems: Problems | None = None):
     if own:
         problems.raise_first()
     return robot, poses, tracker
+
+
+def _check_quaternions(path, tracker, problems) -> None:
+    """A 6-DoF probe's orientation: all of qw, qx, qy, qz or none, each row a unit quaternion."""
+    have = [c for c in QUATERNION if c in tracker]
+    if not have:
+        if "sigma_arcsec" in tracker:
+            problems.add(path, "sigma_arcsec without an orientation: a 6-DoF probe's orientation needs the columns "
+                         "qw, qx, qy, qz", 1, "sigma_arcsec")
+        return
+    missing = [c for c in QUATERNION if c not in tracker]
+    if missing:
+        problems.add(path, f"column '{missing[0]}' is missing: a 6-DoF probe's orientation needs all of qw, qx, qy, qz "
+                     f"(a unit quaternion, scalar first); found {', '.join(have)}", 1, have[0])
+        return
+    q = tracker[list(QUATERNION)].to_numpy(float)
+    norm = np.linalg.norm(q, axis=1)
+    bad = ~(np.abs(norm - 1.0) <= 1e-3)
+    if bad.any():
+        i = int(np.argmax(bad))
+        problems.add(path, f"the quaternion (qw, qx, qy, qz) of point {tracker['point_id'].iloc[i]} has norm "
+                     f"{norm[i]:.6g}, not 1: qw..qz must be a unit quaternion, scalar first (w, x, y, z); angles or a "
+                     "rotation vector go through jointcal import's [orientation]", int(tracker["_line"].iloc[i]), "qw")
+    if "sigma_arcsec" in tracker and (tracker["sigma_arcsec"] <= 0).any():
+        i = int(np.argmax((tracker["sigma_arcsec"] <= 0).to_numpy()))
+        problems.add(path, "sigma_arcsec must be positive", int(tracker["_line"].iloc[i]), "sigma_arcsec")
 
 
 def _header_joint_count(path) -> int:
@@ -368,9 +399,74 @@ def check_nominal(folder, robot: Robot, poses: pd.DataFrame, tracker: pd.DataFra
             tracker[col] = raw[:, k]
         moved = rf.apply(R, t, raw)
         tracker["x_mm"], tracker["y_mm"], tracker["z_mm"] = moved.T
+    if all(col in tracker for col in QUATERNION):
+        if not _check_orientations(folder, robot, poses, tracker, R, frame_kind, sample, problems, model):
+            if own:
+                problems.raise_first()
+            return c
     tracker.attrs[FRAME_ATTR] = {"frame": frame_kind, "tracker_to_base": rf.to_matrix(R, t).tolist()}
     tracker.attrs[FIT_ATTR] = {"rms_mm": c.rms_mm, "max_mm": c.max_mm, "limit_rms_mm": rf.MAX_RMS_MM}
     return c
+
+
+#: key of ``DataFrame.attrs`` with the orientation check's summary (the probe's mounting estimated from the data)
+ORIENTATION_ATTR = "jointcal_orientation"
+
+
+def _check_orientations(folder, robot, poses, tracker, R_tb, frame_kind, sample, problems, model=None) -> bool:
+    """A 6-DoF campaign's orientations: moved into the base frame (``frame = "tracker"``), checked against
+    the nominal flange frames after the best probe mounting, and that mounting against robot.toml's
+    ``[tool] rpy_deg``. False (a problem added) when they do not fit a robot."""
+    from . import orientation as ro
+    from ..arm.kinematics import placements
+
+    t = tracker.set_index("point_id").loc[poses["point_id"]]
+    q_tr = t[list(QUATERNION)].to_numpy(float)
+    lines = t["_line"].to_numpy(int)
+    R_meas = ro.quaternions_to_matrices(q_tr / np.linalg.norm(q_tr, axis=1, keepdims=True))
+    R_base = np.einsum("ij,njk->nik", R_tb, R_meas)
+    model = model or build_model(robot)
+    Rf, _ = placements(model, np.deg2rad(poses[joint_columns(poses)].to_numpy(float)), "flange")
+    M, err = ro.mounting(Rf, R_base, sample)
+    stated = robot.tool_rotation
+    apart = float(ro.angles_deg(M, stated))
+    summary = {"mounting_rpy_deg": ro.rpy_deg(M).tolist(), "robot_rpy_deg": list(robot.tool_rpy_deg),
+               "mounting_apart_deg": apart, "rms_deg": ro.rms(err), "max_deg": float(err.max())}
+    if ro.rms(err) > ro.MAX_ORIENTATION_RMS_DEG:
+        k = int(np.argmax(err))
+        problems.add(folder / "tracker.csv", f"the orientations do not fit the nominal flange frames of robot.toml: "
+                     f"RMS {ro.rms(err):.2f} deg after the best probe mounting, where a real robot's orientation "
+                     f"errors stay below {ro.MAX_ORIENTATION_RMS_DEG:g} deg (worst point {poses['point_id'].iloc[k]}: "
+                     f"{err[k]:.2f} deg); likely cause: qw, qx, qy, qz not a scalar-first quaternion of the probe frame "
+                     "in the positions' frame (jointcal import's [orientation] reads other conventions)",
+                     int(lines[k]), "qw")
+        return False
+    if apart > ro.MOUNTING_TOL_DEG:
+        line, col = _robot_line(robot, "rpy_deg") if "rpy_deg" in _robot_text(robot) else _robot_line(robot, "xyz_mm")
+        rpy = ", ".join(f"{v:.2f}" for v in ro.rpy_deg(M))
+        problems.add(robot.path, f"the probe frame sits {apart:.1f} deg from robot.toml's [tool] rpy_deg "
+                     f"{list(robot.tool_rpy_deg)} on the flange (estimated from the orientations: rpy_deg = [{rpy}]): "
+                     "set [tool] rpy_deg to the probe's mounting", line, col)
+        return False
+    q_base = ro.matrices_to_quaternions(R_base)
+    order = tracker.set_index("point_id").index.get_indexer(poses["point_id"])
+    moved = np.empty_like(q_base)
+    moved[order] = q_base
+    if frame_kind == "tracker":
+        raw = tracker[list(QUATERNION)].to_numpy(float)
+        for k, col in enumerate(RAW_QUATERNION):
+            tracker[col] = raw[:, k]
+    for k, col in enumerate(QUATERNION):
+        tracker[col] = moved[:, k]
+    tracker.attrs[ORIENTATION_ATTR] = summary
+    return True
+
+
+def _robot_text(robot: Robot) -> str:
+    try:
+        return Path(robot.path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return ""
 
 
 def _check_limits(path, poses, robot: Robot, problems):
@@ -436,6 +532,10 @@ def derive_robot(robot: Robot, poses: pd.DataFrame, tracker: pd.DataFrame) -> pd
     xyz = t.loc[out["point_id"], ["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     out["x_mm"], out["y_mm"], out["z_mm"] = xyz.T
     out["sigma_mm"] = t.loc[out["point_id"], "sigma_mm"].to_numpy(float) if "sigma_mm" in t else np.nan
+    if all(c in t for c in QUATERNION):
+        for c in QUATERNION + tuple(c for c in RAW_QUATERNION if c in t):
+            out[c] = t.loc[out["point_id"], c].to_numpy(float)
+        out["sigma_arcsec"] = t.loc[out["point_id"], "sigma_arcsec"].to_numpy(float) if "sigma_arcsec" in t else np.nan
     if all(c in t for c in RAW_COLUMNS):
         raw = t.loc[out["point_id"], list(RAW_COLUMNS)].to_numpy(float)
         for k, c in enumerate(RAW_COLUMNS):
@@ -449,6 +549,8 @@ def derive_robot(robot: Robot, poses: pd.DataFrame, tracker: pd.DataFrame) -> pd
     out.attrs[FRAME_ATTR] = frame_info(tracker)
     if FIT_ATTR in tracker.attrs:
         out.attrs[FIT_ATTR] = dict(tracker.attrs[FIT_ATTR])
+    if ORIENTATION_ATTR in tracker.attrs:
+        out.attrs[ORIENTATION_ATTR] = dict(tracker.attrs[ORIENTATION_ATTR])
     return out
 
 
@@ -565,9 +667,16 @@ def robot_data(robot: Robot, frame: pd.DataFrame, use_gratings: bool = False) ->
                 g = frame[col].to_numpy(float)
                 q[:, j] = np.where(np.isfinite(g), g, q[:, j])
     meas = frame[["x_mm", "y_mm", "z_mm"]].to_numpy(float) if "x_mm" in frame else None
+    R = sig_p = sig_o = None
+    if all(c in frame for c in QUATERNION):
+        from .orientation import quaternions_to_matrices
+
+        R = quaternions_to_matrices(frame[list(QUATERNION)].to_numpy(float))
+        sig_o = frame["sigma_arcsec"].to_numpy(float) if "sigma_arcsec" in frame else None
+        sig_p = frame["sigma_mm"].to_numpy(float) if "sigma_mm" in frame else None
     return RobotData(q, frame[[f"dir{j}" for j in cols]].to_numpy(int), frame["payload_kg"].to_numpy(float),
                      frame["temperature_c"].to_numpy(float), frame[[f"tau{j}_nm" for j in cols]].to_numpy(float),
-                     robot.lower_deg, robot.upper_deg, meas, frame["point_id"].to_numpy(object))
+                     robot.lower_deg, robot.upper_deg, meas, frame["point_id"].to_numpy(object), R, sig_p, sig_o)
 
 
 def has_gratings(frame: pd.DataFrame) -> bool:

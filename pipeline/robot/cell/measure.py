@@ -13,6 +13,7 @@ A simulator, not the pipeline: it reads the truth. The cell is rebuilt from the 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +50,7 @@ def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
                                   d_mm=j.d_mm + g.get("dd_mm", 0.0), a_mm=j.a_mm + g.get("da_mm", 0.0),
                                   alpha_deg=j.alpha_deg + g.get("dalpha_arcsec", 0.0) / 3600,
                                   beta_deg=j.beta_deg + g.get("dbeta_arcsec", 0.0) / 3600)
-    true = Robot(true.name, true.joints, tuple(float(v) for v in truth["tool_xyz_mm"]), true.path)
+    true = replace(true, tool_xyz_mm=tuple(float(v) for v in truth["tool_xyz_mm"]))
     trans = {int(t["joint"]): t for t in truth["transmission"]}
     K = max((max(t["orders"]) for t in trans.values()), default=1)
     amp, phase = np.zeros((n, K)), np.zeros((n, K))

@@ -35,7 +35,8 @@ import scipy.linalg
 from . import lm  # the solvers as lm.improved_lm: looked up at call time (tests wrap them)
 from .budget import model_over_budget
 from ..arm.effects import REFERENCE_TEMPERATURE_C, Base, Geometry, RobotData, RobotEffect
-from ..arm.kinematics import Robot, build_error_model, positions_and_jacobians, positions
+from ..arm.kinematics import (Robot, build_error_model, placements, pose_jacobians, positions,
+                               positions_and_jacobians)
 from .lm import GAIN_REL_CONVERGED, implausible_parameters
 
 RANK_TOL = 1e-7   # singular value / largest singular value of the column-scaled Jacobian (numerical rank)
@@ -60,6 +61,44 @@ EXACT_TOL = 1e-9
 #: near, like the UR10's probe 0.4 mm off joint 6's axis) is not identified. Measured:
 #: at 1e-3 the rotations about joint 6's axis still came out at 1e5 arcsec on the real series.
 SHORT_LEVER = 1e-2
+#: A 6-DoF campaign's position and orientation residuals are weighed by variance components: the weight
+#: of the orientation rows (mm per mrad) is the ratio of the two components' RMS residuals (per axis)
+#: of the fit, refitted until it changes by less than VCE_RTOL (at most VCE_MAX_ITER fits); it starts
+#: from the stated uncertainties (sigma_mm / sigma_arcsec) when given, else from START_WEIGHT_MM_PER_MRAD.
+VCE_RTOL = 0.01
+VCE_MAX_ITER = 8
+START_WEIGHT_MM_PER_MRAD = 1.0
+ARCSEC_PER_MRAD = 206.264806
+
+
+def rotation_vectors(R) -> np.ndarray:
+    """Rotation vectors (rad) of rotation matrices, shape (n, 3, 3) -> (n, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(R, float)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def orientation_errors(R_pred, R_meas) -> np.ndarray:
+    """Orientation error of each pose: the rotation vector (mrad, base frame) of ``R_pred R_meas^T``,
+    the turn that takes the measured probe frame onto the predicted one (predicted - measured, as
+    positions are), shape (n, 3); its norm is the angle between the two frames."""
+    return rotation_vectors(np.einsum("nij,nkj->nik", R_pred, R_meas)) * 1000.0
+
+
+def angle_arcsec(e_mrad) -> np.ndarray:
+    """Angle (arcsec) of orientation errors (n, 3) mrad."""
+    return np.linalg.norm(np.asarray(e_mrad, float), axis=-1) * ARCSEC_PER_MRAD
+
+
+def start_weight(data) -> tuple[float, str]:
+    """The first orientation weight (mm per mrad) of a 6-DoF fit and where it came from."""
+    sp, so = getattr(data, "sigma_mm", None), getattr(data, "sigma_arcsec", None)
+    if sp is not None and so is not None and np.isfinite(sp).any() and np.isfinite(so).any():
+        a, b = float(np.nanmedian(sp)), float(np.nanmedian(so)) / ARCSEC_PER_MRAD
+        if a > 0 and b > 0:
+            return a / b, "the stated uncertainties (median sigma_mm / sigma_arcsec)"
+    return START_WEIGHT_MM_PER_MRAD, f"{START_WEIGHT_MM_PER_MRAD:g} mm per mrad"
 
 
 class Design:
@@ -109,15 +148,62 @@ class Design:
         np.add.at(dQ.T, self.c_idx, contrib.T)
         return self.Q0 + dQ
 
+    #: weight of the orientation rows of the residual (mm per mrad), None: positions only
+    weight = None
+
+    @property
+    def oriented(self) -> bool:
+        """Whether the residual has orientation rows (a 6-DoF campaign fitted on its orientations)."""
+        return self.weight is not None and getattr(self.data, "measured_R", None) is not None
+
     def predict(self, x) -> np.ndarray:
         """SMR positions (n, 3) mm."""
         return positions(self.model, self.configurations(x))
+
+    def predict_pose(self, x):
+        """Probe frames: rotations (n, 3, 3) and positions (n, 3) mm."""
+        return placements(self.model, self.configurations(x), "smr")
 
     def predict_and_jacobian(self, x):
         """Positions (n, 3) mm and Jacobian (n, 3, p) mm per internal unit."""
         P, Jext = positions_and_jacobians(self.model, self.configurations(x))
         J = np.einsum("nke,ep->nkp", Jext[:, :, self.c_idx] * self.V[:, None, :], self.S, optimize=True)
         return P, J
+
+    def pose_and_jacobian(self, x):
+        """Rotations (n, 3, 3), positions (n, 3) mm and Jacobian (n, 6, p): rows x, y, z in mm and the
+        probe frame's turn about x, y, z (base frame) in mrad, per internal unit."""
+        R, P, Jext = pose_jacobians(self.model, self.configurations(x), "smr")
+        Jext[:, 3:] *= 1000.0
+        J = np.einsum("nke,ep->nkp", Jext[:, :, self.c_idx] * self.V[:, None, :], self.S, optimize=True)
+        return R, P, J
+
+    def residual(self, x) -> np.ndarray:
+        """Residual vector of the fit (predicted - measured): the positions (3 n, mm) and, for a 6-DoF
+        fit, the orientation errors times :attr:`weight` (3 n, mm-equivalent)."""
+        if not self.oriented:
+            return (self.predict(x) - self.data.measured_mm).ravel()
+        R, P = self.predict_pose(x)
+        return np.concatenate([(P - self.data.measured_mm).ravel(),
+                               self.weight * orientation_errors(R, self.data.measured_R).ravel()])
+
+    def residual_and_jacobian(self, x):
+        """:meth:`residual` and its Jacobian (rows as the residual's, p columns)."""
+        if not self.oriented:
+            P, J = self.predict_and_jacobian(x)
+            return (P - self.data.measured_mm).ravel(), J.reshape(-1, self.p)
+        R, P, J = self.pose_and_jacobian(x)
+        F = np.concatenate([(P - self.data.measured_mm).ravel(),
+                            self.weight * orientation_errors(R, self.data.measured_R).ravel()])
+        return F, np.vstack([J[:, :3].reshape(-1, self.p), self.weight * J[:, 3:].reshape(-1, self.p)])
+
+    def jacobian_rows(self, x):
+        """The identification Jacobian (rows of :meth:`residual`), with the nominal positions (n, 3) mm."""
+        if not self.oriented:
+            P, J = self.predict_and_jacobian(x)
+            return P, J.reshape(-1, self.p)
+        _, P, J = self.pose_and_jacobian(x)
+        return P, np.vstack([J[:, :3].reshape(-1, self.p), self.weight * J[:, 3:].reshape(-1, self.p)])
 
 
 def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, priority=None,
@@ -479,6 +565,12 @@ class RobotErrorModel:
     start : dict, optional
         Parameter name -> value (internal units) to start the solver from (the solution of a model
         nested in this one, :func:`pipeline.robot.model.estimate.fit_effects`); default: nominal (0).
+    orientation : bool
+        On a campaign with a 6-DoF probe's orientations (``RobotData.measured_R``), fit them too
+        (contract section 13); False fits the positions alone.
+    orientation_weight : float or None
+        Weight of the orientation rows, mm per mrad; None: estimated by variance components
+        (:data:`VCE_RTOL`), stated in ``weighting_``.
     reduction : {"fix", "svd"}
         What to do with the directions that are not identifiable: ``"fix"`` fixes the
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
@@ -492,15 +584,20 @@ class RobotErrorModel:
     identifiability_ : dict (see :func:`identifiability`)
     cost_ : float, 0.5 ||F||^2 at the solution, mm^2
     rms_mm_ : float, RMS of the 3-D position residual norms of the fitted poses
+    orientation_rms_arcsec_ : float or None, RMS of the orientation errors (angles) of the fitted poses
+    weighting_ : dict or None, how positions and orientations were weighed (6-DoF fits)
     n_iter_, seconds_ : iterations and wall time of the solver
     solver_result_ : LMResult or None
     """
 
     def __init__(self, robot: Robot, effects, solver: str = "gauss-newton", identifiability: bool = True,
                  lm_options: dict | None = None, max_iter: int = 100, rank_tol: float = RANK_TOL,
-                 reduction: str = "fix", weak_tol: float | None = WEAK_TOL, start: dict | None = None):
+                 reduction: str = "fix", weak_tol: float | None = WEAK_TOL, start: dict | None = None,
+                 orientation: bool = True, orientation_weight: float | None = None):
         self.robot = robot
         self.start = start
+        self.orientation = orientation
+        self.orientation_weight = orientation_weight
         self.effects = effects
         self.solver = solver
         self.identifiability = identifiability
@@ -525,8 +622,11 @@ class RobotErrorModel:
         return sorted(range(len(names)), key=key)
 
     def design(self, data: RobotData) -> Design:
-        return Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
-                      getattr(self, "_model_and_index", None))
+        d = Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
+                   getattr(self, "_model_and_index", None))
+        if self.orientation and getattr(data, "measured_R", None) is not None:
+            d.weight = getattr(self, "_weight", None) or self.orientation_weight or start_weight(data)[0]
+        return d
 
     def identification(self, data: RobotData):
         """The identification problem of ``data`` at the nominal parameters, as :meth:`fit` sees it.
@@ -543,8 +643,7 @@ class RobotErrorModel:
         d = self.design(data)
         self._model_and_index = (d.model, d.idx)
         x = np.zeros(d.p)
-        P, J = d.predict_and_jacobian(x)
-        J2 = J.reshape(-1, d.p)
+        P, J2 = d.jacobian_rows(x)
         # penalty rows of the effects that have one (smooth many-parameter effects), (m, p)
         blocks, penalised = [], np.zeros(d.p, bool)
         k = 0
@@ -565,7 +664,84 @@ class RobotErrorModel:
         return d, P, J2, Pen, penalised, ident
 
     def fit(self, data: RobotData) -> "RobotErrorModel":
+        """Fit on ``data``'s measured positions (and orientations, a 6-DoF campaign); returns self.
+
+        A 6-DoF fit without a stated ``orientation_weight`` weighs the two by variance components:
+        fitted at a weight, the weight becomes the ratio of the RMS position residual (mm, per axis)
+        to the RMS orientation residual (mrad, per axis), and the model is fitted again, until the
+        weight changes by less than :data:`VCE_RTOL`. Where it starts does not decide where it ends."""
         t0 = time.perf_counter()
+        self._weight = None
+        self.weighting_ = None
+        if getattr(data, "measured_R", None) is None:
+            return self._fit_once(data, t0)
+        if not self.orientation:
+            # positions alone; a 6-DoF probe's mounting on the flange then comes from the orientations
+            # with every other parameter as the positions put it (the rotation nearest all of them)
+            self._fit_once(data, t0)
+            self._register_mounting(data)
+            self.weighting_ = {"method": "positions only",
+                               "rule": "fitted on the positions alone; the probe frame's turn on the flange (tool_ex, "
+                                       "tool_ey, tool_ez) is then the mean rotation from the predicted to the measured "
+                                       "probe frames, every other parameter as the positions put it"}
+            self.seconds_ = time.perf_counter() - t0
+            return self
+        w, source = ((float(self.orientation_weight), "stated (orientation_weight)") if self.orientation_weight
+                     else start_weight(data))
+        history = []
+        for it in range(1, VCE_MAX_ITER + 1):
+            self._weight = w
+            self._fit_once(data, t0)
+            d = self.design(data)
+            R, P = d.predict_pose(self.coef_)
+            sp = float(np.sqrt(np.mean((P - data.measured_mm) ** 2)))
+            so = float(np.sqrt(np.mean(orientation_errors(R, data.measured_R) ** 2)))
+            history.append(w)
+            if self.orientation_weight or so <= 0 or sp <= 0:
+                break
+            w_new = sp / so
+            if abs(np.log(w_new / w)) < VCE_RTOL:
+                break
+            w = w_new
+        self.weighting_ = {
+            "method": "stated" if self.orientation_weight else "variance components",
+            "rule": ("the orientation rows (mrad) weigh orientation_weight_mm_per_mrad mm each: the ratio of the "
+                     "fit's RMS position residual per axis (mm) to its RMS orientation residual per axis (mrad), "
+                     f"refitted until it changes by less than {VCE_RTOL:.0%}"),
+            "started_from": source, "iterations": len(history),
+            "orientation_weight_mm_per_mrad": float(self._weight),
+            "position_sigma_mm": sp, "orientation_sigma_arcsec": so * ARCSEC_PER_MRAD}
+        self.seconds_ = time.perf_counter() - t0
+        return self
+
+    def _register_mounting(self, data: RobotData) -> None:
+        """Set the probe frame's turn on the flange (the tool's orientation parameters) to the chordal
+        mean of the rotations from the predicted to the measured probe frames."""
+        from scipy.spatial.transform import Rotation
+
+        names = ["tool_ex", "tool_ey", "tool_ez"]
+        if not all(n in self.names_ for n in names):
+            return
+        cols = [self.names_.index(n) for n in names]
+        coef = self.coef_.copy()
+        coef[cols] = 0.0
+        R, _ = self.design(data).predict_pose(coef)
+        rel = np.einsum("nji,njk->nik", R, data.measured_R)
+        U, _, Vt = np.linalg.svd(rel.mean(axis=0))
+        M = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        coef[cols] = Rotation.from_matrix(M).as_euler("XYZ") * 1000.0    # the joints RX RY RZ, mrad
+        self.coef_ = coef
+        self.fixed_ = [n for n in self.fixed_ if n not in names]
+        reasons = self.identifiability_.get("fixed_reasons", {})
+        for n in names:
+            reasons.pop(n, None)
+        self.identifiability_["not_identifiable"] = [n for n in self.identifiability_.get("not_identifiable", [])
+                                                     if n not in names]
+        Rp, _ = self.design(data).predict_pose(self.coef_)
+        self.orientation_rms_arcsec_ = float(np.sqrt(np.mean(angle_arcsec(orientation_errors(Rp, data.measured_R))
+                                                             ** 2)))
+
+    def _fit_once(self, data: RobotData, t0) -> "RobotErrorModel":
         d, P, J2, Pen, penalised, ident = self.identification(data)
         meas = np.asarray(data.measured_mm, float)
         norms = np.linalg.norm(J2, axis=0)
@@ -614,11 +790,11 @@ class RobotErrorModel:
         PB = Pen @ B
 
         def fun(z):
-            return np.concatenate([(d.predict(full(z)) - meas).ravel(), PB @ z])
+            return np.concatenate([d.residual(full(z)), PB @ z])
 
         def fun_and_jac(z):
-            P_, J_ = d.predict_and_jacobian(full(z))
-            return np.concatenate([(P_ - meas).ravel(), PB @ z]), np.vstack([J_.reshape(-1, d.p) @ B, PB])
+            F_, J_ = d.residual_and_jacobian(full(z))
+            return np.concatenate([F_, PB @ z]), np.vstack([J_ @ B, PB])
 
         free = np.arange(B.shape[1])
         result = None
@@ -639,6 +815,8 @@ class RobotErrorModel:
             xf = z0.copy()
             if self.start:
                 F, Jf = fun_and_jac(xf)
+            elif d.oriented:
+                F, Jf = np.concatenate([d.residual(np.zeros(d.p)), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             else:
                 F, Jf = np.concatenate([(P - meas).ravel(), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             cost = 0.5 * float(F @ F)
@@ -698,7 +876,14 @@ class RobotErrorModel:
         self.identifiability_ = ident
         self.fixed_ = ident["not_identifiable"]
         self.cost_ = cost
-        resid = (d.predict(self.coef_) - meas)
+        if d.oriented:
+            R_, P_ = d.predict_pose(self.coef_)
+            resid = P_ - meas
+            self.orientation_rms_arcsec_ = float(np.sqrt(np.mean(angle_arcsec(orientation_errors(R_, data.measured_R))
+                                                                 ** 2)))
+        else:
+            resid = (d.predict(self.coef_) - meas)
+            self.orientation_rms_arcsec_ = None
         self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
         self.solver_result_ = result
         # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
@@ -729,6 +914,10 @@ class RobotErrorModel:
     def predict(self, data: RobotData) -> np.ndarray:
         """Model SMR positions, shape (n, 3), mm."""
         return self.design(data).predict(self.coef_)
+
+    def predict_pose(self, data: RobotData):
+        """Model probe frames: rotations (n, 3, 3) and positions (n, 3) mm."""
+        return self.design(data).predict_pose(self.coef_)
 
     def predict_error(self, data: RobotData) -> np.ndarray:
         """Predicted position error (model - nominal), shape (n, 3), mm (the paper's Delta P_e)."""

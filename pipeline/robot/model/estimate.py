@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.crossval import CVResult
-from .calibrate import Design, RobotErrorModel
+from .calibrate import Design, RobotErrorModel, angle_arcsec, orientation_errors
 from .chebyshev import chebyshev_estimator
 
 
@@ -16,15 +16,33 @@ def error_stats(err_mm) -> dict:
             "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0, "n": int(n.size)}
 
 
-def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
+def effects_estimator(robot, effects, start=None, orientation: bool = True) -> RobotErrorModel:
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
-    start the solver from (a nested model's solution)."""
+    start the solver from (a nested model's solution). ``orientation``: fit a 6-DoF campaign's
+    orientations too (False: its positions alone)."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
         est.start = start
+        est.orientation = orientation
         return est
-    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start)
+    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, orientation=orientation)
+
+
+def orientation_stats(err_mrad) -> dict:
+    """Orientation error statistics (arcsec) of orientation errors (n, 3) mrad: the angle between
+    measured and predicted probe frames."""
+    a = angle_arcsec(err_mrad)
+    return {"min_arcsec": float(a.min()), "max_arcsec": float(a.max()), "mean_arcsec": float(a.mean()),
+            "std_arcsec": float(a.std(ddof=1)) if a.size > 1 else 0.0, "rms_arcsec": float(np.sqrt(np.mean(a ** 2))),
+            "n": int(a.size)}
+
+
+def point_errors(R_pred, P_pred, R_meas, P_meas, point_mm) -> np.ndarray:
+    """Error vectors (n, 3) mm of a point rigidly fixed to the probe (``point_mm`` (3,), probe frame):
+    measured - predicted, as positions are."""
+    p = np.asarray(point_mm, float)
+    return (P_meas + np.einsum("nij,j->ni", R_meas, p)) - (P_pred + np.einsum("nij,j->ni", R_pred, p))
 
 
 #: A fit may leave its sample poses' RMS at most this much (relative) above a model nested in it:
@@ -58,7 +76,7 @@ def nested_models(effects, robot=None) -> list[list]:
     return out
 
 
-def fit_effects(robot, effects, data, check_nested: bool = False):
+def fit_effects(robot, effects, data, check_nested: bool = False, orientation: bool = True):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -69,17 +87,17 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
     (else it is ''). ``nested_`` lists each nested model's sample RMS (mm).
     """
-    model = effects_estimator(robot, effects).fit(data)
+    model = effects_estimator(robot, effects, orientation=orientation).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
     for nested in nested_models(effects, robot):
-        m0 = effects_estimator(robot, nested).fit(data)
+        m0 = effects_estimator(robot, nested, orientation=orientation).fit(data)
         entry = {"effects": [e.name for e in nested], "rms_mm": m0.rms_mm_}
         model.nested_.append(entry)
         if model.rms_mm_ <= m0.rms_mm_ * (1.0 + NESTED_RTOL):
             continue
-        warm = effects_estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_))).fit(data)
+        warm = effects_estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_)), orientation=orientation).fit(data)
         entry["started_from_it"] = True
         if warm.rms_mm_ < model.rms_mm_:
             warm.conflict_, warm.nested_ = "", model.nested_
@@ -128,6 +146,14 @@ def heldout_fit(robot, effects, sample, target, model=None) -> dict:
            "after": error_stats(after), "rms_before_mm": rms(before), "rms_after_mm": rms(after)}
     out["max_reduction_pct"] = 100.0 * (1.0 - out["after"]["max_mm"] / out["before"]["max_mm"])
     out["rms_reduction_pct"] = 100.0 * (1.0 - out["rms_after_mm"] / out["rms_before_mm"])
+    if target.has_orientation:
+        # a 6-DoF campaign: the orientation error beside the position error (contract section 13)
+        R0, _ = Design(robot, [], target).predict_pose(np.zeros(0))
+        Rm, _ = model.predict_pose(target)
+        ob, oa = orientation_errors(R0, target.measured_R), orientation_errors(Rm, target.measured_R)
+        out["orientation_before"], out["orientation_after"] = orientation_stats(ob), orientation_stats(oa)
+        out["orientation_rms_before_arcsec"] = out["orientation_before"]["rms_arcsec"]
+        out["orientation_rms_after_arcsec"] = out["orientation_after"]["rms_arcsec"]
     ident = getattr(model, "identifiability_", None) or {}
     out["identifiability"] = {k: ident[k] for k in ("rank", "n_params", "condition_number", "not_identifiable")
                               if k in ident}
@@ -152,20 +178,27 @@ def fold_description(data, n_folds: int = N_FOLDS) -> str:
     return f"{n_folds}-fold by pose over {data.n} sample poses"
 
 
-def cross_validate(robot, effects, data, n_folds: int = N_FOLDS) -> CVResult:
+def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True) -> CVResult:
     """Held-out residuals (mm, shape (n, 3)) of ``effects`` fitted by :func:`fit_effects`, k-fold by pose.
 
     Each fold of poses (:func:`fold_ids`) is predicted by the model fitted on the others; without
-    effects, by the nominal kinematics. Poses are the independent blocks.
+    effects, by the nominal kinematics. Poses are the independent blocks. On a 6-DoF campaign
+    ``extra["orientation"]`` holds the held-out orientation errors (n, 3) mrad (predicted - measured).
     """
     folds = fold_ids(data.n, n_folds)
     res = np.empty((data.n, 3))
+    ori = np.empty((data.n, 3)) if data.has_orientation else None
     for f in range(n_folds):
         test = folds == f
         train, held = data.subset(~test), data.subset(test)
-        if not effects:
-            pred = Design(robot, [], held).predict(np.zeros(0))
+        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, orientation=orientation)
+        if ori is not None:
+            R, pred = m.predict_pose(np.zeros(0)) if not effects else m.predict_pose(held)
+            ori[test] = orientation_errors(R, held.measured_R)
         else:
-            pred = fit_effects(robot, effects, train).predict(held)
+            pred = m.predict(np.zeros(0)) if not effects else m.predict(held)
         res[test] = data.measured_mm[test] - pred
-    return CVResult(res, np.arange(data.n))
+    out = CVResult(res, np.arange(data.n))
+    if ori is not None:
+        out.extra["orientation"] = ori
+    return out

@@ -7,8 +7,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ...core.errors import InputError
 from ...core.spec import _locate
+from .calibrate import angle_arcsec
 from .estimate import cross_validate, fit_effects, fold_description, heldout_fit
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
@@ -59,7 +62,7 @@ def _silent(message: str) -> None:
     pass
 
 
-def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent) -> dict:
+def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orientation: bool = True) -> dict:
     """``jointcal fit --campaign``: :func:`robot_fit_result` of a robot campaign folder, its wild
     measurements named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``.
 
@@ -75,10 +78,10 @@ def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent) -> d
     wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
     if wild.outliers:
         warn(describe(wild))
-    return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild)
+    return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild, orientation=orientation)
 
 
-def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
+def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool = True) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
@@ -89,6 +92,9 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
     already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
     ``wild``: the campaign's wild poses (:func:`pipeline.robot.model.outliers.find_wild`), left out of the
     fit, the cross-validation and the held-out errors (given with them beside, ``heldout_with_outliers``).
+    ``orientation``: on a 6-DoF campaign, fit the orientations too (contract section 13; False: the
+    positions alone, the probe's mounting then registered on the orientations). How positions and
+    orientations were weighed is ``weighting``; held-out orientation errors are in ``heldout``.
     """
     frame_info = None
     if loaded is None:
@@ -106,7 +112,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
     effects = list(spec.effects)
     out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
            "spec_lines": [e.spec_lines() for e in effects]}
-    model = fit_effects(robot, effects, sample, check_nested=True)
+    model = fit_effects(robot, effects, sample, check_nested=True, orientation=orientation)
     if target.n:
         out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
         rng = sampled_range(sample.q_deg)
@@ -116,8 +122,13 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
         if target_all.n > target.n:
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
-    out["cv_rms_mm"] = cross_validate(robot, effects, sample).rms
+    cv = cross_validate(robot, effects, sample, orientation=orientation)
+    out["cv_rms_mm"] = cv.rms
+    if "orientation" in cv.extra:
+        out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))
     out["cv_folds"] = fold_description(sample)
+    if getattr(model, "weighting_", None):
+        out["weighting"] = model.weighting_
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))
     # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
     chain, info = fit_rigid_chain(robot, model, sample)

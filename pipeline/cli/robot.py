@@ -532,14 +532,20 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
               help="Estimate the rigid tracker-to-base transform again on the campaign's sample poses first "
                    "(the tracker was moved); every other parameter is the model's.")
 @click.option("--keep-outliers", is_flag=True, help=WILD_HELP)
-def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
+@click.option("--point", "point", default=None, metavar='"X Y Z"',
+              help="A 6-DoF campaign: also the error of this point rigidly fixed to the probe (mm, probe frame; "
+                   "e.g. \"0 0 300\" for a tool centre point 300 mm out along the probe's z), which the measured "
+                   "probe frame observes exactly: point_rms_mm, point_max_mm, per point point_error_mm.")
+def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
     """Predict every pose of another campaign with a fitted model and compare with its tracker points.
 
     Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
     none): n, rms_mm, max_mm, mean_mm, std_mm, outside_sampled_range (poses outside the joint
     ranges the model was fitted on, where it extrapolates) and one line per point. Wild measurements
     of the campaign are named and left out of the registration and of those errors (``with_outliers``:
-    the errors with the wild targets beside); see --keep-outliers.
+    the errors with the wild targets beside); see --keep-outliers. A campaign measured with a 6-DoF
+    probe (tracker.csv qw..qz) also gets its orientation errors: the angle between the measured and
+    the predicted probe frames (orientation_rms_arcsec, orientation_max_arcsec, per point).
     """
     import numpy as np
 
@@ -552,7 +558,17 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
     def warn(msg):
         click.echo(f"jointcal: {msg}", err=True)
 
-    result = predict_other_campaign(campaign, _read_json(model_path), model_path, register, keep_outliers, warn)
+    point_mm = None
+    if point is not None:
+        try:
+            point_mm = [float(v) for v in point.replace(",", " ").split()]
+        except ValueError:
+            point_mm = []
+        if len(point_mm) != 3 or not np.all(np.isfinite(point_mm)):
+            raise click.BadParameter(f"{point!r}: give three numbers in mm, \"X Y Z\" in the probe frame",
+                                     param_hint="--point")
+    result = predict_other_campaign(campaign, _read_json(model_path), model_path, register, keep_outliers, warn,
+                                    point_mm)
     result["provenance"] = provenance(campaign_files(campaign) + [model_path])
     write_json(json_out, result)
     reg = result["registration"]
@@ -561,5 +577,10 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
                + (f"; re-registered on {reg['n']} sample poses ({reg['rotation_deg']:.3f} deg, "
                   f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else "")
                + (f"; with the wild targets: RMS {result['with_outliers']['rms_mm']:.3f} mm, max "
-                  f"{result['with_outliers']['max_mm']:.3f} mm" if "with_outliers" in result else ""), err=True)
+                  f"{result['with_outliers']['max_mm']:.3f} mm" if "with_outliers" in result else "")
+               + (f"; orientation RMS {result['orientation_rms_arcsec']:.1f} arcsec, max "
+                  f"{result['orientation_max_arcsec']:.1f} arcsec" if "orientation_rms_arcsec" in result else "")
+               + (f"; the point {' '.join(f'{v:g}' for v in result['point_mm'])} mm on the probe: RMS "
+                  f"{result['point_rms_mm']:.3f} mm, max {result['point_max_mm']:.3f} mm" if "point_rms_mm" in result
+                  else ""), err=True)
 

@@ -160,6 +160,10 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             candidates[-1]["gain_region"] = 1.0 - ev["region"].rms / base_region.rms if base_region.rms > 0 else 0.0
         if ev.get("refused"):
             candidates[-1]["refused"] = ev["refused"]
+        split = _components(adapter, base, with_cv, data)
+        if split:
+            candidates[-1].update(split)
+            candidates[-1]["explanation"] = cand.explanation + " " + split["seen"]
         cand_objects[id(candidates[-1])] = cand
     # Bonferroni over the candidates tried: the chance that any candidate of a model that
     # lacks nothing is marked meaningful stays below alpha.
@@ -180,11 +184,17 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
                 if hasattr(adapter, "refit_cv") else None)
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     noise = adapter.noise_estimate(data) if hasattr(adapter, "noise_estimate") else None
+    base_split = adapter.components(base, data) if hasattr(adapter, "components") else None
     out = {
         "kind": spec.kind,
         "baseline": {"effects": [e.name for e in base_effects], "cv_rms": base.rms, "unit": adapter.unit,
                      "folds": adapter.fold_description(data),
-                     **({"cv_rms_region": base_region.rms} if regional else {})},
+                     **({"cv_rms_region": base_region.rms} if regional else {}),
+                     **({"residual": "position and orientation: per pose the position error (mm) and the orientation "
+                                     "error (mrad) times orientation_weight_mm_per_mrad",
+                         "orientation_weight_mm_per_mrad": adapter.weight(data),
+                         "cv_position_rms_mm": base_split["position_rms_mm"],
+                         "cv_orientation_rms_arcsec": base_split["orientation_rms_arcsec"]} if base_split else {})},
         "candidates": candidates,
         "not_revealable": unrevealable,
         "thresholds": {"alpha": alpha, "p_max": p_max, "min_gain": min_gain},
@@ -197,6 +207,42 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     if not any(c["meaningful"] for c in candidates):
         say(f"no candidate is meaningful: {done_text(out)}")
     return out
+
+
+def _trade(adapter, before, after, data, min_gain) -> str:
+    """On a 6-DoF campaign, what a change of the model made worse held out: the position or the orientation
+    RMS risen by more than ``min_gain`` (a set that lowers one by raising the other is not kept); ''."""
+    if not hasattr(adapter, "components"):
+        return ""
+    a, b = adapter.components(before, data), adapter.components(after, data)
+    if not a or not b:
+        return ""
+    rises = []
+    if b["position_rms_mm"] > a["position_rms_mm"] * (1.0 + min_gain):
+        rises.append(f"the position error rises from {a['position_rms_mm']:.4g} to {b['position_rms_mm']:.4g} mm")
+    if b["orientation_rms_arcsec"] > a["orientation_rms_arcsec"] * (1.0 + min_gain):
+        rises.append(f"the orientation error rises from {a['orientation_rms_arcsec']:.1f} to "
+                     f"{b['orientation_rms_arcsec']:.1f} arcsec")
+    return "; ".join(rises)
+
+
+def _components(adapter, base, with_cv, data) -> dict:
+    """A 6-DoF campaign's candidate: its held-out position and orientation RMS apart, and which of the two
+    showed it, in words ({} for positions only)."""
+    if not hasattr(adapter, "components"):
+        return {}
+    b, w = adapter.components(base, data), adapter.components(with_cv, data)
+    if not b or not w:
+        return {}
+    gp = 1.0 - w["position_rms_mm"] / b["position_rms_mm"] if b["position_rms_mm"] > 0 else 0.0
+    go = 1.0 - w["orientation_rms_arcsec"] / b["orientation_rms_arcsec"] if b["orientation_rms_arcsec"] > 0 else 0.0
+    where = ("both the position and the orientation" if min(gp, go) > 0.5 * max(gp, go) > 0 else
+             "the orientation" if go > gp else "the position")
+    seen = (f"Seen in {where}: held out, the probe's orientation error goes from {b['orientation_rms_arcsec']:.1f} to "
+            f"{w['orientation_rms_arcsec']:.1f} arcsec ({100 * go:+.1f} %), its position error from "
+            f"{b['position_rms_mm']:.4g} to {w['position_rms_mm']:.4g} mm ({100 * gp:+.1f} %).")
+    return {"cv_position_rms_mm_with": w["position_rms_mm"], "cv_orientation_rms_arcsec_with": w["orientation_rms_arcsec"],
+            "gain_position": gp, "gain_orientation": go, "seen_in": where, "seen": seen}
 
 
 #: The residual is "at the noise" when its RMS is at most this many times the noise estimate's.
@@ -265,11 +311,21 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, 
     gain = 1.0 - s.rms / b.rms if b.rms > 0 else 0.0
     # the members' gains are linear corrections, the set's refits (of the set and of the baseline
     # alike: a joint map's baseline refitted fold by fold loses more than its linear correction says)
-    ok = gain >= min_gain and sr.rms < br.rms and gain >= best_alone - min_gain
+    trade = _trade(adapter, b, s, data, min_gain)
+    ok = gain >= min_gain and sr.rms < br.rms and gain >= best_alone - min_gain and not trade
     out = {"members": [label(c) for c in members], "checked": True, "baseline_cv_rms": b.rms,
            "baseline_cv_rms_region": br.rms, "cv_rms": s.rms, "cv_rms_region": sr.rms, "gain": gain,
            "gain_region": 1.0 - sr.rms / br.rms if br.rms > 0 else 0.0, "passed": bool(ok), "dropped": [],
            "method": "each fold refitted (nonlinear least squares from the start), by pose and by region"}
+    split_b = adapter.components(b, data) if hasattr(adapter, "components") else None
+    if split_b:
+        split_s = adapter.components(s, data)
+        out.update(baseline_cv_position_rms_mm=split_b["position_rms_mm"],
+                   baseline_cv_orientation_rms_arcsec=split_b["orientation_rms_arcsec"],
+                   cv_position_rms_mm=split_s["position_rms_mm"], cv_orientation_rms_arcsec=split_s["orientation_rms_arcsec"])
+    if trade:
+        out["trade"] = trade
+        say(f"the set trades one error for the other ({trade})")
     if ok:
         return out
     say(f"the set does worse together ({s.rms:.4g} by pose, {sr.rms:.4g} by region, against {b.rms:.4g} / "
@@ -279,7 +335,8 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, 
     for c in members:
         trial = adapter.add(effects, objects[id(c)])
         t, tr = adapter.refit_cv(trial, data)
-        if t.rms < cur.rms * (1.0 - min_gain) and tr.rms < cur_r.rms:
+        traded = _trade(adapter, cur, t, data, min_gain)
+        if t.rms < cur.rms * (1.0 - min_gain) and tr.rms < cur_r.rms and not traded:
             kept.append(c)
             effects, cur, cur_r = trial, t, tr
             say(f"  + {label(c)}: kept ({t.rms:.4g} by pose, {tr.rms:.4g} by region)")
@@ -287,7 +344,8 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, 
             c["meaningful"] = False
             c["refused"] = (f"dropped from the recommended set: refitted with "
                             f"{' + '.join(label(k) for k in kept) or 'the baseline'}, it takes the error from "
-                            f"{cur.rms:.4g} to {t.rms:.4g} by pose and {cur_r.rms:.4g} to {tr.rms:.4g} by region")
+                            f"{cur.rms:.4g} to {t.rms:.4g} by pose and {cur_r.rms:.4g} to {tr.rms:.4g} by region"
+                            + (f", and trades one error for the other ({traded})" if traded else ""))
             out["dropped"].append(label(c))
             say(f"  + {label(c)}: dropped ({t.rms:.4g} by pose, {tr.rms:.4g} by region)")
     out.update(members=[label(c) for c in kept], cv_rms=cur.rms, cv_rms_region=cur_r.rms,

@@ -27,9 +27,9 @@ import numpy as np
 
 # configurations drawn in the sampled joint box (the robot's error budget, shared with every fit)
 from ..robot.model.budget import N_BOX, box_configurations  # noqa: F401 (re-exported)
-from ..robot.model.calibrate import WEAK_TOL, Design
+from ..robot.model.calibrate import WEAK_TOL, Design, orientation_errors, start_weight
 from ..robot.model.estimate import fit_effects
-from ..robot.arm.kinematics import positions_and_jacobians
+from ..robot.arm.kinematics import pose_jacobians, positions_and_jacobians
 
 #: Region folds: number of blocks of joint space and k-means iterations.
 N_REGIONS = 5
@@ -82,17 +82,24 @@ def region_folds(q_deg, k: int = N_REGIONS, seed: int = 0) -> np.ndarray:
 
 
 def channel_jacobian(design: Design, x) -> np.ndarray:
-    """Positions' Jacobian (n, 3, nv) with respect to every channel of the error model at ``x``."""
+    """Positions' Jacobian (n, 3, nv) with respect to every channel of the error model at ``x``; for a
+    6-DoF design (``design.oriented``) (n, 6, nv), the probe frame's turn in mrad times the design's
+    orientation weight (mm-equivalent) below the positions."""
+    if design.oriented:
+        _, _, Jext = pose_jacobians(design.model, design.configurations(x))
+        Jext[:, 3:] *= 1000.0 * design.weight
+        return Jext
     _, Jext = positions_and_jacobians(design.model, design.configurations(x))
     return Jext
 
 
 def effect_columns(robot, effect, data, Jext, idx_model) -> tuple[np.ndarray, list, list]:
     """Jacobian (3n, k) of the SMR positions with respect to ``effect``'s parameters (internal units),
-    chained from the channel Jacobian ``Jext`` (n, 3, nv); and its names and units."""
+    chained from the channel Jacobian ``Jext`` (n, 3, nv) (6n rows from a 6-DoF one, (n, 6, nv));
+    and its names and units."""
     d = Design(robot, [effect], data, idx_model)
     if d.p == 0:
-        return np.zeros((3 * data.n, 0)), [], []
+        return np.zeros((Jext.shape[1] * data.n, 0)), [], []
     J = np.einsum("nke,ep->nkp", Jext[:, :, d.c_idx] * d.V[:, None, :], d.S, optimize=True)
     return J.reshape(-1, d.p), d.names, d.units
 
@@ -121,15 +128,26 @@ class LinearProblem:
     folds : dict name -> ndarray of int, shape (n,) (e.g. ``{"random": ..., "region": ...}``)
     """
 
-    def __init__(self, robot, base_effects, data, folds: dict):
+    def __init__(self, robot, base_effects, data, folds: dict, weight=None):
         self.robot, self.data, self.folds = robot, data, folds
         n = data.n
+        #: rows per pose: 3 (positions) or 6 (a 6-DoF campaign: positions and weighted orientations)
+        self.dim = 6 if data.has_orientation else 3
+        #: weight of the orientation rows (mm per mrad; None: positions only)
+        self.weight = None
         if base_effects:
             self.model = fit_effects(robot, base_effects, data)
+            if self.dim == 6:
+                self.model._weight = weight or self.model._weight
             d = self.model.design(data)
+            self.weight = d.weight if d.oriented else None
             self.idx_model = (d.model, d.idx)
             self.coef = self.model.coef_
-            pred, Jall = d.predict_and_jacobian(self.coef)
+            if d.oriented:
+                R_pred, pred, Jall = d.pose_and_jacobian(self.coef)
+                Jall[:, 3:] *= d.weight
+            else:
+                pred, Jall = d.predict_and_jacobian(self.coef)
             keep = ~np.isin(d.names, self.model.fixed_)
             J = Jall.reshape(-1, d.p)[:, keep]
             pen = _penalty(robot, self.model.effects_, n, d.p)
@@ -139,12 +157,21 @@ class LinearProblem:
         else:
             self.model = None
             d = Design(robot, [], data)
+            if self.dim == 6:
+                d.weight = self.weight = weight or start_weight(data)[0]
             self.idx_model = (d.model, d.idx)
             self.coef = np.zeros(0)
-            pred = d.predict(self.coef)
-            self.base = Block(np.zeros((3 * n, 0)))
+            if d.oriented:
+                R_pred, pred = d.predict_pose(self.coef)
+            else:
+                pred = d.predict(self.coef)
+            self.base = Block(np.zeros((self.dim * n, 0)))
             self.base_design = d
-        self.r = (np.asarray(data.measured_mm, float) - pred).ravel()
+        r = np.asarray(data.measured_mm, float) - pred
+        if self.dim == 6:
+            # measured - predicted, as the positions: the turn from the predicted probe frame to the measured
+            r = np.hstack([r, -self.weight * orientation_errors(R_pred, data.measured_R)])
+        self.r = r.ravel()
         self.Jext = channel_jacobian(self.base_design, self.coef)
         self._gram = {}
 
@@ -158,7 +185,7 @@ class LinearProblem:
 
     # ------------------------------------------------------------------ solves
     def _rows(self, mask):
-        return np.repeat(mask, 3)
+        return np.repeat(mask, self.dim)
 
     def _solve(self, blocks, rows):
         """Least squares of r on the blocks' columns over ``rows`` (+ penalties); coefficients."""
@@ -198,7 +225,8 @@ class LinearProblem:
         return self._gram[key]
 
     def cv(self, blocks, folds: str):
-        """Held-out residuals (n, 3) of the model "baseline + blocks" under the fold set ``folds``.
+        """Held-out residuals (n, 3) of the model "baseline + blocks" under the fold set ``folds`` ((n, 6) on a
+        6-DoF campaign: positions mm, then the orientation's mrad times :attr:`weight`).
 
         With one extra block the baseline's part is eliminated (Schur complement on the baseline's
         normal equations, solved once per fold), so a candidate costs products with its own columns.
@@ -225,14 +253,14 @@ class LinearProblem:
                 dc = (V[:, keep] @ ((V[:, keep].T @ (rhs / sc)) / w[keep])) / sc
                 db = Ginv @ (gb - Gbc @ dc)
                 out[test] = self.r[test] - self.base.J[test] @ db - c.J[test] @ dc
-            return out.reshape(-1, 3)
+            return out.reshape(-1, self.dim)
         blocks = [self.base, *blocks]
         for f in np.unique(ids):
             test = self._rows(ids == f)
             delta = self._solve(blocks, ~test)
             X = np.hstack([b.J[test] for b in blocks])
             out[test] = self.r[test] - (X @ delta if X.shape[1] else 0.0)
-        return out.reshape(-1, 3)
+        return out.reshape(-1, self.dim)
 
     def fit_all(self, blocks):
         """Coefficients of every block (base first) fitted on all sample poses, and the change
@@ -244,7 +272,7 @@ class LinearProblem:
         for b in blocks:
             parts.append(delta[off:off + b.k])
             off += b.k
-        contrib = [(b.J @ p).reshape(-1, 3) for b, p in zip(blocks, parts)]
+        contrib = [(b.J @ p).reshape(-1, self.dim)[:, :3] for b, p in zip(blocks, parts)]
         return parts, contrib
 
 

@@ -48,11 +48,22 @@ def _stats(err) -> dict:
             "mean_mm": float(e.mean())}
 
 
-def errors_elsewhere(model, sample, target) -> np.ndarray:
-    """Errors (n, 3) mm of ``model`` on another series' target poses, its tracker re-registered on the
-    series' sample poses (rigid fit of their points onto the model's predictions)."""
-    R, t = rigid_fit(sample.measured_mm, model.predict(sample))
-    return apply(R, t, target.measured_mm) - model.predict(target)
+def _pose_stats(model, target, register_on=None) -> dict:
+    """:func:`_stats` of a model's held-out errors on ``target``, with the orientation's (arcsec) on a 6-DoF
+    campaign; ``register_on``: another series' sample poses to re-register its tracker on first."""
+    from ..robot.model.calibrate import angle_arcsec, orientation_errors
+
+    Rt = np.eye(3)
+    if register_on is None:
+        out = _stats(target.measured_mm - model.predict(target))
+    else:
+        Rt, tt = rigid_fit(register_on.measured_mm, model.predict(register_on))
+        out = _stats(apply(Rt, tt, target.measured_mm) - model.predict(target))
+    if target.has_orientation:
+        R, _ = model.predict_pose(target)
+        a = angle_arcsec(orientation_errors(R, np.einsum("ij,njk->nik", Rt, target.measured_R)))
+        out.update(orientation_rms_arcsec=float(np.sqrt(np.mean(a ** 2))), orientation_max_arcsec=float(a.max()))
+    return out
 
 
 def model_cv(robot, effects, sample) -> tuple[float, float]:
@@ -199,8 +210,8 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         say(f"round {k}: {' + '.join(spec.names())}")
         model = fit_effects(robot, list(spec.effects), sample)
         row = {"round": k, "effects": [e.spec_lines() for e in spec.effects],
-               "own": _stats(target.measured_mm - model.predict(target)) if target.n else None,
-               "other": _stats(errors_elsewhere(model, *other)) if other is not None else None,
+               "own": _pose_stats(model, target) if target.n else None,
+               "other": _pose_stats(model, other[1], other[0]) if other is not None else None,
                **({"own_with_outliers": _stats(target_all.measured_mm - model.predict(target_all))}
                   if target_all is not None and target_all.n else {}),
                "converged": bool(model.converged_), "plausible": bool(model.plausible_)}
@@ -208,6 +219,9 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         best = [c for c in result["candidates"] if c["meaningful"]]
         row["cv_rms_mm"] = result["baseline"]["cv_rms"]
         row["cv_rms_region_mm"] = result["baseline"].get("cv_rms_region")
+        if "cv_orientation_rms_arcsec" in result["baseline"]:
+            row["cv_position_rms_mm"] = result["baseline"]["cv_position_rms_mm"]
+            row["cv_orientation_rms_arcsec"] = result["baseline"]["cv_orientation_rms_arcsec"]
         row["recommended"] = [{"label": label(c), "gain": c["gain"], "gain_region": c.get("gain_region"),
                                "spec_line": c["spec_line"]} for c in best]
         row["refused"] = [{"label": label(c), "gain": c["gain"], "reason": c["refused"]}

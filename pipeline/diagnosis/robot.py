@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
-from ..robot.model.calibrate import Design
+from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.arm.kinematics import gravity_torques
@@ -137,6 +137,11 @@ class RobotAdapter:
 
     def _jacobian(self, effects, data):
         d = Design(self.robot, [e.prepared(self.robot, data) for e in effects], data)
+        if data.has_orientation:
+            d.weight = self.weight(data)
+            _, _, J = d.pose_and_jacobian(np.zeros(d.p))
+            J[:, 3:] *= d.weight
+            return J.reshape(-1, d.p)
         _, J = d.predict_and_jacobian(np.zeros(d.p))
         return J.reshape(-1, d.p)
 
@@ -146,7 +151,12 @@ class RobotAdapter:
         key = (id(data), tuple(id(e) for e in base_effects))
         if self._lin is None or self._lin[0] != key:
             folds = {"random": fold_ids(data.n, self.n_folds), "region": region_folds(data.q_deg, self.n_folds)}
-            self._lin = (key, LinearProblem(self.robot, list(base_effects), data, folds))
+            if getattr(self, "_base_effects", None) is None:
+                self._base_effects = list(base_effects)
+            self._lin = (key, LinearProblem(self.robot, list(base_effects), data, folds,
+                                            weight=getattr(self, "_weight", None)))
+            if data.has_orientation and getattr(self, "_weight", None) is None:
+                self._weight = self._lin[1].weight
             self._blocks = {}
         return self._lin[1]
 
@@ -186,7 +196,7 @@ class RobotAdapter:
         uses, from the start), by pose and by region: how a recommended set is verified. Kept in
         ``refit_cache`` (a dict the loop shares between rounds: a round's verified set is the next
         round's baseline) under the effects' spec lines and the data."""
-        key = (id(data), data.n, tuple(e.spec_lines() for e in effects))
+        key = (id(data), data.n, tuple(e.spec_lines() for e in effects), self.weight(data))
         cache = self.refit_cache if self.refit_cache is not None else {}
         if key not in cache:
             cache[key] = (self._refit(effects, data, "random"), self._refit(effects, data, "region"))
@@ -196,18 +206,49 @@ class RobotAdapter:
         """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.model.noise.noise_estimate`)."""
         return noise_estimate(self.robot, data, getattr(self, "repeat", None))
 
+    def weight(self, data):
+        """The orientation rows' weight (mm per mrad) of every residual this adapter compares on a 6-DoF
+        campaign: its shared baseline's (variance components); None for positions only."""
+        if not data.has_orientation:
+            return None
+        if getattr(self, "_weight", None) is None:
+            self._weight = self.linear(self._base_effects, data).weight if getattr(self, "_base_effects", None) \
+                else start_weight(data)[0]
+        return self._weight
+
+    def _full(self, res, ori, data):
+        """Position residuals (n, 3) mm and orientation errors (n, 3) mrad (predicted - measured) as one
+        residual per pose: (n, 6), the orientation in mm-equivalent (:meth:`weight`)."""
+        return np.hstack([res, -self.weight(data) * ori]) if ori is not None else res
+
     def _refit(self, effects, data, folds):
         if folds == "random":
-            return cross_validate(self.robot, effects, data, self.n_folds)
+            cv = cross_validate(self.robot, effects, data, self.n_folds)
+            return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
         ids = region_folds(data.q_deg, self.n_folds)
         res = np.empty((data.n, 3))
+        ori = np.empty((data.n, 3)) if data.has_orientation else None
         for f in np.unique(ids):
             test = ids == f
             held = data.subset(test)
-            pred = (fit_effects(self.robot, effects, data.subset(~test)).predict(held) if effects
-                    else Design(self.robot, [], held).predict(np.zeros(0)))
+            m = fit_effects(self.robot, effects, data.subset(~test)) if effects else None
+            if ori is not None:
+                R, pred = m.predict_pose(held) if m is not None else Design(self.robot, [], held).predict_pose(np.zeros(0))
+                ori[test] = orientation_errors(R, held.measured_R)
+            else:
+                pred = m.predict(held) if m is not None else Design(self.robot, [], held).predict(np.zeros(0))
             res[test] = data.measured_mm[test] - pred
-        return CVResult(res, np.arange(data.n))
+        return CVResult(self._full(res, ori, data), np.arange(data.n))
+
+    def components(self, cv: CVResult, data) -> dict | None:
+        """A 6-DoF campaign's full held-out residual split: the position RMS (mm) and the orientation RMS
+        (arcsec); None for positions only."""
+        r = np.asarray(cv.residuals, float)
+        if r.ndim != 2 or r.shape[1] != 6 or not data.has_orientation:
+            return None
+        w = self.weight(data)
+        return {"position_rms_mm": float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1)))),
+                "orientation_rms_arcsec": float(np.sqrt(np.mean(np.sum((r[:, 3:] / w) ** 2, axis=1)))) * ARCSEC_PER_MRAD}
 
     def significance(self, cand, base: CVResult, with_cv: CVResult, data) -> dict:
         """Paired one-sided t test of the drop in squared held-out residual, pose by pose."""
@@ -301,7 +342,7 @@ class RobotAdapter:
             box = _replace(data, q_deg=qb, dir=rng.choice([-1, 1], size=(n, qb.shape[1])), payload_kg=payload,
                            temperature_c=np.full(n, float(np.median(data.temperature_c))),
                            torque_nm=gravity_torques(self.robot, qb, payload), measured_mm=None,
-                           point_id=np.array([], dtype=object))
+                           point_id=np.array([], dtype=object), measured_R=None, sigma_mm=None, sigma_arcsec=None)
             effects = lin.model.effects_ if lin.model is not None else []
             d = Design(self.robot, effects, box, lin.idx_model)
             Jext = channel_jacobian(d, lin.coef)
@@ -312,7 +353,7 @@ class RobotAdapter:
             nominal = Design(self.robot, [], data).predict(np.zeros(0))
             scale = error_scale(data.measured_mm, nominal)
             # lever arm of each joint to the SMR (mm per rad of its angle), median over the sample poses
-            lever = lever_arms(lin.Jext, lin.idx_model[1].joints)
+            lever = lever_arms(lin.Jext[:, :3], lin.idx_model[1].joints)
             lin._box = (box, Jext, Jb, scale, lever)
         box, Jext, Jb, scale, lever = lin._box
         Jc, _, _ = effect_columns(self.robot, cand_prepared, box, Jext, lin.idx_model)
@@ -328,8 +369,14 @@ class RobotAdapter:
 
     # ------------------------------------------------------------------ evidence
     def _signature(self, cand, data):
-        """Jacobian of the SMR position w.r.t. the candidate's parameters at nominal: (n, 3, k)."""
+        """Jacobian of the SMR position w.r.t. the candidate's parameters at nominal: (n, 3, k); (n, 6, k) on a
+        6-DoF campaign, the probe frame's turn in mm-equivalent (:meth:`weight`) below the position."""
         d = Design(self.robot, [cand.prepared(self.robot, data)], data)
+        if data.has_orientation:
+            d.weight = self.weight(data)
+            _, _, J = d.pose_and_jacobian(np.zeros(d.p))
+            J[:, 3:] *= d.weight
+            return J, d.names, d.units
         _, J = d.predict_and_jacobian(np.zeros(d.p))
         return J, d.names, d.units
 

@@ -126,6 +126,14 @@ def _flag(res, sigma, q, q_ref, res_ref, valid_ref, own=None) -> np.ndarray:
     return out
 
 
+def _orientation_residuals(model, data) -> np.ndarray:
+    """Orientation errors (n, 3) arcsec, measured - predicted (the turn from the predicted probe frame)."""
+    from .calibrate import ARCSEC_PER_MRAD, orientation_errors
+
+    R, _ = model.predict_pose(data)
+    return -orientation_errors(R, data.measured_R) * ARCSEC_PER_MRAD
+
+
 def tracker_lines(campaign) -> dict:
     """point_id -> line of its row in the campaign's tracker.csv (the header is line 1)."""
     path = Path(campaign) / "tracker.csv"
@@ -177,15 +185,30 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
         new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))
+        if sample.has_orientation:
+            # a 6-DoF probe: a pose is wild in its orientation alone too (judged on its own robust scale)
+            os_ = _orientation_residuals(model, sample)
+            sig_os = robust_sigma(os_)
+            new = new | _flag(os_, sig_os, qs, qs, os_, ~ws, own=np.arange(sample.n))
         if np.array_equal(new, ws):
             break
         ws = new
     sigma = {"sample": sig_s}
+    ori = {}
+    if sample.has_orientation:
+        sigma["sample_orientation_arcsec"] = sig_os
+        ori["sample"] = os_
     if target.n:
         rt = target.measured_mm - model.predict(target)
         sig_t = robust_sigma(rt) if target.n >= 20 else sig_s
         sigma["target"] = sig_t
         wt = _flag(rt, sig_t, _scaled(target.q_deg, lo, span), qs, rs, ~ws)
+        if target.has_orientation and sample.has_orientation:
+            ot = _orientation_residuals(model, target)
+            sig_ot = robust_sigma(ot) if target.n >= 20 else sig_os
+            sigma["target_orientation_arcsec"] = sig_ot
+            ori["target"] = ot
+            wt = wt | _flag(ot, sig_ot, _scaled(target.q_deg, lo, span), qs, os_, ~ws)
     lines = tracker_lines(campaign) if campaign is not None else {}
     outliers = []
     for name, mask, res, data in (("sample", ws, rs, sample), ("target", wt, rt, target)):
@@ -193,6 +216,8 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
             pid = str(data.point_id[i])
             outliers.append({"point_id": pid, "set": name, "error_mm": float(np.linalg.norm(res[i])),
                              "line": int(lines.get(pid, 0))})
+            if name in ori:
+                outliers[-1]["orientation_error_arcsec"] = float(np.linalg.norm(ori[name][i]))
     wild = Wild(ws, wt, outliers, sigma, keep)
     n_all = sample.n + target.n
     if not keep and len(outliers) > MAX_WILD_FRACTION * n_all:
@@ -210,6 +235,7 @@ def describe(wild: Wild) -> str:
     if not wild.outliers:
         return ""
     what = "kept (--keep-outliers)" if wild.kept else "left out (of fitting, registering and the errors)"
-    names = ", ".join(f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm)"
+    names = ", ".join(f"{o['point_id']} ({o['set']}, tracker.csv line {o['line']}, {o['error_mm']:.3f} mm"
+                      + (f", {o['orientation_error_arcsec']:.0f} arcsec" if "orientation_error_arcsec" in o else "") + ")"
                       for o in wild.outliers)
     return f"{len(wild.outliers)} wild measurement(s), {what}: {names}"

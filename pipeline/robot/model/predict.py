@@ -27,7 +27,8 @@ import numpy as np
 
 from ...core.errors import InputError
 from ...core.spec import parse_spec
-from .calibrate import RobotErrorModel
+from .calibrate import RobotErrorModel, angle_arcsec, orientation_errors
+from .estimate import point_errors
 from .outliers import describe, find_wild
 from ..campaign.frame import apply, from_matrix, rigid_fit, rotation_angle_deg, to_matrix
 from ..campaign.ingest import robot_data_sets
@@ -218,6 +219,9 @@ def same_robot_problem(a: Robot, b: Robot) -> str:
             if abs(getattr(ja, f) - getattr(jb, f)) > SAME_ROBOT_TOL:
                 return (f"joint {i + 1}: {f} = {getattr(jb, f):g} here, {getattr(ja, f):g} in the model's robot "
                         f"'{a.name}': a model applies to the robot it was fitted on")
+    if np.max(np.abs(np.subtract(a.tool_rpy_deg, b.tool_rpy_deg))) > SAME_ROBOT_TOL:
+        return (f"tool rpy_deg = {list(b.tool_rpy_deg)} here, {list(a.tool_rpy_deg)} in the model: the probe was "
+                "mounted otherwise (fit the model again with this tool)")
     if np.max(np.abs(np.subtract(a.tool_xyz_mm, b.tool_xyz_mm))) > SAME_ROBOT_TOL:
         return (f"tool xyz_mm = {list(b.tool_xyz_mm)} here, {list(a.tool_xyz_mm)} in the model: the SMR was moved "
                 "(fit the model again with this tool)")
@@ -231,7 +235,8 @@ def error_summary(err_mm) -> dict:
             "mean_mm": float(n.mean()), "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0}
 
 
-def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bool) -> dict:
+def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bool, measured_R=None,
+                     point_mm=None) -> dict:
     """Apply a fitted model to another campaign's poses (contract section 7).
 
     Parameters
@@ -250,14 +255,25 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
         Joint ranges the model was fitted on (:func:`sampled_range`).
     register : bool
         Re-estimate the rigid tracker-to-base transform on the ``sample`` poses first.
+    measured_R : ndarray, shape (n, 3, 3), optional
+        A 6-DoF probe's measured frames, in the frame of ``measured_mm`` (contract section 13).
+    point_mm : array_like, shape (3,), mm, optional
+        A point rigidly fixed to the probe (probe frame, e.g. a tool's TCP): its error too.
 
     Returns
     -------
     dict with the contract's keys (``n``, ``rms_mm``, ``max_mm``, ``mean_mm``, ``std_mm``,
-    ``outside_sampled_range``, ``points``) and ``evaluated_on``, ``registration``.
+    ``outside_sampled_range``, ``points``) and ``evaluated_on``, ``registration``; with
+    ``measured_R`` also ``orientation_n``, ``orientation_rms_arcsec``, ``orientation_max_arcsec``
+    (and per point ``orientation_error_arcsec``); with ``point_mm`` also ``point_rms_mm``,
+    ``point_max_mm`` (and per point ``point_error_mm``).
     """
     sets = np.asarray(sets).astype(str)
-    pred = model.predict(data)
+    if measured_R is not None:
+        R_pred, pred = model.predict_pose(data)
+        meas_R = np.asarray(measured_R, float)
+    else:
+        pred = model.predict(data)
     meas = np.asarray(measured_mm, float)
     registration = None
     if register:
@@ -270,6 +286,8 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
                              "tracker-to-base transform on")
         R, t = rigid_fit(meas[on], pred[on])
         meas = apply(R, t, meas)
+        if measured_R is not None:
+            meas_R = np.einsum("ij,njk->nik", R, meas_R)
         registration = {"on": "sample", "n": int(on.sum()), "rotation_deg": float(rotation_angle_deg(R)),
                         "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
     ev = sets == "target"
@@ -282,6 +300,18 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     out["registration"] = registration
     e = np.linalg.norm(err, axis=1)
     out["points"] = [{"point_id": str(p), "error_mm": float(v)} for p, v in zip(np.asarray(data.point_id)[ev], e)]
+    if measured_R is not None:
+        a = angle_arcsec(orientation_errors(R_pred[ev], meas_R[ev]))
+        out.update({"orientation_n": int(a.size), "orientation_rms_arcsec": float(np.sqrt(np.mean(a ** 2))),
+                    "orientation_max_arcsec": float(a.max()), "orientation_mean_arcsec": float(a.mean())})
+        for pt, v in zip(out["points"], a):
+            pt["orientation_error_arcsec"] = float(v)
+        if point_mm is not None:
+            pe = np.linalg.norm(point_errors(R_pred[ev], pred[ev], meas_R[ev], meas[ev], point_mm), axis=1)
+            out.update({"point_mm": [float(v) for v in point_mm], "point_rms_mm": float(np.sqrt(np.mean(pe ** 2))),
+                        "point_max_mm": float(pe.max()), "point_mean_mm": float(pe.mean())})
+            for pt, v in zip(out["points"], pe):
+                pt["point_error_mm"] = float(v)
     return out
 
 
@@ -290,7 +320,7 @@ def _silent(message: str) -> None:
 
 
 def predict_other_campaign(campaign, document: dict, model_path, register: bool, keep_outliers: bool = False,
-                           warn=_silent) -> dict:
+                           warn=_silent, point_mm=None) -> dict:
     """``jointcal predict``: a fitted model (``document``, the JSON of ``jointcal fit --campaign`` read
     from ``model_path``) applied to every pose of another campaign of the same robot.
 
@@ -305,11 +335,19 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     problem = same_robot_problem(robot_m, robot)
     if problem:
         raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
-    meas = data.measured_mm
+    meas, meas_R = data.measured_mm, data.measured_R
+    if point_mm is not None and meas_R is None:
+        raise InputError(Path(campaign) / "tracker.csv", "--point needs the probe's orientation (a 6-DoF probe: "
+                         "columns qw, qx, qy, qz); this campaign has positions only", 1, "qw")
     if not register and frame_info and frame_info.get("frame") == "tracker":
         # the tracker has not moved: its points go through the fit campaign's transform
         raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
         meas = apply(*from_matrix(fit_frame["tracker_to_base"]), raw)
+        if meas_R is not None and "qw_tracker" in table:
+            from ..campaign.orientation import quaternions_to_matrices
+
+            raw_R = quaternions_to_matrices(table[["qw_tracker", "qx_tracker", "qy_tracker", "qz_tracker"]].to_numpy(float))
+            meas_R = np.einsum("ij,njk->nik", from_matrix(fit_frame["tracker_to_base"])[0], raw_R)
     sets = table["set"].to_numpy().astype(object)
     wild = find_wild(robot, effects, data.subset(sets == "sample"), data.subset(sets == "target"), campaign,
                      keep_outliers)
@@ -321,9 +359,9 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     if not wild.kept:
         clean[np.flatnonzero(sets == "target")[wild.target]] = "wild"
     try:
-        result = predict_campaign(model, data, clean, meas, sampled, register)
+        result = predict_campaign(model, data, clean, meas, sampled, register, meas_R, point_mm)
         if wild.target.any() and not wild.kept:
-            full = predict_campaign(model, data, sets, meas, sampled, register)
+            full = predict_campaign(model, data, sets, meas, sampled, register, meas_R, point_mm)
             result["with_outliers"] = {k: full[k] for k in ("n", "rms_mm", "max_mm", "mean_mm", "std_mm")}
     except ValueError as exc:
         raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None

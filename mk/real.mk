@@ -3,6 +3,8 @@
 # Landgraf et al. 2021; see its README): both series imported as published with one map, each
 # fitted (geometry + base + tool, and the second paper's spec), judged on its own held-out poses
 # and applied to the other series after re-registering the tracker (jointcal predict --register).
+# The probe is a 6-DoF T-Mac (issue 30): the map reads its orientation, every fit weighs it against the
+# position, and every predict also gives the error of a point 300 mm out along the probe's z.
 REAL_RAW := raw/real/ur10-ipa
 REAL_SERIES := B C
 REAL_SRC_B := $(REAL_RAW)/Series_B/measurements_joint_configurations.csv
@@ -42,12 +44,12 @@ $(REAL_RES)/%_diagnosed.json: $(REAL_RES)/%_diagnosed.toml interim/real/%/poses.
 	$(JC) fit --campaign interim/real/$* --spec $< --out $@
 
 $(REAL_RES)/%_self.json: $(REAL_RES)/%.json $(CODE.robot.predict_cmd) | $(STAMP) ## a fit's error on each held-out pose of its own series
-	$(JC) predict --campaign interim/real/$(firstword $(subst _, ,$*)) --model $< --json $@
+	$(JC) predict --campaign interim/real/$(firstword $(subst _, ,$*)) --model $< --json $@ --point "0 0 300"
 
 # <series>_<spec>_on_<other>.json: the model of one series on the other, tracker re-registered
 define REAL_TRANSFER
 $(REAL_RES)/$(1)_$(2)_on_$(3).json: $(REAL_RES)/$(1)_$(2).json interim/real/$(3)/poses.csv $(CODE.robot.predict_cmd) | $(STAMP)
-	$(JC) predict --campaign interim/real/$(3) --model $$< --json $$@ --register
+	$(JC) predict --campaign interim/real/$(3) --model $$< --json $$@ --register --point "0 0 300"
 endef
 $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(eval $(call REAL_TRANSFER,$(s),$(m),$(call other,$(s))))))
 

@@ -172,7 +172,7 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
                       default_payload_kg=payload or 0.0)
     res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
-                           max_correction_deg)
+                           max_correction_deg, target_R=tg.target_R)
     write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
     c = res.counts()
     ok = res.status == "ok"
@@ -185,6 +185,11 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     if (~ok).any():
         k = int(((~ok).nonzero())[0][0])
         click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
+    if ok.any():
+        held_all = int((res.orientation_held[ok] == "all").sum())
+        click.echo(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
+                   + ("" if held_all == ok.sum() else " (the rest only about the axes the measurements determine)"),
+                   err=True)
     missing = int((~tg.payload_given).sum())
     click.echo(f"  {assumptions(doc, len(robot.joints))}"
                + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
@@ -320,11 +325,12 @@ def _write_measured(campaign, robot, cell, point_id, sets, q, dirs, payload, tem
 
     closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
     try:
-        dirs, xyz, gratings = measure_poses(cell, q, dirs, payload, temp, seed, closed)
+        dirs, xyz, gratings, R = measure_poses(cell, q, dirs, payload, temp, seed, closed, orientation=True)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
     poses_csv, tracker_csv = campaign_tables(point_id, sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings)
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings, R,
+                                             cell.config.get("probe_sigma_arcsec"))
     write_text(Path(campaign) / "robot.toml", robot.to_toml())
     write_text(Path(campaign) / "poses.csv", poses_csv)
     write_text(Path(campaign) / "tracker.csv", tracker_csv)

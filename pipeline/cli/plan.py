@@ -42,8 +42,16 @@ import click
                    "Ds-optimal.")
 @click.option("--noise-mm", "noise_mm", default=0.05, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Measurement noise (mm, standard deviation of each coordinate) for predicted_rms_mm.")
+@click.option("--probe", type=click.Choice(["smr", "6dof"]), default="smr", show_default=True,
+              help="What the tracker will measure: an SMR's position, or a 6-DoF probe's position and orientation "
+                   "(then the poses are chosen for the information the orientation adds too; a --campaign measured "
+                   "with orientations implies 6dof).")
+@click.option("--noise-arcsec", "noise_arcsec", default=20.0, show_default=True,
+              type=click.FloatRange(min=0, min_open=True),
+              help="--probe 6dof: the orientation's noise (arcsec, 1 sigma per axis; a T-Mac repeats to about 20), "
+                   "which weighs it against --noise-mm.")
 def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, json_path, campaign, reveal_line,
-             criterion, noise_mm):
+             criterion, noise_mm, probe, noise_arcsec):
     """Choose N poses from a pool that determine SPEC's model best (model-robust D-optimal), or that
     reveal a suspected effect (--reveal, Ds-optimal), from joint values and the nominal robot only.
 
@@ -81,7 +89,11 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     def say(msg):
         click.echo(f"plan: {msg}", err=True)
 
-    text, summary = plan_from_pool(robot, spec.effects, pool, n, measured, reveal, noise_mm, say, criterion)
+    six = probe == "6dof" or (measured is not None and measured.has_orientation)
+    text, summary = plan_from_pool(robot, spec.effects, pool, n, measured, reveal, noise_mm, say, criterion,
+                                   noise_arcsec if six else None)
+    if six:
+        summary["probe"] = {"kind": "6dof", "noise_mm": noise_mm, "noise_arcsec": noise_arcsec}
     write_text(out_path, text)
     if json_path:
         write_json(json_path, summary)

@@ -128,7 +128,11 @@ def _hidden_help() -> str:
                    "tables, or a URDF (with --tip); copied into the campaign as its robot.toml.")
 @click.option("--tip", default=None, help="URDF --robot: the link whose origin is the SMR.")
 @click.option("--base", default=None, help="URDF --robot: the base link (default: the URDF's root).")
-def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base):
+@click.option("--probe", type=click.Choice(["smr", "6dof"]), default="smr", show_default=True,
+              help="What the tracker measures: an SMR's position, or a 6-DoF probe's position and orientation "
+                   "(tracker.csv qw, qx, qy, qz; noise 20 arcsec per axis, the probe's true mounting 120 arcsec "
+                   "per axis off robot.toml's [tool] rpy_deg; both in the truth).")
+def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base, probe):
     """Simulate the laser-tracker campaign of a virtual cell (seeded; lengths mm, angles deg).
 
     Without --robot: the paper's KR210 cell (raw/robot/kr210): 100 sample + 104 target poses in the
@@ -149,6 +153,10 @@ def simulate_robot_cmd(campaign, truth_path, seed, hidden, robot_path, tip, base
     else:
         robot = _robot(Path(campaign) / "robot.toml")
     config = cell_config(robot, seed, paper=robot_path is None)
+    if probe == "6dof":
+        from ..robot.cell.simulate import PROBE_6DOF
+
+        config.update(PROBE_6DOF)
     try:
         hid = hidden_robot_effect(hidden, config["seed"], robot.n_joints) if hidden else None
     except ValueError as exc:

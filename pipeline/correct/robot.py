@@ -247,7 +247,7 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
 
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
                      sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
-                     tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER) -> Correction:
+                     tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None) -> Correction:
     """Commands that make the fitted model reach the points (see the module docstring).
 
     Parameters
@@ -267,6 +267,9 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         Rows needing a larger correction of any joint are left as given.
     tol_um : float, um
         Largest model residual of an ``ok`` row.
+    target_R : ndarray, shape (n, 3, 3), optional
+        The probe (tool) frame to reach, robot base frame (a 6-DoF model holds it where the measurements
+        determine it); NaN rows or None: the nominal kinematics' frame at ``q_deg``.
     """
     from ..robot.arm.kinematics import directions_from_sequence
 
@@ -276,6 +279,11 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     payload = np.zeros(n) if payload_kg is None else np.asarray(payload_kg, float)
     temp = np.full(n, REFERENCE_TEMPERATURE_C) if temperature_c is None else np.asarray(temperature_c, float)
     R_nom, P_nom = kin.nominal(q0)
+    if target_R is not None:
+        tr = np.asarray(target_R, float)
+        given = np.all(np.isfinite(tr.reshape(len(tr), -1)), axis=1)
+        R_nom = R_nom.copy()
+        R_nom[given] = tr[given]
     target = P_nom.copy()
     if target_mm is not None:
         t = np.asarray(target_mm, float)

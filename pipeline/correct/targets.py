@@ -31,6 +31,7 @@ class Targets:
     temperature_c: np.ndarray  # (n,) degC
     lines: np.ndarray         # (n,) 1-based file lines
     payload_given: np.ndarray = None  # (n,) bool: the row gives its payload_kg
+    target_R: np.ndarray | None = None  # (n, 3, 3) the probe / tool frame to reach (qw..qz), NaN rows: the program's
 
 
 def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: float = 0.0) -> Targets:
@@ -49,6 +50,7 @@ def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: floa
     """
     qcols = [f"q{j}" for j in range(1, n_joints + 1)]
     optional = {"x_mm": FLOAT, "y_mm": FLOAT, "z_mm": FLOAT, "payload_kg": FLOAT, "temperature_c": FLOAT,
+                "qw": FLOAT, "qx": FLOAT, "qy": FLOAT, "qz": FLOAT,
                 **{f"dir{j}": SIGN for j in range(1, n_joints + 1)}}
     frame = read_table(path, {"point_id": STR, **{c: FLOAT for c in qcols}}, optional)
     header = csv_header(path)
@@ -110,4 +112,40 @@ def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: floa
                                  f"put q1 … q{n_joints} (more than a robot's errors, {MAX_TARGET_OFFSET_MM:g} mm): "
                                  "x_mm/y_mm/z_mm must be that pose's point in the robot base frame, in mm (not "
                                  "metres, not the tracker's frame), and q in degrees", lines[k], "x_mm")
-    return Targets(frame["point_id"].astype(str).to_numpy(), q, target, dirs, payload, temp, lines, given)
+    return Targets(frame["point_id"].astype(str).to_numpy(), q, target, dirs, payload, temp, lines, given,
+                   _orientations(path, frame, lines))
+
+
+QUATERNION = ("qw", "qx", "qy", "qz")
+
+
+def _orientations(path, frame, lines):
+    """The frames to reach (n, 3, 3) from qw..qz (a unit quaternion, scalar first, base frame), NaN where a
+    row gives none; None when the file has no such columns."""
+    have = [c for c in QUATERNION if c in frame]
+    if not have:
+        return None
+    missing = [c for c in QUATERNION if c not in frame]
+    if missing:
+        raise InputError(path, f"'{have[0]}' given without '{missing[0]}': the orientation to reach needs qw, qx, "
+                         "qy and qz (a unit quaternion, scalar first) or none of them", 1, have[0])
+    qv = frame[list(QUATERNION)].to_numpy(float)
+    part = np.isnan(qv).any(axis=1) & ~np.isnan(qv).all(axis=1)
+    if part.any():
+        k = int(np.argmax(part))
+        raise InputError(path, "the orientation to reach is given in part: fill qw, qx, qy and qz, or leave all four "
+                         "empty for the program's own", lines[k], QUATERNION[int(np.argmax(np.isnan(qv[k])))])
+    given = ~np.isnan(qv).any(axis=1)
+    norm = np.linalg.norm(np.where(given[:, None], qv, 1.0), axis=1)
+    bad = given & ~(np.abs(norm - 1.0) <= 1e-3)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(path, f"the quaternion (qw, qx, qy, qz) has norm {norm[k]:.6g}, not 1: give a unit "
+                         "quaternion, scalar first", lines[k], "qw")
+    from scipy.spatial.transform import Rotation
+
+    R = np.full((len(qv), 3, 3), np.nan)
+    if given.any():
+        u = qv[given] / norm[given, None]
+        R[given] = Rotation.from_quat(u[:, [1, 2, 3, 0]]).as_matrix()
+    return R

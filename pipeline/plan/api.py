@@ -12,7 +12,7 @@ from .reveal import doubled_for_backlash, reveal_text, what_poses_need
 
 
 def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=None, noise_mm: float = 0.05,
-                   say=None, criterion: str = "robust") -> tuple[str, dict]:
+                   say=None, criterion: str = "robust", noise_arcsec: float | None = None) -> tuple[str, dict]:
     """Choose ``n`` poses of ``pool``; returns (plan CSV text, summary dict).
 
     Parameters
@@ -28,6 +28,9 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
         Measurement noise, mm (standard deviation of each coordinate).
     criterion : {"robust", "D", "I"}
         See :func:`pipeline.plan.design.plan_poses`.
+    noise_arcsec : float, optional
+        A 6-DoF probe's orientation noise (arcsec per axis): poses chosen for the orientation's
+        information too (see :func:`pipeline.plan.design.plan_poses`); None: an SMR.
     """
     backlash = reveal is not None and reveal.name == "backlash"
     if backlash:
@@ -39,7 +42,7 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
         data = pool_data(robot, pool.q_deg, pool.payload_kg)
         data.point_id = np.asarray(pool.point_id, object)
     plan = plan_poses(robot, effects, data, n, measured=measured, reveal=reveal, noise_mm=noise_mm, say=say,
-                      criterion=criterion)
+                      criterion=criterion, noise_arcsec=noise_arcsec)
     chosen = plan.chosen
     summary = plan.summary()
     ids = data.point_id[chosen]

@@ -91,7 +91,8 @@ class _LogDet:
     """log det of ``M0 + sum A_i^T A_i`` over a set, with ``G_i = A_i M^-1 A_i^T`` kept for every row."""
 
     def __init__(self, A, M0):
-        self.A = A                       # (n, 3, q)
+        self.A = A                       # (n, k, q): k = 3 rows per pose (an SMR) or 6 (a 6-DoF probe)
+        self.I = np.eye(A.shape[1])
         self.M = M0.copy()
         self.refresh()
 
@@ -104,17 +105,17 @@ class _LogDet:
 
     def gains(self):
         """log det(M + A_i^T A_i) - log det M for every row."""
-        return np.linalg.slogdet(np.eye(3) + self.G)[1]
+        return np.linalg.slogdet(self.I + self.G)[1]
 
     def _update(self, i, sign):
         a = self.A[i]
-        U = self.Minv @ a.T                                   # (q, 3)
-        C = np.linalg.inv(sign * np.eye(3) + a @ U)           # Woodbury core
+        U = self.Minv @ a.T                                   # (q, k)
+        C = np.linalg.inv(sign * self.I + a @ U)              # Woodbury core
         W = self.A @ U                                        # (n, 3, 3)
         self.G = self.G - np.einsum("nka,ab,nlb->nkl", W, C, W)
         self.Minv = self.Minv - U @ C @ U.T
         self.M = self.M + sign * a.T @ a
-        self.logdet += float(np.linalg.slogdet(np.eye(3) + sign * a @ U)[1])
+        self.logdet += float(np.linalg.slogdet(self.I + sign * a @ U)[1])
 
     def add(self, i):
         self._update(i, 1.0)
@@ -126,11 +127,11 @@ class _LogDet:
         """log det(M - A_j^T A_j + A_i^T A_i) - log det M for every row i."""
         a = self.A[j]
         U = self.Minv @ a.T
-        S = np.eye(3) - a @ U
+        S = self.I - a @ U
         C = np.linalg.inv(S)
         W = self.A @ U
         G = self.G + np.einsum("nka,ab,nlb->nkl", W, C, W)
-        return np.linalg.slogdet(np.eye(3) + G)[1] + float(np.linalg.slogdet(S)[1])
+        return np.linalg.slogdet(self.I + G)[1] + float(np.linalg.slogdet(S)[1])
 
 
 class _Criterion:
@@ -238,7 +239,7 @@ def i_exchange(A, M0, W, chosen, candidates, say=None, max_passes=MAX_PASSES):
     allowed = np.zeros(len(A), bool)
     allowed[candidates] = True
     allowed[chosen] = False
-    eye = np.eye(3)
+    eye = np.eye(A.shape[1])
 
     def state():
         M = M0 + np.einsum("nkp,nkq->pq", A[chosen], A[chosen])
@@ -407,11 +408,32 @@ class Plan:
 
 
 def _scaled_blocks(J2, keep, n_rows):
-    """Per-pose scaled blocks (n, 3, q) of the kept columns: the fit's column scaling (norm per pose)."""
+    """Per-pose scaled blocks (n, 3, q) of the kept columns: the fit's column scaling (norm per pose);
+    (n, 6, q) for a 6-DoF probe's rows (:func:`pose_rows`)."""
     Jk = J2[:, keep]
     norms = np.linalg.norm(Jk, axis=0) / np.sqrt(max(n_rows, 1))
     norms = np.where(norms > 0, norms, 1.0)
-    return (Jk / norms).reshape(n_rows, 3, -1), norms
+    return (Jk / norms).reshape(n_rows, -1, Jk.shape[1]), norms
+
+
+def pose_rows(J2, n_rows):
+    """The identification Jacobian with its rows per pose: a 6-DoF fit stacks every pose's position rows
+    (3 n) above its orientation rows (3 n); planning takes them pose by pose (x, y, z, then the turn)."""
+    if J2.shape[0] == 3 * n_rows:
+        return J2
+    p = J2.shape[1]
+    Jp, Jo = J2[:3 * n_rows].reshape(n_rows, 3, p), J2[3 * n_rows:].reshape(n_rows, 3, p)
+    return np.concatenate([Jp, Jo], axis=1).reshape(-1, p)
+
+
+def with_probe(data: RobotData, weight_mm_per_mrad: float) -> RobotData:
+    """Poses to be measured with a 6-DoF probe: the fit's identification then has orientation rows
+    (weighed ``weight_mm_per_mrad``, the ratio of the stated noises); the frames are placeholders (the
+    Jacobian does not depend on them)."""
+    out = data.subset(np.ones(data.n, bool))
+    out.measured_R = np.repeat(np.eye(3)[None], data.n, axis=0)
+    out.planned_weight = weight_mm_per_mrad
+    return out
 
 
 def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
@@ -427,14 +449,15 @@ def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
 
     nj = len(robot.joints)
     est = RobotErrorModel(robot, [Chebyshev(order=POTENTIAL_ORDER, joints=list(range(1, nj + 1)))],
-                          identifiability=False)
+                          identifiability=False, orientation_weight=getattr(data, "planned_weight", None))
     _, _, Jp, _, _, _ = est.identification(data)
+    Jp = pose_rows(Jp, data.n)
     X = A_model.reshape(-1, A_model.shape[2])
     Z = Jp - X @ np.linalg.lstsq(X, Jp, rcond=None)[0]
     nz = np.linalg.norm(Z, axis=0)
     live = nz > 1e-6 * max(nz.max(initial=0.0), 1e-300)
     Z = Z[:, live] / nz[live] * np.sqrt(data.n)
-    return Z.reshape(data.n, 3, -1)
+    return Z.reshape(data.n, A_model.shape[1], -1)
 
 
 def _prediction_rms(A_pool, M, noise_mm) -> float | None:
@@ -449,7 +472,7 @@ def _prediction_rms(A_pool, M, noise_mm) -> float | None:
 
 def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotData | None = None,
                reveal=None, noise_mm: float = 0.05, curve_k=None, say=None, exchange=True,
-               criterion: str = "robust") -> Plan:
+               criterion: str = "robust", noise_arcsec: float | None = None) -> Plan:
     """Choose ``n`` poses of ``pool`` that determine the model best (D) or reveal ``reveal`` (Ds).
 
     Parameters
@@ -470,6 +493,10 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
         Measurement noise (mm, standard deviation of each coordinate) of the predicted error.
     curve_k : sequence of int, optional
         Numbers of poses of the predicted-error curve (greedy prefixes; default a range around n).
+    noise_arcsec : float, optional
+        A 6-DoF probe's orientation noise (arcsec, 1 sigma per axis): the poses are chosen for the
+        information the orientation adds too (each pose 6 rows, the orientation's weighed by the ratio
+        of the two noises); ``predicted_rms_mm`` is still the position's. Default: an SMR (positions).
     criterion : {"robust", "D", "I"}
         ``"D"``: log det of the information matrix. ``"robust"`` (default): log det of the information
         of the parameters and of potential terms the model lacks (:func:`potential_blocks`, DuMouchel &
@@ -484,12 +511,21 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     m0 = 0 if measured is None else measured.n
     full_effects = list(effects) + ([reveal] if reveal is not None else [])
     union = pool if measured is None else concat_data(measured, pool)
+    weight = None
+    if noise_arcsec is not None:
+        weight = noise_mm / (noise_arcsec / 206.264806)
+        union, pool = with_probe(union, weight), with_probe(pool, weight)
+        if measured is not None:
+            measured = with_probe(measured, weight)
     est = effects_estimator(robot, full_effects)
+    est.orientation_weight = weight
     d, _, J2, Pen, penalised, ident_pool = est.identification(union)
     keep = np.asarray(ident_pool["keep"], bool)
     names = list(d.names)
     n_rows = union.n
+    J2 = pose_rows(J2, n_rows)
     A_all, norms = _scaled_blocks(J2, keep, n_rows)
+    rows = A_all.shape[1]      # measured coordinates per pose: 3 (an SMR) or 6 (a 6-DoF probe)
     q = int(keep.sum())
     M0 = RIDGE * np.eye(q)
     if Pen.shape[0]:
@@ -526,14 +562,14 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     if len(candidates) < n:
         notes.append(f"the pool has only {len(candidates)} distinct poses not yet measured; {len(candidates)} chosen")
         n = len(candidates)
-    if 3 * (m0 + n) < q:
-        notes.append(f"{m0 + n} poses give {3 * (m0 + n)} coordinates for {q} parameters: too few to determine the "
-                     f"model (at least {-(-q // 3)} poses)")
+    if rows * (m0 + n) < q:
+        notes.append(f"{m0 + n} poses give {rows * (m0 + n)} coordinates for {q} parameters: too few to determine the "
+                     f"model (at least {-(-q // rows)} poses)")
     say(f"pool: {pool.n} poses ({len(candidates)} candidates), {q} of {len(names)} parameters identifiable on the pool")
     # greedy prefixes for the curve (D-criterion, a separate run so that the plan's exchange is not limited)
     kmax = len(candidates)
     if curve_k is None:
-        lo = max(1, -(-q // 3))
+        lo = max(1, -(-q // rows))
         curve_k = sorted({k for k in np.unique(np.round(np.geomspace(lo, max(lo, min(kmax, max(4 * n, 60))), 12)).astype(int))} | {n})
     curve_k = [int(k) for k in curve_k if 0 < k <= kmax]
     curve = []
@@ -549,9 +585,9 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
             if step % 25 == 0:
                 c.refresh()          # the rank-3 updates' rounding does not accumulate
             if step in curve_k:
-                tr = np.einsum("nkk->n", c.full.G)
+                tr = np.einsum("nkk->n", c.full.G[:, :3, :3])     # the position's rows
                 rms = noise_mm * float(np.sqrt(max(np.mean(tr), 0.0)))
-                ok = 3 * (m0 + step) >= q
+                ok = rows * (m0 + step) >= q
                 curve.append({"k": step, "predicted_rms_mm": rms if ok and np.isfinite(rms) else None})
     if criterion not in ("robust", "D", "I"):
         raise ValueError(f"unknown criterion {criterion!r}")
@@ -572,7 +608,7 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     chosen, _ = greedy_exchange(crit, candidates, n, say, exchange)
     value = float(crit.value())
     name = ("Ds-optimal" if reveal is not None else "robust D-optimal" if criterion == "robust" else "D-optimal")
-    if criterion == "I" and reveal is None and exchange and 3 * (m0 + len(chosen)) >= q:
+    if criterion == "I" and reveal is None and exchange and rows * (m0 + len(chosen)) >= q:
         W = np.einsum("nkp,nkq->pq", A, A) / len(A)
         chosen = i_exchange(A, M0, W, chosen, candidates, say)
         M = M0 + np.einsum("nkp,nkq->pq", A[chosen], A[chosen])
@@ -580,13 +616,17 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     chosen = np.asarray(chosen, int)
     # the fit's own identification check on what would be measured
     data_sel = pool.subset(chosen) if measured is None else concat_data(measured, pool.subset(chosen))
-    dsel, _, _, _, _, ident = effects_estimator(robot, full_effects).identification(data_sel)
+    if weight is not None:
+        data_sel = with_probe(data_sel, weight)
+    est_sel = effects_estimator(robot, full_effects)
+    est_sel.orientation_weight = weight
+    dsel, _, _, _, _, ident = est_sel.identification(data_sel)
     kept_sel = {nm for nm, k in zip(dsel.names, ident["keep"]) if k}
     Msel = M0 + np.einsum("nkp,nkq->pq", A[chosen], A[chosen])
     idx = np.array([i for i, nm in enumerate(kept_names) if nm in kept_sel], int)
     if reveal is not None:
         idx = np.intersect1d(idx, sub)        # the spec's model's error (the effect is what is being tested)
-    pred = _prediction_rms(A[:, :, idx], Msel[np.ix_(idx, idx)], noise_mm) if 3 * (m0 + n) >= q else None
+    pred = _prediction_rms(A[:, :3, idx], Msel[np.ix_(idx, idx)], noise_mm) if rows * (m0 + n) >= q else None
     # visiting order
     start = None
     if m0:

@@ -375,6 +375,12 @@ class Base(RobotEffect):
         R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(hidden["rot_arcsec"]) / 3600))
         return xyz_mm @ R.T + np.asarray(hidden["shift_mm"])
 
+    @classmethod
+    def inject_orientation(cls, hidden, R_meas):
+        """A 6-DoF probe's frames (n, 3, 3) in the turned base frame."""
+        R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(hidden["rot_arcsec"]) / 3600))
+        return np.einsum("ij,njk->nik", R, R_meas)
+
 
 #: Typical size of the probe frame's turn on the flange (arcsec): a 6-DoF probe's mounting is known from
 #: a drawing or the hand-eye measurement to about 0.1 deg (the IPA UR10's T-Mac sits within 0.1 deg of

@@ -24,7 +24,7 @@ from ...core.files import read_json_input
 from ...core.tables import FLOAT, SIGN, STR, read_table
 from ...core.units import REFERENCE_TEMPERATURE_C
 from ..arm.kinematics import Robot, directions_from_sequence, load_robot, parse_robot
-from .simulate import VirtualCell, rng_for
+from .simulate import VirtualCell, add_orientations, rng_for
 
 #: the generator's stream for measuring given programs (simulate.py uses 1-4)
 PROGRAM = 5
@@ -51,6 +51,8 @@ def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
                                   alpha_deg=j.alpha_deg + g.get("dalpha_arcsec", 0.0) / 3600,
                                   beta_deg=j.beta_deg + g.get("dbeta_arcsec", 0.0) / 3600)
     true = replace(true, tool_xyz_mm=tuple(float(v) for v in truth["tool_xyz_mm"]))
+    if "tool_rpy_deg" in truth:
+        true = replace(true, tool_rpy_deg=tuple(float(v) for v in truth["tool_rpy_deg"]))
     trans = {int(t["joint"]): t for t in truth["transmission"]}
     K = max((max(t["orders"]) for t in trans.values()), default=1)
     amp, phase = np.zeros((n, K)), np.zeros((n, K))
@@ -68,7 +70,7 @@ def cell_from_truth(robot: Robot, truth: dict) -> VirtualCell:
 
 
 def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temperature_c=None, seed=None,
-                  closed_loop_joints=()):
+                  closed_loop_joints=(), orientation: bool = False):
     """Move the cell to commanded poses (in visiting order) and measure the SMR.
 
     Parameters
@@ -93,6 +95,8 @@ def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temp
     xyz_mm : ndarray, shape (n, 3), mm, robot base frame
     gratings : ndarray, shape (n, G), deg, or None
         With ``closed_loop_joints``: the readings of the cell's G gratings at the measured poses.
+    R : ndarray, shape (n, 3, 3), or None (only with ``orientation``)
+        A 6-DoF cell's measured probe frames (:meth:`VirtualCell.measure_pose`).
     """
     q = np.atleast_2d(np.asarray(q_cmd_deg, float))
     n = len(q)
@@ -113,12 +117,17 @@ def measure_poses(cell: VirtualCell, q_cmd_deg, dirs=None, payload_kg=None, temp
         g = cell.gratings(q_true)[:, :len(have)]
     else:
         q_true, g = cell.open_loop(q, dirs, payload, rng), None
-    return np.asarray(dirs, int), cell.measure(q_true, rng, temp), g
+    P, R = cell.measure_pose(q_true, rng, temp)
+    if orientation:
+        return np.asarray(dirs, int), P, g, R
+    return np.asarray(dirs, int), P, g
 
 
-def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz_mm, sigma_mm, gratings=None):
+def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz_mm, sigma_mm, gratings=None,
+                    R=None, sigma_arcsec=None):
     """``poses.csv`` and ``tracker.csv`` text of a measured program (contract section 2); with
-    ``gratings`` (n, G) deg also the grating readings ``grating1_deg …`` (a closed-loop campaign)."""
+    ``gratings`` (n, G) deg also the grating readings ``grating1_deg …`` (a closed-loop campaign); with
+    ``R`` (n, 3, 3) a 6-DoF probe's frames as ``qw, qx, qy, qz`` and ``sigma_arcsec`` (section 13)."""
     q = np.asarray(q_cmd_deg, float)
     poses = pd.DataFrame({"point_id": np.asarray(point_id, str), "set": np.asarray(sets, str)})
     for j in range(q.shape[1]):
@@ -134,6 +143,11 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
     for k, c in enumerate(("x_mm", "y_mm", "z_mm")):
         tracker[c] = [f"{v:.6f}" for v in np.asarray(xyz_mm)[:, k]]
     tracker["sigma_mm"] = f"{sigma_mm:g}"
+    if R is not None:
+        tracker = add_orientations(tracker, R, sigma_arcsec or 0.0)
+        for c in ("qw", "qx", "qy", "qz"):
+            tracker[c] = [f"{v:.12f}" for v in tracker[c]]
+        tracker["sigma_arcsec"] = f"{sigma_arcsec:g}"
     return poses.to_csv(index=False, lineterminator="\n"), tracker.to_csv(index=False, lineterminator="\n")
 
 

@@ -22,7 +22,7 @@ executes commands on this cell without reading the truth file.
 from __future__ import annotations
 
 import datetime as dt
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -194,6 +194,27 @@ class VirtualCell:
             P = self.hidden_class.inject_measurement(self.hidden, P, temperature_c)
         return P + rng.normal(0.0, self.config["tracker_sigma_mm"], P.shape)
 
+    @property
+    def six_dof(self) -> bool:
+        """Whether the cell's tracker measures the probe frame's orientation too (``--probe 6dof``)."""
+        return self.config.get("probe") == "6dof"
+
+    def measure_pose(self, q_true_deg, rng, temperature_c=None):
+        """Tracker reading of the probe: positions (n, 3) mm as :meth:`measure` (the same draws) and, on a
+        6-DoF cell, the probe frames (n, 3, 3) in the base frame with the probe's noise (a rotation of
+        ``probe_sigma_arcsec`` per axis, drawn after the positions'); None on a cell of positions only."""
+        P = self.measure(q_true_deg, rng, temperature_c)
+        if not self.six_dof:
+            return P, None
+        from scipy.spatial.transform import Rotation
+
+        R, _ = placements(self.model_true, np.deg2rad(np.atleast_2d(q_true_deg)), "smr")
+        R = np.einsum("ij,njk->nik", self.frame_R, R)
+        if self.hidden_class is not None and hasattr(self.hidden_class, "inject_orientation"):
+            R = self.hidden_class.inject_orientation(self.hidden, R)
+        noise = rng.normal(0.0, np.deg2rad(self.config["probe_sigma_arcsec"] / 3600.0), (len(R), 3))
+        return P, Rotation.from_rotvec(noise).as_matrix() @ R
+
     def gratings(self, q_true_deg):
         res = self.config["grating_resolution_deg"]
         return np.round(np.atleast_2d(q_true_deg)[:, :3] / res) * res
@@ -255,6 +276,11 @@ def make_cell(robot: Robot, config: dict | None = None, hidden: dict | None = No
     hidden = dict(hidden or {})
     if hidden:
         true = effect_class(hidden["effect"]).inject_truth(hidden, true, compliance, backlash)
+    if config.get("probe") == "6dof":
+        # the probe's mounting on the flange is off its nominal too (its own stream: the rest of the cell
+        # is the cell of positions only, draw for draw)
+        turn = rng_for(config["seed"], TRUTH, 3).normal(0.0, config["probe_mount_sigma_arcsec"], 3) / 3600.0
+        true = replace(true, tool_rpy_deg=tuple(np.add(robot.tool_rpy_deg, turn)))
     return VirtualCell(robot, true, config, amp, phase, compliance, backlash, hidden)
 
 
@@ -279,6 +305,7 @@ def cell_truth(cell: VirtualCell) -> dict:
             "compliance_arcsec_per_knm": (cell.compliance_deg_per_nm * 3600 * 1000).tolist(),
             "backlash_arcsec": (cell.backlash_deg * 3600).tolist(),
             "tool_xyz_mm": list(cell.true_robot.tool_xyz_mm),
+            **({"tool_rpy_deg": list(cell.true_robot.tool_rpy_deg)} if cell.six_dof else {}),
             "tracker_frame": {"rotation": cell.frame_R.tolist(), "translation_mm": cell.frame_t.tolist()}},
                             TRUTH_DECIMALS)}
 
@@ -369,7 +396,7 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
     temperature = np.round(temperature, 2)
     mrng = rng_for(config["seed"], MEASURE)
     q_true = cell.open_loop(q_cmd, dirs, payload, mrng)
-    xyz = cell.measure(q_true, mrng, temperature)
+    xyz, R_meas = cell.measure_pose(q_true, mrng, temperature)
     g = cell.gratings(q_true)
     start = dt.datetime.fromisoformat(config["start_time"].replace("Z", "+00:00"))
     poses = pd.DataFrame({"point_id": [r["point_id"] for r in rows], "set": [r["set"] for r in rows]})
@@ -387,6 +414,8 @@ def simulate_robot(robot: Robot, config: dict | None = None, hidden: dict | None
         poses[f"grating{j + 1}_deg"] = g[:, j]
     tracker = pd.DataFrame({"point_id": poses["point_id"], "x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
                             "sigma_mm": config["tracker_sigma_mm"]})
+    if R_meas is not None:
+        tracker = add_orientations(tracker, R_meas, config["probe_sigma_arcsec"])
     truth = cell_truth(cell)
     # the ISO poses come from a Newton solve: a joint that stays at 0 comes out as +-1e-14 deg (issue 15)
     truth["repeat_poses"] = to_resolution({k: {"q_deg": v["q"], "xyz_mm": v["xyz_mm"]} for k, v in rep.items()},
@@ -428,7 +457,31 @@ def format_tracker_csv(tracker: pd.DataFrame) -> str:
     for c in ("x_mm", "y_mm", "z_mm"):
         out[c] = out[c].map(lambda v: f"{v:.4f}")
     out["sigma_mm"] = out["sigma_mm"].map(lambda v: f"{v:g}")
+    for c in ("qw", "qx", "qy", "qz"):
+        if c in out:
+            out[c] = out[c].map(lambda v: f"{v:.12f}")
+    if "sigma_arcsec" in out:
+        out["sigma_arcsec"] = out["sigma_arcsec"].map(lambda v: f"{v:g}")
     return out.to_csv(index=False, lineterminator="\n")
+
+
+#: a 6-DoF probe's orientation noise (arcsec, 1 sigma per axis: a T-Mac repeats to about 0.006 deg) and
+#: how far its true mounting is off the nominal one (arcsec per axis), for ``simulate robot --probe 6dof``
+PROBE_6DOF = {"probe": "6dof", "probe_sigma_arcsec": 20.0, "probe_mount_sigma_arcsec": 120.0}
+
+
+def add_orientations(tracker: pd.DataFrame, R, sigma_arcsec: float) -> pd.DataFrame:
+    """The tracker table with a 6-DoF probe's frames (n, 3, 3) as ``qw, qx, qy, qz`` (scalar first, w >= 0)
+    and ``sigma_arcsec``."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(np.asarray(R, float)).as_quat()[:, [3, 0, 1, 2]]
+    q[q[:, 0] < 0] *= -1.0
+    out = tracker.copy()
+    for k, c in enumerate(("qw", "qx", "qy", "qz")):
+        out[c] = q[:, k]
+    out["sigma_arcsec"] = float(sigma_arcsec)
+    return out
 
 
 def hidden_robot_effect(text: str, seed: int, n_joints: int = 6) -> dict:

@@ -950,6 +950,12 @@ class RobotErrorModel:
         none of them turns it."""
         U = getattr(self, "unseen_", None)
         U = np.zeros((len(self.names_), 0)) if U is None else np.asarray(U, float)
+        if "orientation_weight_mm_per_mrad" in (getattr(self, "weighting_", None) or {}):
+            # fitted on a 6-DoF probe's orientations: the probe frame's orientation is a measurement, and
+            # what no measurement could see leaves it as it is; a parameter left at nominal as weakly
+            # determined moves it only as the identified ones already do over the sampled poses. The
+            # whole orientation is determined (contract section 13: orientation_held = all).
+            return np.zeros((len(self.names_), 0))
         fixed = [k for k, n in enumerate(self.names_) if n in set(self.fixed_)]
         E = np.zeros((len(self.names_), len(fixed)))
         E[fixed, np.arange(len(fixed))] = 1.0

@@ -204,6 +204,8 @@ def load_model_document(doc: dict, path) -> tuple:
     if not np.all(np.isfinite(model.coef_)):
         raise InputError(path, "the model has a parameter that is not a finite number", 1, 1)
     model.unseen_ = unseen_directions(doc, model)
+    # how the fit weighed positions and orientations (a 6-DoF fit: ``jointcal correct`` holds its orientation)
+    model.weighting_ = doc.get("weighting") if isinstance(doc.get("weighting"), dict) else None
     frame = doc.get("frame") or {"frame": "base", "tracker_to_base": np.eye(4).tolist()}
     return robot, effects, model, doc["sampled_range"], frame
 

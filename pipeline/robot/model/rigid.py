@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibrate import Design, RobotErrorModel, _empty_data
+from .calibrate import START_WEIGHT_MM_PER_MRAD, Design, RobotErrorModel, _empty_data, angle_arcsec, orientation_errors
 from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData, effect_class
 
 #: the effects a rigid chain (URDF, UR's DH, the ROS driver's YAML) carries
@@ -104,7 +104,8 @@ def table_angles_deg(robot, model, data: RobotData) -> np.ndarray:
 def with_angles(data: RobotData, q_deg) -> RobotData:
     """``data`` at other joint angles (everything else as it is)."""
     return RobotData(np.asarray(q_deg, float), data.dir, data.payload_kg, data.temperature_c, data.torque_nm,
-                     data.lower_deg, data.upper_deg, data.measured_mm, data.point_id)
+                     data.lower_deg, data.upper_deg, data.measured_mm, data.point_id, data.measured_R, data.sigma_mm,
+                     data.sigma_arcsec)
 
 
 def own_chain(robot, model) -> RobotErrorModel:
@@ -142,18 +143,31 @@ def fit_rigid_chain(robot, model, data: RobotData, with_tables: bool = False) ->
     at = RobotData(np.asarray(data.q_deg, float), np.asarray(data.dir, int), np.asarray(data.payload_kg, float),
                    np.full(n, REFERENCE_TEMPERATURE_C), np.asarray(data.torque_nm, float), data.lower_deg,
                    data.upper_deg)
-    full = model.predict(at)
+    # a model fitted on a 6-DoF probe's orientations: the chain reproduces its predicted frames too
+    oriented = "tool_ex" in getattr(model, "names_", [])
+    R_full, full = model.predict_pose(at) if oriented else (None, model.predict(at))
     if with_tables:
         at = with_angles(at, table_angles_deg(robot, model, at))
     if carries_only(robot, model, CHAIN_EFFECTS + (TABLE_EFFECTS if with_tables else ())):
         chain, exact = own_chain(robot, model), True
     else:
         at.measured_mm = full
+        at.measured_R = R_full
+        w = (getattr(model, "_weight", None) or START_WEIGHT_MM_PER_MRAD) if oriented else None
         chain, exact = RobotErrorModel(robot, chain_effects(getattr(model, "effects_", model.effects)),
-                                       solver="gauss-newton").fit(at), False
-    e = np.linalg.norm(chain.predict(at) - full, axis=1)
-    return chain, {"n_poses": int(n), "rms_to_model_mm": float(np.sqrt(np.mean(e ** 2))) if n else 0.0,
-                   "max_to_model_mm": float(e.max()) if n else 0.0, "exact": bool(exact)}
+                                       solver="gauss-newton", orientation_weight=w).fit(at), False
+    if oriented:
+        R_c, P_c = chain.predict_pose(at)
+        e = np.linalg.norm(P_c - full, axis=1)
+        a = angle_arcsec(orientation_errors(R_c, R_full))
+    else:
+        e = np.linalg.norm(chain.predict(at) - full, axis=1)
+    info = {"n_poses": int(n), "rms_to_model_mm": float(np.sqrt(np.mean(e ** 2))) if n else 0.0,
+            "max_to_model_mm": float(e.max()) if n else 0.0, "exact": bool(exact)}
+    if oriented and n:
+        info.update(orientation_rms_to_model_arcsec=float(np.sqrt(np.mean(a ** 2))),
+                    orientation_max_to_model_arcsec=float(a.max()))
+    return chain, info
 
 
 def chain_document(chain: RobotErrorModel, info: dict, payloads, with_tables: bool = False) -> dict:

@@ -35,7 +35,8 @@ def _wrap(text: str, width: int = 86) -> list[str]:
 
 
 def _stats(d: dict) -> dict:
-    return {k: d[k] for k in ("rms_mm", "max_mm", "mean_mm", "std_mm") if k in d}
+    return {k: d[k] for k in ("rms_mm", "max_mm", "mean_mm", "std_mm", "orientation_rms_arcsec", "orientation_max_arcsec",
+                              "point_rms_mm", "point_max_mm") if k in d}
 
 
 def transfer_table(results: dict) -> dict:
@@ -63,6 +64,16 @@ def transfer_table(results: dict) -> dict:
                               "mean_mm": h["before"]["mean_mm"], "std_mm": h["before"]["std_mm"]}
             row[spec] = {"rms_mm": h["rms_after_mm"], "max_mm": h["after"]["max_mm"], "mean_mm": h["after"]["mean_mm"],
                          "std_mm": h["after"]["std_mm"]}
+            if "orientation_rms_after_arcsec" in h:   # issue 30: a 6-DoF probe's orientation, held out
+                row["nominal"]["orientation_rms_arcsec"] = h["orientation_rms_before_arcsec"]
+                row[spec]["orientation_rms_arcsec"] = h["orientation_rms_after_arcsec"]
+                row[spec]["orientation_max_arcsec"] = h["orientation_after"]["max_arcsec"]
+                own = r.get("self", {}).get(spec) or {}
+                if "point_rms_mm" in own:
+                    row[spec].update(point_mm=own["point_mm"], point_rms_mm=own["point_rms_mm"],
+                                     point_max_mm=own["point_max_mm"])
+                if (fit.get("weighting") or {}).get("orientation_weight_mm_per_mrad"):
+                    row[f"{spec}_weighting"] = fit["weighting"]
             row[f"{spec}_cv_rms_mm"] = fit.get("cv_rms_mm")
             hw = fit.get("heldout_with_outliers")
             if hw:   # issue 23: the own held-out error with the wild targets, beside the one without them
@@ -85,6 +96,49 @@ def transfer_table(results: dict) -> dict:
                            for x in r["loop"]["rounds"]]
         out[s] = row
     return out
+
+
+def _full_pose_lines(table: dict) -> list[str]:
+    """The report's page on a 6-DoF probe's orientation (issue 30): per series and model, held out."""
+    lines = ["The probe is a 6-DoF T-Mac: every pose's orientation is measured too (repeatable to about",
+             "0.006 deg = 22 arcsec). Each fit weighs the orientation against the position by variance",
+             "components (weight in mm per mrad of orientation error). Held-out errors: position (mm),",
+             "orientation (arcsec, the angle between measured and predicted probe frames) and a point",
+             "rigidly fixed 300 mm out along the probe's z (mm), which the measured frame observes exactly.", "",
+             f"{'series / model':40s}{'pos RMS':>9s}{'ori RMS':>9s}{'ori deg':>9s}{'300 mm':>9s}"]
+    for s in sorted(table):
+        t = table[s]
+        nom = t["nominal"]
+        lines.append(f"Series {s}")
+        if "orientation_rms_arcsec" in nom:
+            lines.append(f"  {'nominal kinematics':38s}{nom['rms_mm']:9.3f}{nom['orientation_rms_arcsec']:9.1f}"
+                         f"{nom['orientation_rms_arcsec'] / 3600:9.4f}{'':>9s}")
+        for spec in SPECS:
+            e = t.get(spec) or {}
+            if "orientation_rms_arcsec" not in e:
+                continue
+            pt = f"{e['point_rms_mm']:9.3f}" if "point_rms_mm" in e else f"{'':>9s}"
+            lines.append(f"  {spec + ' (own)':38s}{e['rms_mm']:9.3f}{e['orientation_rms_arcsec']:9.1f}"
+                         f"{e['orientation_rms_arcsec'] / 3600:9.4f}{pt}")
+            for k in sorted(t):
+                if k.startswith(f"{spec}_on_") and "orientation_rms_arcsec" in t[k]:
+                    o = t[k]
+                    pt = f"{o['point_rms_mm']:9.3f}" if "point_rms_mm" in o else f"{'':>9s}"
+                    lines.append(f"  {spec + ' on ' + k.split('_on_')[1]:38s}{o['rms_mm']:9.3f}"
+                                 f"{o['orientation_rms_arcsec']:9.1f}{o['orientation_rms_arcsec'] / 3600:9.4f}{pt}")
+            w = t.get(f"{spec}_weighting")
+            if w:
+                lines.append(f"    weighed by {w['method']}: {w['orientation_weight_mm_per_mrad']:.3g} mm per mrad "
+                             f"(residual sigma {w['position_sigma_mm']:.3g} mm, {w['orientation_sigma_arcsec']:.1f} "
+                             f"arcsec; {w['iterations']} fits)")
+        for x in t.get("loop", []):
+            own, far = x["own"] or {}, x["other"] or {}
+            if "orientation_rms_arcsec" in own:
+                lines.append(f"  loop round {x['round']}: own {own['rms_mm']:.3f} mm, {own['orientation_rms_arcsec']:.1f} "
+                             f"arcsec; other {far.get('rms_mm', float('nan')):.3f} mm, "
+                             f"{far.get('orientation_rms_arcsec', float('nan')):.1f} arcsec")
+        lines.append("")
+    return lines
 
 
 def _verdicts(table: dict) -> list[str]:
@@ -199,6 +253,8 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                   "held-out poses (the data set's README); tests/test_real_reference.py checks jointcal's",
                   "against one written independently with scipy (within 5 %)."]
         text_page(pdf, "Real robot: own held-out poses and the other series", lines)
+        if any("orientation_rms_arcsec" in table[s].get(spec, {}) for s in series for spec in SPECS):
+            text_page(pdf, "Full poses: the probe's orientation and a tool point 300 mm out", _full_pose_lines(table))
 
         exported = {s: results[s]["export"] for s in series if results[s].get("export")}
         if exported:   # what reaches the robot (jointcal export --heldout): held-out RMS, mm

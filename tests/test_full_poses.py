@@ -1,0 +1,290 @@
+"""Full poses (contract section 13): a 6-DoF probe's orientation read, checked, fitted, held out and
+held on the robot; on a virtual 6-DoF cell and on the real UR10 series (a T-Mac)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import ROOT, cli_invoker
+
+SPEC = (ROOT / "specs" / "robot_cell.toml").read_text() + """[[effect]]
+name = "joint_harmonic"
+joints = [2]
+orders = [7]
+"""
+KINEMATIC = ROOT / "specs" / "robot_kinematic.toml"
+KR210 = ROOT / "raw" / "robot" / "kr210" / "robot.toml"
+IPA = ROOT / "raw" / "real" / "ur10-ipa"
+SERIES_C = IPA / "Series_C" / "measurements_random_poses.csv"
+ONE_LINE = re.compile(r"^jointcal: error: (?P<file>[^:]+):(?P<line>\d+|-):(?P<col>[^:]+): \S.*$")
+POINT = np.array([0.0, 0.0, 300.0])      # a tool point 300 mm out along the probe's z
+
+
+def _q(frame, n=6):
+    return frame[[f"q{j}" for j in range(1, n + 1)]].to_numpy(float)
+
+
+def _one_line_error(result, column=None):
+    assert result.exit_code == 2, (result.exit_code, result.output)
+    assert "Traceback" not in result.output
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, lines
+    m = ONE_LINE.match(lines[0])
+    assert m, lines[0]
+    if column is not None:
+        assert m["col"] == column, lines[0]
+    return m
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    """A 6-DoF cell (KR210, hidden joint harmonic on joint 2) measured without gratings, and its models."""
+    tmp = tmp_path_factory.mktemp("cell6")
+    run = cli_invoker()
+    (tmp / "cell").mkdir()
+    shutil.copy(KR210, tmp / "cell" / "robot.toml")
+    r = run("simulate", "robot", "--campaign", tmp / "cell", "--truth", tmp / "truth.json", "--seed", "3",
+            "--hidden", "joint_harmonic:2", "--probe", "6dof")
+    assert r.exit_code == 0, r.output
+    poses = pd.read_csv(tmp / "cell" / "poses.csv")
+    prog = poses[poses["set"] != "repeat"][["point_id", "set"] + [f"q{j}" for j in range(1, 7)] + ["payload_kg"]]
+    prog.to_csv(tmp / "measure.csv", index=False)
+    r = run("simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "measure.csv",
+            "--campaign", tmp / "meas")
+    assert r.exit_code == 0, r.output
+    (tmp / "spec.toml").write_text(SPEC)
+    fits = {}
+    for name, extra in (("full", ()), ("positions", ("--positions-only",))):
+        r = run("fit", "--campaign", tmp / "meas", "--spec", tmp / "spec.toml", "--out", tmp / f"{name}.json", *extra)
+        assert r.exit_code == 0, r.output
+        fits[name] = json.loads((tmp / f"{name}.json").read_text())
+    return {"tmp": tmp, "run": run, "fits": fits}
+
+
+def test_a_6dof_cell_measures_the_same_positions_as_its_smr_cell(cell, tmp_path):
+    """--probe 6dof adds the probe's orientation; the positions are the SMR cell's, draw for draw."""
+    run = cli_invoker()
+    (tmp_path / "smr").mkdir()
+    shutil.copy(KR210, tmp_path / "smr" / "robot.toml")
+    r = run("simulate", "robot", "--campaign", tmp_path / "smr", "--truth", tmp_path / "truth.json", "--seed", "3",
+            "--hidden", "joint_harmonic:2")
+    assert r.exit_code == 0, r.output
+    six = pd.read_csv(cell["tmp"] / "cell" / "tracker.csv")
+    smr = pd.read_csv(tmp_path / "smr" / "tracker.csv")
+    assert list(smr.columns) == ["point_id", "x_mm", "y_mm", "z_mm", "sigma_mm"]
+    assert {"qw", "qx", "qy", "qz", "sigma_arcsec"} <= set(six.columns)
+    assert six[smr.columns].equals(smr)
+    q = six[["qw", "qx", "qy", "qz"]].to_numpy(float)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)
+    truth = json.loads((cell["tmp"] / "truth.json").read_text())
+    assert "tool_rpy_deg" in truth and max(abs(v) for v in truth["tool_rpy_deg"]) > 0
+
+
+def test_orientations_are_fitted_and_held_out(cell):
+    """The fit weighs orientations by variance components; held out, the full-pose model predicts the
+    probe's orientation better than the positions-only one, its positions no worse."""
+    full, pos = cell["fits"]["full"], cell["fits"]["positions"]
+    assert full["weighting"]["method"] == "variance components"
+    assert full["weighting"]["orientation_weight_mm_per_mrad"] > 0
+    assert pos["weighting"]["method"] == "positions only"
+    hf, hp = full["heldout"], pos["heldout"]
+    assert hf["orientation_rms_after_arcsec"] < 0.8 * hp["orientation_rms_after_arcsec"], (hf, hp)
+    assert hf["orientation_rms_after_arcsec"] < 0.5 * hf["orientation_rms_before_arcsec"]
+    assert hf["rms_after_mm"] <= 1.05 * hp["rms_after_mm"]
+    names = {p["name"] for p in full["parameters"]}
+    assert {"tool_ex", "tool_ey", "tool_ez"} <= names
+    assert 'orientation = true' in "\n".join(full["spec_effects"])
+    assert full["cv_orientation_rms_arcsec"] > 0
+
+
+def test_the_weight_does_not_hinge_on_where_it_starts(cell):
+    """Variance components from a start 100 times off end at the same weight and predictions."""
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.core.spec import parse_spec
+
+    robot, (sample, target) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
+    effects = list(parse_spec(KINEMATIC.read_text(), KINEMATIC).effects)
+    a = RobotErrorModel(robot, effects).fit(sample)
+    sample.sigma_arcsec = sample.sigma_arcsec * 100.0
+    b = RobotErrorModel(robot, effects).fit(sample)
+    assert a.weighting_["started_from"].startswith("the stated")
+    wa, wb = a.weighting_["orientation_weight_mm_per_mrad"], b.weighting_["orientation_weight_mm_per_mrad"]
+    assert abs(np.log(wa / wb)) < 0.03, (wa, wb)
+    Ra, Pa = a.predict_pose(target)
+    Rb, Pb = b.predict_pose(target)
+    assert np.abs(Pa - Pb).max() < 2e-3
+
+
+def test_predict_gives_orientation_and_a_tool_point(cell):
+    tmp, run = cell["tmp"], cell["run"]
+    r = run("predict", "--campaign", tmp / "meas", "--model", tmp / "full.json", "--json", tmp / "self.json",
+            "--point", "0 0 300")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp / "self.json").read_text())
+    assert out["orientation_n"] == out["n"]
+    assert abs(out["orientation_rms_arcsec"] - cell["fits"]["full"]["heldout"]["orientation_rms_after_arcsec"]) < 1e-3
+    assert out["point_mm"] == [0.0, 0.0, 300.0]
+    # the point 300 mm out: the position error and the orientation error's lever arm together
+    pe = np.array([p["point_error_mm"] for p in out["points"]])
+    e = np.array([p["error_mm"] for p in out["points"]])
+    lever = np.array([p["orientation_error_arcsec"] for p in out["points"]]) / 206264.806 * 300.0
+    assert np.all(pe <= e + lever + 1e-6)
+    assert out["point_rms_mm"] > out["rms_mm"]
+
+
+def test_a_program_corrected_with_orientations_lands_at_the_tool_point(cell):
+    """Open loop on the hidden-effect cell: commands corrected by the full-pose model, measured by the cell,
+    put a point 300 mm out on the probe within 1.25 x the model's held-out error there + 5 um."""
+    from pipeline.robot.arm.kinematics import build_model, load_robot, placements
+    from pipeline.robot.campaign.orientation import quaternions_to_matrices
+
+    tmp, run = cell["tmp"], cell["run"]
+    r = run("predict", "--campaign", tmp / "meas", "--model", tmp / "full.json", "--json", tmp / "held.json",
+            "--point", "0 0 300")
+    assert r.exit_code == 0, r.output
+    held = json.loads((tmp / "held.json").read_text())["point_rms_mm"]
+    poses = pd.read_csv(tmp / "meas" / "poses.csv", dtype={"point_id": str})
+    targets = poses[poses["set"] == "target"][["point_id"] + [f"q{j}" for j in range(1, 7)] + ["payload_kg"]]
+    targets.to_csv(tmp / "program.csv", index=False)
+    r = run("correct", "--model", tmp / "full.json", "--targets", tmp / "program.csv", "--out", tmp / "corr.csv")
+    assert r.exit_code == 0, r.output
+    corr = pd.read_csv(tmp / "corr.csv", dtype={"point_id": str})
+    ok = corr["status"] == "ok"
+    assert (corr.loc[ok, "orientation_held"] == "all").sum() >= 0.85 * len(corr)
+    corr["set"] = "target"
+    corr["payload_kg"] = targets["payload_kg"].to_numpy()
+    corr.to_csv(tmp / "corrected_poses.csv", index=False)
+    r = run("simulate", "measure", "--truth", tmp / "truth.json", "--poses", tmp / "corrected_poses.csv",
+            "--campaign", tmp / "landed")
+    assert r.exit_code == 0, r.output
+    landed = pd.read_csv(tmp / "landed" / "tracker.csv", dtype={"point_id": str}).set_index("point_id")
+    landed = landed.loc[corr.loc[ok, "point_id"]]
+    R_meas = quaternions_to_matrices(landed[["qw", "qx", "qy", "qz"]].to_numpy(float))
+    P_meas = landed[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
+    robot = load_robot(KR210)
+    R_aim, P_aim = placements(build_model(robot), np.deg2rad(_q(targets[ok.to_numpy()])), "smr")
+    aim = P_aim + np.einsum("nij,j->ni", R_aim, POINT)
+    got = P_meas + np.einsum("nij,j->ni", R_meas, POINT)
+    rms = float(np.sqrt(np.mean(np.sum((got - aim) ** 2, axis=1))))
+    assert rms <= 1.25 * held + 0.005, (rms, held)
+
+
+# ------------------------------------------------------------------------------ bad input
+def _campaign_with(tmp_path, edit):
+    src = ROOT / "raw" / "robot" / "kr210"
+    dst = tmp_path / "c"
+    shutil.copytree(src, dst)
+    t = pd.read_csv(dst / "tracker.csv", dtype=str)
+    t = edit(t)
+    t.to_csv(dst / "tracker.csv", index=False)
+    return dst
+
+
+def test_a_quaternion_that_is_not_unit_is_refused_at_its_line(tmp_path, invoke):
+    def edit(t):
+        t["qw"], t["qx"], t["qy"], t["qz"] = "1", "0", "0", "0"
+        t.loc[4, "qw"] = "0.5"
+        return t
+    folder = _campaign_with(tmp_path, edit)
+    r = invoke("ingest", "--campaign", folder, "--out", tmp_path / "out.parquet")
+    m = _one_line_error(r, "qw")
+    assert m["line"] == "6" and "norm" in r.stderr
+    assert not (tmp_path / "out.parquet").exists()
+
+
+def test_a_missing_orientation_column_is_refused(tmp_path, invoke):
+    def edit(t):
+        t["qw"], t["qx"], t["qy"] = "1", "0", "0"
+        return t
+    folder = _campaign_with(tmp_path, edit)
+    r = invoke("ingest", "--campaign", folder, "--out", tmp_path / "out.parquet")
+    _one_line_error(r, "qw")
+    assert "'qz' is missing" in r.stderr
+
+
+def test_orientations_of_another_robot_frame_are_refused(tmp_path, invoke):
+    """Unit quaternions that are not the probe frames (here every pose the same frame) do not fit a robot."""
+    def edit(t):
+        t["qw"], t["qx"], t["qy"], t["qz"] = "1", "0", "0", "0"
+        return t
+    folder = _campaign_with(tmp_path, edit)
+    r = invoke("ingest", "--campaign", folder, "--out", tmp_path / "out.parquet")
+    _one_line_error(r, "qw")
+    assert "orientations do not fit" in r.stderr
+
+
+def _map(tmp_path, old, new):
+    text = (IPA / "map.toml").read_text().replace(old, new)
+    assert text != (IPA / "map.toml").read_text()
+    path = tmp_path / "map.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("old,new,fix", [('sequence = "XYZ"', 'sequence = "zyx"', 'sequence = "XYZ"'),
+                                         ('unit = "deg"\n\n[uncertainty]', 'unit = "rad"\n\n[uncertainty]',
+                                          'unit = "deg"')])
+def test_import_refuses_a_wrong_sequence_or_unit_naming_the_right_one(tmp_path, invoke, old, new, fix):
+    path = _map(tmp_path, old, new)
+    r = invoke("import", "--source", SERIES_C, "--map", path, "--robot", IPA / "robot.toml", "--out", tmp_path / "C")
+    m = _one_line_error(r)
+    assert m["file"].endswith("map.toml") and fix in r.stderr, r.stderr
+    assert not (tmp_path / "C").exists()
+
+
+def test_the_real_t_mac_orientation_imports_with_its_mounting(tmp_path, invoke):
+    r = invoke("import", "--source", SERIES_C, "--map", IPA / "map.toml", "--robot", IPA / "robot.toml",
+               "--out", tmp_path / "C")
+    assert r.exit_code == 0, r.output
+    m = re.search(r"by (\d+\.\d+) deg RMS after the best mounting; probe mounting estimated from the data rpy_deg = "
+                  r"\[([^\]]+)\]", r.stderr)
+    assert m, r.stderr
+    assert float(m[1]) < 0.2                             # README: 0.078 deg under R = Rx Ry Rz
+    rpy = [float(v) for v in m[2].split(",")]
+    assert abs(rpy[2] + 90.0) < 0.5 and max(abs(rpy[0]), abs(rpy[1])) < 0.5
+    t = pd.read_csv(tmp_path / "C" / "tracker.csv")
+    assert {"qw", "qx", "qy", "qz", "sigma_arcsec"} <= set(t.columns)
+
+
+def test_a_campaign_of_positions_only_is_fitted_as_before():
+    """No orientation columns: the model has no orientation parameter and the JSON no orientation key."""
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+    from pipeline.core.spec import parse_spec
+
+    robot, (sample,) = robot_data_sets(ROOT / "raw" / "robot" / "kr210", ("sample",))
+    assert not sample.has_orientation
+    effects = list(parse_spec(KINEMATIC.read_text(), KINEMATIC).effects)
+    m = fit_effects(robot, effects, sample)
+    assert "tool_ex" not in m.names_ and m.weighting_ is None and m.orientation_rms_arcsec_ is None
+
+
+def test_plan_counts_what_a_6dof_probe_adds(tmp_path, invoke):
+    """Planned for a 6-DoF probe, the same pool identifies more of the kinematic model (the probe's turn on
+    the flange, the last joint's frame) and the console and JSON say it was planned for the orientation."""
+    from pipeline.robot.arm.kinematics import load_robot
+    from pipeline.robot.cell.simulate import draw_poses, make_cell
+
+    robot = load_robot(KR210)
+    Q = draw_poses(robot, 150, np.random.default_rng(21), [1200.0, 1600.0, 1200.0], 30.0, make_cell(robot).model_nominal)
+    pool = pd.DataFrame({"point_id": [f"P{k:03d}" for k in range(len(Q))]})
+    for j in range(6):
+        pool[f"q{j + 1}"] = Q[:, j]
+    pool.to_csv(tmp_path / "pool.csv", index=False)
+    out = {}
+    for probe in ("smr", "6dof"):
+        r = invoke("plan", "--robot", KR210, "--spec", KINEMATIC, "--pool", tmp_path / "pool.csv", "--n", 25,
+                   "--out", tmp_path / f"{probe}.csv", "--json", tmp_path / f"{probe}.json", "--probe", probe)
+        assert r.exit_code == 0, r.output
+        out[probe] = json.loads((tmp_path / f"{probe}.json").read_text())
+    assert out["6dof"]["n_params"] > out["smr"]["n_params"]            # the probe's turn: 3 more
+    assert out["6dof"]["parameters_identifiable"] > out["smr"]["parameters_identifiable"]
+    assert out["6dof"]["probe"]["kind"] == "6dof" and "probe" not in out["smr"]
+    assert out["6dof"]["predicted_rms_mm"] <= out["smr"]["predicted_rms_mm"] * 1.05

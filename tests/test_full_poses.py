@@ -288,3 +288,53 @@ def test_plan_counts_what_a_6dof_probe_adds(tmp_path, invoke):
     assert out["6dof"]["parameters_identifiable"] > out["smr"]["parameters_identifiable"]
     assert out["6dof"]["probe"]["kind"] == "6dof" and "probe" not in out["smr"]
     assert out["6dof"]["predicted_rms_mm"] <= out["smr"]["predicted_rms_mm"] * 1.05
+
+
+def test_a_target_row_may_give_the_orientation_to_reach(cell):
+    """qw..qz on a --targets row: the full-pose model's corrected commands put the probe frame there."""
+    from scipy.spatial.transform import Rotation
+
+    from pipeline.correct.robot import ModelKinematics, correct_commands
+    from pipeline.correct.targets import read_targets
+    from pipeline.robot.model.predict import load_model_document
+
+    tmp = cell["tmp"]
+    robot, effects, model, sampled, _ = load_model_document(cell["fits"]["full"], "full.json")
+    kin = ModelKinematics(robot, model)
+    poses = pd.read_csv(tmp / "meas" / "poses.csv", dtype={"point_id": str})
+    rows = poses[poses["set"] == "target"].head(20)
+    q = _q(rows)
+    R_nom, P_nom = kin.nominal(q)
+    turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(150.0 / 3600)]).as_matrix()
+    R_aim = np.einsum("ij,njk->nik", turn, R_nom)
+    quat = Rotation.from_matrix(R_aim).as_quat()[:, [3, 0, 1, 2]]
+    table = rows[["point_id"] + [f"q{j}" for j in range(1, 7)]].copy()
+    table["payload_kg"] = rows["payload_kg"].to_numpy()
+    for k, c in enumerate(("qw", "qx", "qy", "qz")):
+        table[c] = quat[:, k]
+    table.to_csv(tmp / "oriented_targets.csv", index=False)
+    tg = read_targets(tmp / "oriented_targets.csv", 6)
+    assert tg.target_R is not None and np.allclose(tg.target_R, R_aim, atol=1e-9)
+    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
+                           target_R=tg.target_R)
+    ok = res.status == "ok"
+    assert ok.sum() >= 15 and set(res.orientation_held[ok]) == {"all"}
+    R, P, _ = kin.pose(res.q_deg[ok], res.dirs[ok], tg.payload_kg[ok], tg.temperature_c[ok])
+    from pipeline.robot.model.calibrate import angle_arcsec, orientation_errors
+
+    assert angle_arcsec(orientation_errors(R, R_aim[ok])).max() < 2.0           # reached, to the damping
+    assert np.linalg.norm(P - P_nom[ok], axis=1).max() < 1e-3
+    plain = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled)
+    assert np.abs(plain.dq_arcsec[ok] - res.dq_arcsec[ok]).max() > 50.0          # the turn took joint motion
+
+
+def test_a_targets_quaternion_that_is_not_unit_is_refused(tmp_path):
+    from pipeline.core.errors import InputError
+    from pipeline.correct.targets import read_targets
+
+    t = pd.DataFrame({"point_id": ["a", "b"], **{f"q{j}": [10.0, 20.0] for j in range(1, 7)},
+                      "qw": [1.0, 0.7], "qx": [0.0, 0.0], "qy": [0.0, 0.0], "qz": [0.0, 0.0]})
+    t.to_csv(tmp_path / "t.csv", index=False)
+    with pytest.raises(InputError) as exc:
+        read_targets(tmp_path / "t.csv", 6)
+    assert exc.value.line == 3 and exc.value.column == "qw"

@@ -136,9 +136,7 @@ class LinearProblem:
         #: weight of the orientation rows (mm per mrad; None: positions only)
         self.weight = None
         if base_effects:
-            self.model = fit_effects(robot, base_effects, data)
-            if self.dim == 6:
-                self.model._weight = weight or self.model._weight
+            self.model = fit_effects(robot, base_effects, data, orientation_weight=weight if self.dim == 6 else None)
             d = self.model.design(data)
             self.weight = d.weight if d.oriented else None
             self.idx_model = (d.model, d.idx)

@@ -223,7 +223,7 @@ class RobotAdapter:
 
     def _refit(self, effects, data, folds):
         if folds == "random":
-            cv = cross_validate(self.robot, effects, data, self.n_folds)
+            cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data))
             return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
         ids = region_folds(data.q_deg, self.n_folds)
         res = np.empty((data.n, 3))
@@ -231,7 +231,8 @@ class RobotAdapter:
         for f in np.unique(ids):
             test = ids == f
             held = data.subset(test)
-            m = fit_effects(self.robot, effects, data.subset(~test)) if effects else None
+            m = fit_effects(self.robot, effects, data.subset(~test), orientation_weight=self.weight(data)) \
+                if effects else None
             if ori is not None:
                 R, pred = m.predict_pose(held) if m is not None else Design(self.robot, [], held).predict_pose(np.zeros(0))
                 ori[test] = orientation_errors(R, held.measured_R)

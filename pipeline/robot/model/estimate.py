@@ -16,17 +16,21 @@ def error_stats(err_mm) -> dict:
             "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0, "n": int(n.size)}
 
 
-def effects_estimator(robot, effects, start=None, orientation: bool = True) -> RobotErrorModel:
+def effects_estimator(robot, effects, start=None, orientation: bool = True,
+                      orientation_weight: float | None = None) -> RobotErrorModel:
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
     start the solver from (a nested model's solution). ``orientation``: fit a 6-DoF campaign's
-    orientations too (False: its positions alone)."""
+    orientations too (False: its positions alone); ``orientation_weight`` (mm per mrad): their weight,
+    None to estimate it (variance components)."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
         est.start = start
         est.orientation = orientation
+        est.orientation_weight = orientation_weight
         return est
-    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, orientation=orientation)
+    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, orientation=orientation,
+                           orientation_weight=orientation_weight)
 
 
 def orientation_stats(err_mrad) -> dict:
@@ -76,7 +80,8 @@ def nested_models(effects, robot=None) -> list[list]:
     return out
 
 
-def fit_effects(robot, effects, data, check_nested: bool = False, orientation: bool = True):
+def fit_effects(robot, effects, data, check_nested: bool = False, orientation: bool = True,
+                orientation_weight: float | None = None):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -87,17 +92,18 @@ def fit_effects(robot, effects, data, check_nested: bool = False, orientation: b
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
     (else it is ''). ``nested_`` lists each nested model's sample RMS (mm).
     """
-    model = effects_estimator(robot, effects, orientation=orientation).fit(data)
+    model = effects_estimator(robot, effects, orientation=orientation, orientation_weight=orientation_weight).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
     for nested in nested_models(effects, robot):
-        m0 = effects_estimator(robot, nested, orientation=orientation).fit(data)
+        m0 = effects_estimator(robot, nested, orientation=orientation, orientation_weight=orientation_weight).fit(data)
         entry = {"effects": [e.name for e in nested], "rms_mm": m0.rms_mm_}
         model.nested_.append(entry)
         if model.rms_mm_ <= m0.rms_mm_ * (1.0 + NESTED_RTOL):
             continue
-        warm = effects_estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_)), orientation=orientation).fit(data)
+        warm = effects_estimator(robot, effects, start=dict(zip(m0.names_, m0.coef_)), orientation=orientation,
+                                 orientation_weight=orientation_weight).fit(data)
         entry["started_from_it"] = True
         if warm.rms_mm_ < model.rms_mm_:
             warm.conflict_, warm.nested_ = "", model.nested_
@@ -178,12 +184,14 @@ def fold_description(data, n_folds: int = N_FOLDS) -> str:
     return f"{n_folds}-fold by pose over {data.n} sample poses"
 
 
-def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True) -> CVResult:
+def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True,
+                   orientation_weight: float | None = None) -> CVResult:
     """Held-out residuals (mm, shape (n, 3)) of ``effects`` fitted by :func:`fit_effects`, k-fold by pose.
 
     Each fold of poses (:func:`fold_ids`) is predicted by the model fitted on the others; without
     effects, by the nominal kinematics. Poses are the independent blocks. On a 6-DoF campaign
-    ``extra["orientation"]`` holds the held-out orientation errors (n, 3) mrad (predicted - measured).
+    ``extra["orientation"]`` holds the held-out orientation errors (n, 3) mrad (predicted - measured);
+    ``orientation_weight`` (the whole sample's, from its own fit) weighs every fold's fit alike.
     """
     folds = fold_ids(data.n, n_folds)
     res = np.empty((data.n, 3))
@@ -191,7 +199,8 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bo
     for f in range(n_folds):
         test = folds == f
         train, held = data.subset(~test), data.subset(test)
-        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, orientation=orientation)
+        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, orientation=orientation,
+                                                                    orientation_weight=orientation_weight)
         if ori is not None:
             R, pred = m.predict_pose(np.zeros(0)) if not effects else m.predict_pose(held)
             ori[test] = orientation_errors(R, held.measured_R)

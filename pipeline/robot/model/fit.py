@@ -122,7 +122,8 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         if target_all.n > target.n:
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
-    cv = cross_validate(robot, effects, sample, orientation=orientation)
+    cv = cross_validate(robot, effects, sample, orientation=orientation,
+                        orientation_weight=getattr(model, "_weight", None) if orientation else None)
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))

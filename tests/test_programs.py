@@ -250,15 +250,15 @@ def test_filtered_program_lands_on_the_model(cells, tmp_path, fmt):
 
 # ------------------------------------------------------------------------------ bad programs
 BAD = [
-    ("sample.src", "PTP XP1\r\n", "SPLINE\r\nPTP XP1\r\n", "unknown motion statement"),
+    ("sample.src", "PTP XP1\r\n", "SPLINE\r\nPTP XP1\r\n", "SPLINE without ENDSPLINE"),
     ("sample.src", "$BASE = {X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}", "BAS(#BASE, 3)", "give it with --base"),
     ("sample.dat", "DECL E6POS XP1={X", "DECL E6POS XP1={{X", "unbalanced"),
     ("sample.dat", "ENDDAT", ";ENDDAT", "DEFDAT without ENDDAT"),
-    ("sample.mod", "MoveL p2,", "MoveJDO p2,", "unknown motion instruction"),
+    ("sample.mod", "tSMR \\WObj:=wCell;  ! to p2", "tSMR \\WObj:=wCell  ! to p2", "statement without its ';'"),
     ("sample.mod", "tSMR \\WObj:=wCell;  ! to p1", "tOther \\WObj:=wCell;  ! to p1", "tool tOther"),
     ("sample.ls", "/END", "/ENX", "no /END"),
     ("sample.ls", "   3:  !hand-written sample ;", "   3:  !hand-written sample", "not an /MN instruction"),
-    ("sample.script", "  set_tcp(", "  servoj([0,0,0,0,0,0])\n  set_tcp(", "unknown motion function"),
+    ("sample.script", "  set_tcp(", "  if True:\n  set_tcp(", "block without its 'end'"),
     ("sample.script", "a=1.4, v=1.05)\n", "a=1.4, v=1.05\n", "unbalanced"),
 ]
 

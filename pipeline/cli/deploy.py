@@ -18,6 +18,11 @@ def _need_file(path, what: str) -> None:
         raise InputError(path, f"no such file ({what})", None, None)
 
 
+def _need_program(path) -> None:
+    if not Path(path).exists():
+        raise InputError(path, "no such file or folder (the robot program)", None, None)
+
+
 def _is_robot_model(doc) -> bool:
     return isinstance(doc, dict) and "robot_toml" in doc and doc.get("kind", "robot") == "robot"
 
@@ -72,7 +77,7 @@ def _json_line(path, key: str):
               help="Robot model: the corrected program (CSV: point_id, q1 … qN deg, dq1_arcsec … dqN_arcsec, x_mm, "
                    "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, orientation_held, status, "
                    "reason); with --program: the folder the filtered program goes to, under its own file names.")
-@click.option("--program", "program_path", type=click.Path(dir_okay=False),
+@click.option("--program", "program_path", type=click.Path(),
               help="Robot model: a robot program to filter (contract section 11), told by extension: .src (KUKA KRL, "
                    "with the .dat of the same name), .mod (ABB RAPID), .ls (FANUC TP ASCII), .script (URScript). "
                    "See docs/programs.md for what is read and the conventions.")
@@ -213,22 +218,23 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
 
     from ..core.files import write_json
     from ..correct.robot import ModelKinematics
-    from ..programs.filtering import filter_program
+    from ..programs.filtering import PAYLOAD_EFFECTS, filter_program, payloads
     from ..programs.io import read_program, write_all
     from ..programs.text import rewrite
     from ..robot.model.rigid import assumptions, model_payload
 
-    _need_file(program_path, "the robot program")
+    _need_program(program_path)
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
-    if payload_kg is None:      # as for a --targets row without payload_kg: the model's payload, when it was one
-        payload_kg = model_payload(doc.get("payloads_kg")) or 0.0
     t0 = time.perf_counter()
     program = read_program(program_path)
     tool = _frame_option(tool_text, "--tool", program.format)
     base = _frame_option(base_text, "--base", program.format)
-    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, payload_kg,
-                         max_correction_deg)
+    # the program's own payload, else --payload, else the model's one payload (as for a --targets row)
+    dependent = tuple(sorted({e.name for e in effects} & set(PAYLOAD_EFFECTS)))
+    kg, source = payloads(program, payload_kg, model_payload(doc.get("payloads_kg")), dependent)
+    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, kg,
+                         max_correction_deg, source)
     texts = rewrite(program.sources, res.changes)
     written = write_all(out_dir, program, texts)
     rows = res.rows
@@ -245,9 +251,14 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     for r in rows:
         if r["status"] not in ("ok", "same_target"):
             click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    used = {}
+    for r in rows:
+        used.setdefault((r["payload_kg"], r["payload_source"]), []).append(r)
     click.echo(f"  {assumptions(doc, len(robot.joints))}"
                + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + f"; the program run at {payload_kg:g} kg", err=True)
+               + "; payload: " + "; ".join(f"{v:g} kg ({src}; {len(rs)} target{'s' if len(rs) > 1 else ''}, from "
+                                           f"{rs[0]['file']}:{rs[0]['line']})" for (v, src), rs in used.items()),
+               err=True)
     if json_path:
         write_json(json_path, {"program": str(program_path), "format": program.format, "model": str(model_path),
                                "payload_kg": payload_kg, "counts": counts, "files": [str(w) for w in written],
@@ -270,14 +281,14 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
               help="Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the "
                    "grating reads the command), as \"1 2 3\" or 1,2,3; the campaign then has the grating readings. "
                    "Default: every joint open loop. The paper's cell has gratings on joints 1-3, a user's cell none.")
-@click.option("--program", "program_path", default=None, type=click.Path(dir_okay=False),
+@click.option("--program", "program_path", default=None, type=click.Path(),
               help="Instead of --poses: a robot program (.src, .mod, .ls, .script) played by the nominal controller "
                    "(as jointcal correct --program reads it); point_id = the target's name (#2, #3 for a target "
                    "visited again).")
 @click.option("--tool", "tool_text", default=None, help="--program: as for jointcal correct --program.")
 @click.option("--base", "base_text", default=None, help="--program: as for jointcal correct --program.")
-@click.option("--payload", "payload_kg", default=0.0, show_default=True, type=click.FloatRange(min=0),
-              help="--program: the mass (kg) the robot carries.")
+@click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
+              help="--program: the mass (kg) the robot carries where the program states none (default 0).")
 def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop, program_path, tool_text, base_text,
                 payload_kg):
     """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
@@ -335,11 +346,11 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
                      closed_loop=()):
     import numpy as np
 
-    from ..programs.filtering import play
+    from ..programs.filtering import payloads, play
     from ..programs.io import read_program
     from ..robot.cell.measure import measure_cell
 
-    _need_file(program_path, "the robot program")
+    _need_program(program_path)
     robot, cell = measure_cell(truth_path, campaign, robot_path)
     program = read_program(program_path)
     played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
@@ -357,7 +368,8 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
         seen[nm] = seen.get(nm, 0) + 1
         names.append(nm if seen[nm] == 1 else f"{nm}#{seen[nm]}")
     q = played.q_deg[keep]
-    payload = np.full(len(q), float(payload_kg))
+    kg, _ = payloads(program, 0.0 if payload_kg is None else payload_kg)     # the program's own, else --payload
+    payload = kg[keep]
     temp = np.full(len(q), 20.0)
     _write_measured(campaign, robot, cell, np.array(names), np.full(len(q), "target"), q, None, payload, temp, seed,
                     closed_loop)

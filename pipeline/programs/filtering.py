@@ -30,6 +30,51 @@ from .conventions import invert
 from .model import CARTESIAN, CONFIG, JOINT, Program
 
 OK = "ok"
+#: effects whose error depends on the payload (the gravity torque includes it)
+PAYLOAD_EFFECTS = ("compliance",)
+
+
+def payloads(program: Program, given: float | None = None, model_kg: float | None = None,
+             dependent: tuple = ()) -> tuple[np.ndarray, list]:
+    """The payload of each motion (kg) and where it comes from (contract section 11).
+
+    The program's own where its language states it (RAPID tooldata load, GripLoad, ``\\TLoad``;
+    URScript ``set_payload``; KRL ``$LOAD`` / ``LOAD_DATA[n]`` of a given ``$config.dat``); else
+    ``given`` (``--payload``); else ``model_kg``, the one payload the model was fitted at; else, for a
+    model with no payload-dependent effect, 0 kg (it does not matter).
+
+    Parameters
+    ----------
+    given : float, kg, optional
+    model_kg : float, kg, optional
+    dependent : tuple of str
+        The model's payload-dependent effects (:data:`PAYLOAD_EFFECTS` it has).
+
+    Returns
+    -------
+    kg : ndarray, shape (n,), kg
+        One per motion of ``program.targets``.
+    source : list of str, (n,)
+
+    Raises InputError (file:line, naming ``--payload``) for a motion whose payload nobody knows on a
+    model with a payload-dependent effect.
+    """
+    n = len(program.targets)
+    kg, source = np.zeros(n), [""] * n
+    for k, t in enumerate(program.targets):
+        stated, why = t.extra.get("payload", (None, "the program states no payload"))
+        if stated is not None:
+            kg[k], source[k] = stated, f"program: {why}"
+        elif given is not None:
+            kg[k], source[k] = given, "--payload"
+        elif model_kg is not None:
+            kg[k], source[k] = model_kg, f"the model's payload (fitted at {model_kg:g} kg only)"
+        elif dependent and not t.runtime:
+            raise InputError(t.file, f"{t.name}: {why}, and the model's {', '.join(dependent)} depends on the payload "
+                             "(fitted at several): give --payload KG", t.line, None)
+        else:
+            kg[k], source[k] = 0.0, "none stated (the model has no payload-dependent effect)"
+    return kg, source
 
 
 @dataclass
@@ -155,8 +200,8 @@ class Filtered:
     texts: list = field(default_factory=list)
 
 
-def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg: float | None = None,
-                   max_correction_deg: float = 0.5) -> Filtered:
+def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg=None,
+                   max_correction_deg: float = 0.5, payload_source=None) -> Filtered:
     """Filter a program's targets through a fitted model (see the module docstring).
 
     Parameters
@@ -167,9 +212,11 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         Joint ranges the model was fitted on (``{"lower_deg": [6], "upper_deg": [6]}``).
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` (format's convention).
-    payload_kg : float, kg, optional
-        Mass the robot carries while it runs the program (None: what ``correct_commands`` assumes
-        for a row without a payload).
+    payload_kg : float or ndarray of shape (n motions,), kg, optional
+        Mass the robot carries at each motion (:func:`payloads`; None: what ``correct_commands``
+        assumes for a row without a payload).
+    payload_source : list of str, optional
+        Where each motion's payload comes from (for the report).
     max_correction_deg : float, deg
     """
     from ..correct.robot import correct_commands
@@ -188,7 +235,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     if idx:
         start = (robot.lower_deg + robot.upper_deg) / 2
         dirs = directions_from_sequence(q0, start_deg=start)
-        payload = None if payload_kg is None else np.full(len(idx), float(payload_kg))
+        payload = None if payload_kg is None else np.broadcast_to(np.asarray(payload_kg, float), (n,))[idx]
         res = correct_commands(kin, q0, None, dirs, payload, None, sampled, max_correction_deg)
         for r, k in enumerate(idx):
             if res.status[r] != "ok":
@@ -209,6 +256,9 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     for k, t in enumerate(targets):
         row = {"file": t.file, "line": t.line, "name": t.name, "kind": t.kind, "status": OK, "reason": "",
                "max_correction_arcsec": 0.0, "move_mm": 0.0}
+        if payload_kg is not None:
+            row["payload_kg"] = float(np.broadcast_to(np.asarray(payload_kg, float), (n,))[k])
+            row["payload_source"] = payload_source[k] if payload_source else ""
         rows.append(row)
         if t.decl and t.decl in seen:
             first = seen[t.decl]

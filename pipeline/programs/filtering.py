@@ -96,10 +96,9 @@ def _frame(t, which: str, given, slots: dict, fmt: str):
         raise InputError(t.file, f"Cartesian target {t.name}: {fr.why or 'no ' + which + ' frame'}; the program does "
                          f"not define its {which} frame, so give it with --{which}", t.line, None)
     first = slots.setdefault(which, (fr.key, t.file, t.line))
-    if first[0] != fr.key:
-        raise InputError(t.file, f"Cartesian target {t.name} uses {which} {fr.key}, but --{which} already stands for "
-                         f"{first[0]} (first used at {first[1]}:{first[2]}); a program with two undefined {which} "
-                         "frames cannot be filtered with one --" + which, t.line, None)
+    if first[0] != fr.key:                # named and left as given: --tool / --base stands for one frame
+        return (f"it uses {which} {fr.key} ({fr.why or 'not defined in the program'}), and --{which} stands for "
+                f"{first[0]} (first used at {first[1]}:{first[2]})")
     return fm.frame_pose(fmt, given)
 
 
@@ -114,7 +113,9 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` in the format's convention (:func:`pipeline.programs.formats.frame_pose`).
 
-    Raises InputError (file:line) for a Cartesian target whose tool or base frame nobody gave.
+    Raises InputError (file:line) for a Cartesian target whose tool or base frame nobody gave; a
+    target in a second undefined frame, when ``--tool`` / ``--base`` already stands for another, is
+    left as given (its reason says so).
     """
     if robot.n_joints != 6:
         raise InputError(robot.path, f"program filtering needs a six-joint arm; this robot has {robot.n_joints}", 1, 1)
@@ -144,6 +145,9 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
             continue
         tool_T = _frame(t, "tool", tool, slots, fmt)
         base_T = _frame(t, "base", base, slots, fmt)
+        if isinstance(tool_T, str) or isinstance(base_T, str):
+            reason[k] = tool_T if isinstance(tool_T, str) else base_T
+            continue
         tools[k], bases[k] = tool_T, base_T
         T_fl[k] = base_T @ fm.pose(fmt, t.values) @ invert(tool_T)
         w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
@@ -304,4 +308,6 @@ def _status_word(reason: str, t) -> str:
             return w
     if "joint range" in reason:
         return "beyond_joint_range"
+    if reason.startswith("it uses "):
+        return "frame_unknown"
     return "no_ik_solution"

@@ -31,9 +31,10 @@ def _reader(fmt: str):
 def program_files(path) -> tuple[str, list[Path]]:
     """The format and the program files of ``path``: a file, or every program file of a folder.
 
-    A folder holds one program in one language: its files in name order (a KRL ``.dat`` goes with its
-    ``.src``, ``$config.dat`` is read for its data). InputError for an unknown extension, a folder
-    without program files, or a folder of several languages.
+    A folder holds one program in one language: its files and those of its sub-folders (a controller
+    backup's ``RAPID/TASK1`` with ``PROGMOD`` and ``SYSMOD``), in order of their paths (a KRL ``.dat``
+    goes with its ``.src``, ``$config.dat`` is read for its data). InputError for an unknown
+    extension, a folder without program files, or a folder of several languages.
     """
     path = Path(path)
     if not path.is_dir():
@@ -41,7 +42,8 @@ def program_files(path) -> tuple[str, list[Path]]:
         if ext not in EXTENSIONS:
             raise InputError(path, f"unknown program extension '{ext}': {KNOWN}", None, None)
         return EXTENSIONS[ext], [path]
-    files = sorted((f for f in path.iterdir() if f.is_file() and f.suffix.lower() in EXTENSIONS), key=lambda f: f.name)
+    files = sorted((f for f in path.rglob("*") if f.is_file() and f.suffix.lower() in EXTENSIONS),
+                   key=lambda f: f.relative_to(path).as_posix())
     if not files:
         raise InputError(path, f"no program file in the folder ({KNOWN})", None, None)
     fmts = sorted({EXTENSIONS[f.suffix.lower()] for f in files})
@@ -62,8 +64,19 @@ def read_program(path) -> Program:
     fmt, files = program_files(path)
     reader = _reader(fmt)
     if fmt == "rapid":
-        return reader.read_modules(files)
-    return merge(fmt, [reader.read(f) for f in files])
+        program = reader.read_modules(files)
+    elif fmt == "krl" and Path(path).is_dir():
+        configs = sorted(f for f in Path(path).rglob("*") if f.name.lower() == reader.CONFIG_DAT and f.is_file())
+        program = merge(fmt, [reader.read(f, configs[0] if configs else None) for f in files])
+    else:
+        program = merge(fmt, [reader.read(f) for f in files])
+    if Path(path).is_dir():
+        root = Path(path).resolve()
+        for s in program.sources:
+            sp = Path(s.path).resolve()
+            if root in sp.parents:
+                s.rel = sp.relative_to(root).as_posix()
+    return program
 
 
 def merge(fmt: str, programs: list[Program]) -> Program:
@@ -92,11 +105,16 @@ def merge(fmt: str, programs: list[Program]) -> Program:
 def write_all(out_dir, program: Program, texts: list[str]) -> list[Path]:
     """Write the program's files under their own names into ``out_dir``: all of them or none.
 
-    Every file goes to a temporary file in ``out_dir`` first; only when all are written are they
+    A program read from a folder keeps its sub-folders (``Source.rel``). Every file goes to a
+    temporary file in ``out_dir`` first; only when all are written are they
     renamed, so an error leaves no file of the program in ``out_dir``.
     """
     out_dir = Path(out_dir)
     for s in program.sources:
+        root = Path(s.path).resolve().parents[len(Path(s.rel).parts) - 1] if s.rel else None
+        if s.writable and root is not None and (out_dir.resolve() == root or root in out_dir.resolve().parents):
+            raise InputError(s.path, f"--out {out_dir} is inside the program's own folder {root}: the filtered program "
+                             "would be read as part of it next time; give another folder", None, None)
         if s.writable and Path(s.path).resolve().parent == out_dir.resolve():
             raise InputError(s.path, f"--out {out_dir} is the program's own folder: the filtered program would "
                              "overwrite it; give another folder", None, None)
@@ -106,12 +124,14 @@ def write_all(out_dir, program: Program, texts: list[str]) -> list[Path]:
         for s, text in zip(program.sources, texts):
             if not s.writable:
                 continue
-            fd, tmp = tempfile.mkstemp(prefix=f".{Path(s.path).name}.", suffix=".tmp", dir=out_dir)
+            final = out_dir / (s.rel or Path(s.path).name)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
             with os.fdopen(fd, "wb") as handle:
                 handle.write(s.encode(text))
             os.chmod(tmp, 0o644)
             temps.append(tmp)
-            finals.append(out_dir / Path(s.path).name)
+            finals.append(final)
         for tmp, final in zip(temps, finals):
             os.replace(tmp, final)
     except BaseException:

@@ -178,12 +178,13 @@ def _target_of(items, prefix, fidx, decl_type=""):
     return CARTESIAN, nums, flags, T
 
 
-def read(path) -> Program:
-    """Read a KRL program (``.src`` and its ``.dat``); InputError (file:line) on broken syntax."""
+def read(path, config=None) -> Program:
+    """Read a KRL program (``.src``, its ``.dat``, and ``config`` or the ``$config.dat`` beside it);
+    InputError (file:line) on broken syntax."""
     src = read_source(path)
     sources = [src]
     dat = dat_of(Path(path))
-    config = config_of(Path(path))
+    config = config or config_of(Path(path))
     data = _Data()
     if config is not None:
         sources.append(read_source(config, writable=False))

@@ -172,7 +172,7 @@ def _tooldata(lit, path, line, name):
     if not isinstance(g, list) or len(g) < 2 or not isinstance(g[1], list):
         raise InputError(path, f"tooldata {name}: expected [robhold,[[x,y,z],[q1,q2,q3,q4]],[load]]", line, None)
     if str(g[0]).upper() != "TRUE":
-        return Frame(None, f"tool {name} is a stationary tool (robhold FALSE)", name), None
+        return Frame(None, f"tool {name} is a stationary tool (robhold FALSE)", name, moving=True), None
     mass = _mass(g[2], f"tooldata {name} tload", path, line) if len(g) > 2 and isinstance(g[2], list) else None
     return Frame(_pose_list(g[1], f"tooldata {name} tframe", path, line), "", name), mass
 
@@ -182,7 +182,8 @@ def _wobjdata(lit, path, line, name):
     if not isinstance(g, list) or len(g) != 5:
         raise InputError(path, f"wobjdata {name}: expected [robhold,ufprog,ufmec,uframe,oframe]", line, None)
     if str(g[0]).upper() != "FALSE" or str(g[1]).upper() != "TRUE" or str(g[2]).strip('"').strip():
-        return Frame(None, f"work object {name} moves (robhold TRUE, ufprog FALSE or a mechanical unit)", name)
+        return Frame(None, f"work object {name} moves (robhold TRUE, ufprog FALSE or a mechanical unit)", name,
+                     moving=True)
     U = _pose_list(g[3], f"wobjdata {name} uframe", path, line)
     O = _pose_list(g[4], f"wobjdata {name} oframe", path, line)
     return Frame(U @ O, "", name)
@@ -409,6 +410,9 @@ def _motions(src, fidx, stmts, decl, masked) -> list:
             t = _motion_target(word, kind, branch, e, args_at + off, fidx, decl, src.path, line)
             t.tool, t.base = tool, base
             t.extra["payload"] = payload
+            moving = [f.why for f in (tool, base) if f.moving]
+            if moving and not t.runtime and kind == CARTESIAN:
+                t.runtime = moving[0]
             if corr and not t.runtime:
                 t.runtime = "\\Corr: a path correction added at run time"
             targets.append(t)

@@ -42,6 +42,7 @@ class Source:
     encoding: str = "latin-1"
     bom: str = ""
     writable: bool = True
+    rel: str = ""          # the path inside the --program folder it was read from ("": its own name)
 
     def line_of(self, pos: int) -> int:
         """1-based line of a character position."""

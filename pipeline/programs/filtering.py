@@ -72,6 +72,8 @@ def payloads(program: Program, given: float | None = None, model_kg: float | Non
         elif dependent and not t.runtime:
             raise InputError(t.file, f"{t.name}: {why}, and the model's {', '.join(dependent)} depends on the payload "
                              "(fitted at several): give --payload KG", t.line, None)
+        elif dependent:
+            kg[k], source[k] = 0.0, "none known (the target is left as given)"
         else:
             kg[k], source[k] = 0.0, "none stated (the model has no payload-dependent effect)"
     return kg, source

@@ -132,11 +132,42 @@ def write_all(out_dir, program: Program, texts: list[str]) -> list[Path]:
             os.chmod(tmp, 0o644)
             temps.append(tmp)
             finals.append(final)
-        for tmp, final in zip(temps, finals):
-            os.replace(tmp, final)
+        for final in finals:
+            if final.is_dir():
+                raise InputError(final, "a folder is in the way of the filtered file; nothing was written", None, None)
     except BaseException:
         for tmp in temps:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
         raise
+    _install(temps, finals)
     return finals
+
+
+def _install(temps: list, finals: list) -> None:
+    """Rename the temporary files to their final names; on any failure every final name holds what it
+    held before (the files it replaced are kept aside until all renames are done)."""
+    kept, done = {}, []
+    try:
+        for final in finals:
+            if final.exists():
+                fd, aside = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".old", dir=final.parent)
+                os.close(fd)
+                os.replace(final, aside)
+                kept[final] = aside
+        for tmp, final in zip(temps, finals):
+            os.replace(tmp, final)
+            done.append(final)
+    except BaseException:
+        for final in done:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(final)
+        for final, aside in kept.items():
+            os.replace(aside, final)
+        for tmp in temps:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+        raise
+    for aside in kept.values():
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(aside)

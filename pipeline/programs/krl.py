@@ -284,7 +284,8 @@ def read(path, config=None) -> Program:
         rest = m.group(2)
         rest_at = here + m.start(2)
         if word.endswith("_REL"):
-            targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})"))
+            targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})",
+                                  extra={"payload": load}))
             continue
         with_parts = re.split(r"\bWITH\b", rest, maxsplit=1, flags=re.IGNORECASE)
         rest_main = with_parts[0]

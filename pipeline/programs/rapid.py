@@ -330,6 +330,15 @@ def read_modules(paths) -> Program:
     targets = []
     for fidx, (src, stmts, masked) in enumerate(zip(sources, all_stmts, masks)):
         targets += _motions(src, fidx, stmts, decl, masked)
+    used = {t.decl for t in targets if t.decl}
+    for typ, data, dline, name, how, dpath in decl.targets.values():      # declared, and no motion read goes there
+        if data is None:
+            continue
+        first = data[0] if typ == "jointtarget" else data[0][0]
+        if (first.file, first.start) not in used:
+            targets.append(Target(dpath, dline, name, JOINT if typ == "jointtarget" else CARTESIAN, PREVIOUS,
+                                  runtime="declared, but no motion the filter reads goes to it (an argument of a "
+                                  "call, Offs or RelTool, or a motion not read): left as given"))
     return Program("rapid", sources, targets)
 
 

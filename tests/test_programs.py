@@ -590,3 +590,73 @@ def test_fanuc_positioner_group_and_other_lines(cells, tmp_path):
     assert named["P[9]"]["status"] == "run_time" and "group 2" in named["P[9]"]["reason"]
     assert sum(t["status"] == "ok" for t in rows.values()) >= 6
     assert "J1=    90.000 deg" in (tmp_path / "out/p.ls").read_text()
+
+
+@pytest.fixture(scope="module")
+def two_payloads(cells):
+    """The KR210 cell measured carrying 0 kg and 60 kg (every other pose), and a model fitted on both."""
+    tmp, run = cells["tmp"], cells["run"]
+    poses = pd.read_csv(tmp / "kr210_poses.csv")
+    poses["payload_kg"] = np.where(np.arange(len(poses)) % 2 == 0, 0.0, 60.0)
+    poses.to_csv(tmp / "kr210_two_poses.csv", index=False)
+    r = run("simulate", "measure", "--truth", tmp / "kr210.json", "--poses", tmp / "kr210_two_poses.csv",
+            "--campaign", tmp / "kr210_two")
+    assert r.exit_code == 0, r.output
+    r = run("fit", "--campaign", tmp / "kr210_two", "--spec", tmp / "spec.toml", "--out", tmp / "kr210_two_fit.json")
+    assert r.exit_code == 0, r.output
+    fit = json.loads((tmp / "kr210_two_fit.json").read_text())
+    assert sorted(fit["payloads_kg"]) == [0.0, 60.0]
+    return fit
+
+
+@pytest.mark.parametrize("fmt", ["rapid", "ur"])
+def test_the_payload_the_program_states(cells, two_payloads, tmp_path, fmt):
+    """KR210 cell carrying 60 kg, model fitted at 0 and 60 kg: a RAPID program whose tooldata says 60 kg
+    and a URScript with set_payload(60) land within 1.25 x the held-out RMS + 5 um with no --payload;
+    the same program stating no payload is refused naming --payload; corrected at 0 kg it lands worse."""
+    import program_samples as ps
+    from pipeline.robot.cell.simulate import cell_config, draw_poses
+
+    robot = load_robot(KR210)
+    fit = two_payloads
+    lo, hi = np.array(fit["sampled_range"]["lower_deg"]), np.array(fit["sampled_range"]["upper_deg"])
+    cfg = cell_config(robot, paper=True)
+    Q = draw_poses(robot, 1500, np.random.default_rng(11), cfg["box_mm"], cfg["orientation_deg"])
+    Q = Q[np.all((Q >= lo + 0.5) & (Q <= hi - 0.5), axis=1)]
+    Q = Q[:32] if fmt == "rapid" else ps.smooth_path(robot, Q, 32)
+    if fmt == "rapid":
+        text = ps.rapid(robot, Q, "prog")                                # tooldata tSMR: [60,[0,0,100],...]
+        prog, bare = tmp_path / "prog.mod", re.sub(r"(?m)^  PERS tooldata tSMR.*\n", "", text)   # tool: --tool
+    else:
+        text = ps.urscript(robot, Q, "prog").replace("  set_tcp(", "  set_payload(60, [0, 0, 0.1])\n  set_tcp(", 1)
+        prog, bare = tmp_path / "prog.script", text.replace("  set_payload(60, [0, 0, 0.1])\n", "")
+    assert bare != text
+    prog.write_text(text)
+    (tmp_path / "bare").mkdir()
+    (tmp_path / "bare" / prog.name).write_text(bare)
+    run, model = cells["run"], cells["tmp"] / "kr210_two_fit.json"
+    tool = ["--tool", " ".join(map(str, [*robot.tool_xyz_mm, 0.9238795325, 0.0, 0.3826834324, 0.0]))] if fmt == "rapid" \
+        else []                                                      # tSMR of program_samples.rapid
+    r = run("correct", "--model", model, "--program", tmp_path / "bare" / prog.name, "--out", tmp_path / "no", *tool)
+    line = [x for x in r.output.splitlines() if x.startswith("jointcal: error:")]
+    assert r.exit_code == 2 and len(line) == 1 and "--payload" in line[0], r.output
+    rms = {}
+    for label, p, extra in (("stated", prog, []), ("at 0 kg", tmp_path / "bare" / prog.name, ["--payload", "0"] + tool)):
+        r = run("correct", "--model", model, "--program", p, "--out", tmp_path / label, "--max-correction-deg", "1",
+                "--json", tmp_path / f"{label}.json", *extra)
+        assert r.exit_code == 0, r.output
+        rep = json.loads((tmp_path / f"{label}.json").read_text())
+        assert rep["counts"].get("ok", 0) >= 28, rep["counts"]
+        intended = _intended(KR210, p, tool if extra else [])
+        r = run("simulate", "measure", "--truth", cells["tmp"] / "kr210.json", "--program", tmp_path / label / p.name,
+                "--campaign", tmp_path / f"m_{label}", "--payload", "60", *(tool if extra else []))
+        assert r.exit_code == 0, r.output
+        xyz = pd.read_csv(tmp_path / f"m_{label}" / "tracker.csv")[["x_mm", "y_mm", "z_mm"]].to_numpy()
+        rms[label] = float(np.sqrt(np.mean(np.sum((xyz - intended) ** 2, axis=1))))
+    stated = [t for t in json.loads((tmp_path / "stated.json").read_text())["targets"] if t["status"] == "ok"]
+    assert all(t["payload_kg"] == 60 and t["payload_source"].startswith("program:") for t in stated)
+    heldout = fit["heldout"]["rms_after_mm"]
+    print(f"{fmt}: filtered at the stated 60 kg {rms['stated']:.4f} mm, at 0 kg {rms['at 0 kg']:.4f} mm, "
+          f"held-out {heldout:.4f} mm")
+    assert rms["stated"] <= 1.25 * heldout + 0.005, (rms, heldout)
+    assert rms["at 0 kg"] > rms["stated"], rms

@@ -493,12 +493,18 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, text)
         written = [out]
     elif fmt == "ur":
-        from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
+        from ..export.ur import calibration_conf, kinematics_yaml, published_reference, standard_dh
         from ..robot.model.calibrate import RobotErrorModel
 
         chain = folded_chain(robot, chain_model)
-        nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
-        nominal = standard_dh(folded_chain(robot, nominal_model))
+        nominal = published_reference(robot, effects, doc["parameters"], folded_chain)   # a UR's own calibration
+        if nominal is None:
+            nominal_model = RobotErrorModel.from_parameters(robot, effects,
+                                                            [dict(p, value=0.0) for p in doc["parameters"]])
+            nominal = standard_dh(folded_chain(robot, nominal_model))
+        else:
+            comments.append(f"deltas against UR's published DH of the {robot.ur_model.upper()} (the robot was "
+                            "imported from its calibration.conf): this is its new calibration.conf")
         fitted = standard_dh(chain, reference=nominal)
         conf_path, yaml_path = _ur_paths(out)
         write_text(conf_path, calibration_conf(fitted, nominal, chain["smr"], comments))

@@ -72,6 +72,7 @@ class Robot:
     joints: tuple
     tool_xyz_mm: tuple
     path: str = "<robot>"
+    ur_model: str = ""     # a UR imported from its calibration.conf: the model whose published DH it is against
 
     @property
     def n_joints(self) -> int:
@@ -90,10 +91,11 @@ class Robot:
         """A copy with joint ``i`` (0-based) changed; for perturbed (true) robots."""
         joints = list(self.joints)
         joints[i] = Joint(**{**joints[i].__dict__, **changes})
-        return Robot(self.name, tuple(joints), self.tool_xyz_mm, self.path)
+        return Robot(self.name, tuple(joints), self.tool_xyz_mm, self.path, self.ur_model)
 
     def to_toml(self) -> str:
-        lines = [f'name = "{self.name}"', "", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
+        lines = [f'name = "{self.name}"'] + ([f'ur_model = "{self.ur_model}"'] if self.ur_model else [])
+        lines += ["", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
         for j in self.joints:
             lines += ["", "[[joint]]"]
             for f in JOINT_FIELDS + ("mass_kg",):
@@ -188,7 +190,7 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
         line = next((k + 1 for k, s in enumerate(text.splitlines()) if re.match(r"^\s*\[tool\]", s)), 1)
         raise InputError(path, "missing or bad [tool] xyz_mm = [x, y, z] (SMR in the flange frame, mm)", line, 1)
     name = str(doc.get("name", Path(str(path)).parent.name or "robot"))
-    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path))
+    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path), str(doc.get("ur_model", "")))
 
 
 def load_robot(path) -> Robot:

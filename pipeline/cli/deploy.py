@@ -78,11 +78,13 @@ def _json_line(path, key: str):
                    "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, orientation_held, status, "
                    "reason); with --program: the folder the filtered program goes to, under its own file names.")
 @click.option("--program", "program_path", type=click.Path(),
-              help="Robot model: a robot program to filter (contract section 11), told by extension: .src (KUKA KRL, "
-                   "with the .dat of the same name), .mod (ABB RAPID), .ls (FANUC TP ASCII), .script (URScript). "
-                   "See docs/programs.md for what is read and the conventions.")
+              help="Robot model: a robot program to filter (contract section 11): a file, told by extension: .src "
+                   "(KUKA KRL, with the .dat of the same name and a $config.dat beside it), .mod/.prg/.sys/.modx (ABB "
+                   "RAPID), .ls (FANUC TP ASCII), .script/.urscript (URScript); or a folder of one program (RAPID "
+                   "modules read together, KRL with the folder's $config.dat). See docs/programs.md.")
 @click.option("--tool", "tool_text", default=None,
-              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n], "
+              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n] without "
+                   "$config.dat, "
                    "FANUC UTOOL, an undeclared RAPID tool, URScript without set_tcp): \"X Y Z A B C\", mm and the "
                    "format's rotation (KRL A B C, FANUC W P R deg; RAPID \"x y z q1 q2 q3 q4\"; UR rotation vector rad).")
 @click.option("--base", "base_text", default=None,
@@ -90,8 +92,10 @@ def _json_line(path, key: str):
                    "(KRL BASE_DATA[n], FANUC UFRAME[n], an undeclared RAPID work object); same form as --tool. KRL "
                    "base 0, FANUC UF : 0 and RAPID wobj0 are the robot's base frame.")
 @click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
-              help="--program: the mass (kg) the robot carries while it runs the program (default: as for a "
-                   "--targets row without payload_kg).")
+              help="--program: the mass (kg) the robot carries where the program does not state it (RAPID tooldata "
+                   "load and GripLoad, URScript set_payload, KRL $LOAD / LOAD_DATA[n] of $config.dat are read). "
+                   "Default: the model's payload when it was fitted at one; a model with compliance fitted at several "
+                   "refuses a motion whose payload nobody knows.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
               help="--program: write the per-target report as JSON.")
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),

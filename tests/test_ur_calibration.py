@@ -234,3 +234,31 @@ def test_correct_program_on_a_ur_uses_its_calibration(imported, tmp_path):
     ok = [k for k, why in enumerate(played.reason) if not why and not plain.reason[k]]
     assert len(ok) >= 8
     assert np.abs(played.q_deg[ok] - plain.q_deg[ok]).max() > 1e-3      # its own kinematics, not the table's
+
+
+@pytest.mark.skipif(not (ROOT / "results/real/C_kinematic.json").is_file(), reason="make all writes the real fits")
+def test_series_c_on_its_own_kinematic_calibration(tmp_path):
+    """The real UR10's Series C kinematic fit exported as a calibration.conf, the series imported on it
+    (as a UR carrying that calibration would be): base and tool alone reach the kinematic fit's
+    held-out error; on UR's published table they do not."""
+    run = cli_invoker()
+    raw = ROOT / "raw/real/ur10-ipa"
+    kin = json.loads((ROOT / "results/real/C_kinematic.json").read_text())
+    r = run("export", "--model", ROOT / "results/real/C_kinematic.json", "--format", "ur", "--out", tmp_path / "c.conf")
+    assert r.exit_code == 0, r.output
+    assert np.abs(parse_calibration_conf((tmp_path / "c.conf").read_text())["delta_d"]).max() > 100.0
+    (tmp_path / "bt.toml").write_text('[model]\nkind = "robot"\n[[effect]]\nname = "base"\n[[effect]]\nname = "tool"\n')
+    tool = [str(v) for v in kin["robot_toml"].split("xyz_mm = [")[1].split("]")[0].split(",")]
+    held = {}
+    for label, robot in (("own", ["--robot", tmp_path / "c.conf", "--ur-model", "ur10", "--tool-mm", *tool]),
+                         ("table", ["--robot", raw / "robot.toml"])):
+        r = run("import", "--source", raw / "Series_C/measurements_random_poses.csv", "--map", raw / "map.toml",
+                *robot, "--out", tmp_path / label)
+        assert r.exit_code == 0, r.output
+        r = run("fit", "--campaign", tmp_path / label, "--spec", tmp_path / "bt.toml", "--out", tmp_path / f"{label}.json")
+        assert r.exit_code == 0, r.output
+        held[label] = json.loads((tmp_path / f"{label}.json").read_text())["heldout"]["rms_after_mm"]
+    print(f"Series C, base + tool: on its own calibration {held['own']:.4f} mm, on the published table "
+          f"{held['table']:.4f} mm; the kinematic fit {kin['heldout']['rms_after_mm']:.4f} mm")
+    assert held["own"] <= kin["heldout"]["rms_after_mm"] * 1.01
+    assert held["table"] > 1.5 * kin["heldout"]["rms_after_mm"]

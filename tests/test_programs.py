@@ -660,3 +660,25 @@ def test_the_payload_the_program_states(cells, two_payloads, tmp_path, fmt):
           f"held-out {heldout:.4f} mm")
     assert rms["stated"] <= 1.25 * heldout + 0.005, (rms, heldout)
     assert rms["at 0 kg"] > rms["stated"], rms
+
+
+def test_a_code_page_whose_bytes_look_like_brackets(cells, tmp_path):
+    """Shift-JIS comments and strings (second bytes 0x5B, 0x5D, 0x7B, 0x7D: '[', ']', '{', '}') in a KRL
+    program and a FANUC one: read byte for byte, filtered to the same numbers as without them."""
+    jis = b"\x83\x5b\x83\x7b\x83\x7d\x83\x5d"                    # katakana whose second bytes are brackets
+    src = (DATA / "sample.src").read_bytes().replace(b"$VEL.CP = 0.5 ; m/s", b"$VEL.CP = 0.5 ; " + jis + b"\r\n"
+                                                    b"$MSG_T.KEY[] = \"" + jis + b"\"", 1)
+    ls = (DATA / "sample.ls").read_bytes().replace(b"!hand-written sample ;", b"!" + jis + b" ;", 1)
+    (tmp_path / "jis").mkdir()
+    (tmp_path / "jis/sample.src").write_bytes(src)
+    shutil.copy(DATA / "sample.dat", tmp_path / "jis/sample.dat")
+    (tmp_path / "jis/sample.ls").write_bytes(ls)
+    pay = ["--payload", cells["kr210"]["payload"]]
+    for name, extra in (("sample.src", []), ("sample.ls", ["--tool", FANUC_TOOL])):
+        r, _ = _correct(cells, tmp_path, "kr210_fit.json", tmp_path / "jis" / name, "o_" + name, *pay, *extra)
+        assert r.exit_code == 0, r.output
+        r0, _ = _correct(cells, tmp_path, "kr210_fit.json", DATA / name, "p_" + name, *pay, *extra)
+        assert r0.exit_code == 0, r0.output
+        got = (tmp_path / ("o_" + name) / name).read_bytes()
+        assert jis in got and _numbers_of(tmp_path / ("o_" + name) / name) == _numbers_of(
+            tmp_path / ("p_" + name) / name)

@@ -18,6 +18,11 @@ def _need_file(path, what: str) -> None:
         raise InputError(path, f"no such file ({what})", None, None)
 
 
+def _need_program(path) -> None:
+    if not Path(path).exists():
+        raise InputError(path, "no such file or folder (the robot program)", None, None)
+
+
 def _is_robot_model(doc) -> bool:
     return isinstance(doc, dict) and "robot_toml" in doc and doc.get("kind", "robot") == "robot"
 
@@ -72,12 +77,14 @@ def _json_line(path, key: str):
               help="Robot model: the corrected program (CSV: point_id, q1 … qN deg, dq1_arcsec … dqN_arcsec, x_mm, "
                    "y_mm, z_mm of the corrected commands' nominal kinematics, model_residual_um, orientation_held, status, "
                    "reason); with --program: the folder the filtered program goes to, under its own file names.")
-@click.option("--program", "program_path", type=click.Path(dir_okay=False),
-              help="Robot model: a robot program to filter (contract section 11), told by extension: .src (KUKA KRL, "
-                   "with the .dat of the same name), .mod (ABB RAPID), .ls (FANUC TP ASCII), .script (URScript). "
-                   "See docs/programs.md for what is read and the conventions.")
+@click.option("--program", "program_path", type=click.Path(),
+              help="Robot model: a robot program to filter (contract section 11): a file, told by extension: .src "
+                   "(KUKA KRL, with the .dat of the same name and a $config.dat beside it), .mod/.prg/.sys/.modx (ABB "
+                   "RAPID), .ls (FANUC TP ASCII), .script/.urscript (URScript); or a folder of one program (RAPID "
+                   "modules read together, KRL with the folder's $config.dat). See docs/programs.md.")
 @click.option("--tool", "tool_text", default=None,
-              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n], "
+              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n] without "
+                   "$config.dat, "
                    "FANUC UTOOL, an undeclared RAPID tool, URScript without set_tcp): \"X Y Z A B C\", mm and the "
                    "format's rotation (KRL A B C, FANUC W P R deg; RAPID \"x y z q1 q2 q3 q4\"; UR rotation vector rad).")
 @click.option("--base", "base_text", default=None,
@@ -85,8 +92,10 @@ def _json_line(path, key: str):
                    "(KRL BASE_DATA[n], FANUC UFRAME[n], an undeclared RAPID work object); same form as --tool. KRL "
                    "base 0, FANUC UF : 0 and RAPID wobj0 are the robot's base frame.")
 @click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
-              help="--program: the mass (kg) the robot carries while it runs the program (default: as for a "
-                   "--targets row without payload_kg).")
+              help="--program: the mass (kg) the robot carries where the program does not state it (RAPID tooldata "
+                   "load and GripLoad, URScript set_payload, KRL $LOAD / LOAD_DATA[n] of $config.dat are read). "
+                   "Default: the model's payload when it was fitted at one; a model with compliance fitted at several "
+                   "refuses a motion whose payload nobody knows.")
 @click.option("--json", "json_path", default=None, type=click.Path(dir_okay=False),
               help="--program: write the per-target report as JSON.")
 @click.option("--max-correction-deg", default=0.5, show_default=True, type=click.FloatRange(min=0, min_open=True),
@@ -218,22 +227,23 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
 
     from ..core.files import write_json
     from ..correct.robot import ModelKinematics
-    from ..programs.filtering import filter_program
+    from ..programs.filtering import PAYLOAD_EFFECTS, filter_program, payloads
     from ..programs.io import read_program, write_all
     from ..programs.text import rewrite
     from ..robot.model.rigid import assumptions, model_payload
 
-    _need_file(program_path, "the robot program")
+    _need_program(program_path)
     robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
     closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
-    if payload_kg is None:      # as for a --targets row without payload_kg: the model's payload, when it was one
-        payload_kg = model_payload(doc.get("payloads_kg")) or 0.0
     t0 = time.perf_counter()
     program = read_program(program_path)
     tool = _frame_option(tool_text, "--tool", program.format)
     base = _frame_option(base_text, "--base", program.format)
-    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, payload_kg,
-                         max_correction_deg)
+    # the program's own payload, else --payload, else the model's one payload (as for a --targets row)
+    dependent = tuple(sorted({e.name for e in effects} & set(PAYLOAD_EFFECTS)))
+    kg, source = payloads(program, payload_kg, model_payload(doc.get("payloads_kg")), dependent)
+    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, kg,
+                         max_correction_deg, source)
     texts = rewrite(program.sources, res.changes)
     written = write_all(out_dir, program, texts)
     rows = res.rows
@@ -250,9 +260,14 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     for r in rows:
         if r["status"] not in ("ok", "same_target"):
             click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    used = {}
+    for r in rows:
+        used.setdefault((r["payload_kg"], r["payload_source"]), []).append(r)
     click.echo(f"  {assumptions(doc, len(robot.joints))}"
                + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + f"; the program run at {payload_kg:g} kg", err=True)
+               + "; payload: " + "; ".join(f"{v:g} kg ({src}; {len(rs)} target{'s' if len(rs) > 1 else ''}, from "
+                                           f"{rs[0]['file']}:{rs[0]['line']})" for (v, src), rs in used.items()),
+               err=True)
     if json_path:
         write_json(json_path, {"program": str(program_path), "format": program.format, "model": str(model_path),
                                "payload_kg": payload_kg, "counts": counts, "files": [str(w) for w in written],
@@ -275,14 +290,14 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
               help="Joints that run closed loop on their gratings (the second paper's loop, Eq. 26, until the "
                    "grating reads the command), as \"1 2 3\" or 1,2,3; the campaign then has the grating readings. "
                    "Default: every joint open loop. The paper's cell has gratings on joints 1-3, a user's cell none.")
-@click.option("--program", "program_path", default=None, type=click.Path(dir_okay=False),
+@click.option("--program", "program_path", default=None, type=click.Path(),
               help="Instead of --poses: a robot program (.src, .mod, .ls, .script) played by the nominal controller "
                    "(as jointcal correct --program reads it); point_id = the target's name (#2, #3 for a target "
                    "visited again).")
 @click.option("--tool", "tool_text", default=None, help="--program: as for jointcal correct --program.")
 @click.option("--base", "base_text", default=None, help="--program: as for jointcal correct --program.")
-@click.option("--payload", "payload_kg", default=0.0, show_default=True, type=click.FloatRange(min=0),
-              help="--program: the mass (kg) the robot carries.")
+@click.option("--payload", "payload_kg", default=None, type=click.FloatRange(min=0),
+              help="--program: the mass (kg) the robot carries where the program states none (default 0).")
 def measure_cmd(truth_path, poses_path, campaign, robot_path, seed, closed_loop, program_path, tool_text, base_text,
                 payload_kg):
     """Measure commanded poses on the virtual cell (contract section 10; lengths mm, angles deg).
@@ -341,11 +356,11 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
                      closed_loop=()):
     import numpy as np
 
-    from ..programs.filtering import play
+    from ..programs.filtering import payloads, play
     from ..programs.io import read_program
     from ..robot.cell.measure import measure_cell
 
-    _need_file(program_path, "the robot program")
+    _need_program(program_path)
     robot, cell = measure_cell(truth_path, campaign, robot_path)
     program = read_program(program_path)
     played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
@@ -363,7 +378,8 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
         seen[nm] = seen.get(nm, 0) + 1
         names.append(nm if seen[nm] == 1 else f"{nm}#{seen[nm]}")
     q = played.q_deg[keep]
-    payload = np.full(len(q), float(payload_kg))
+    kg, _ = payloads(program, 0.0 if payload_kg is None else payload_kg)     # the program's own, else --payload
+    payload = kg[keep]
     temp = np.full(len(q), 20.0)
     _write_measured(campaign, robot, cell, np.array(names), np.full(len(q), "target"), q, None, payload, temp, seed,
                     closed_loop)
@@ -487,12 +503,18 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         write_text(out, text)
         written = [out]
     elif fmt == "ur":
-        from ..export.ur import calibration_conf, kinematics_yaml, standard_dh
+        from ..export.ur import calibration_conf, kinematics_yaml, published_reference, standard_dh
         from ..robot.model.calibrate import RobotErrorModel
 
         chain = folded_chain(robot, chain_model)
-        nominal_model = RobotErrorModel.from_parameters(robot, effects, [dict(p, value=0.0) for p in doc["parameters"]])
-        nominal = standard_dh(folded_chain(robot, nominal_model))
+        nominal = published_reference(robot, effects, doc["parameters"], folded_chain)   # a UR's own calibration
+        if nominal is None:
+            nominal_model = RobotErrorModel.from_parameters(robot, effects,
+                                                            [dict(p, value=0.0) for p in doc["parameters"]])
+            nominal = standard_dh(folded_chain(robot, nominal_model))
+        else:
+            comments.append(f"deltas against UR's published DH of the {robot.ur_model.upper()} (the robot was "
+                            "imported from its calibration.conf): this is its new calibration.conf")
         fitted = standard_dh(chain, reference=nominal)
         conf_path, yaml_path = _ur_paths(out)
         write_text(conf_path, calibration_conf(fitted, nominal, chain["smr"], comments))

@@ -17,15 +17,21 @@ import click
               help="map.toml: which source columns are the joints, the positions (and their units, frame), "
                    "the optional columns and the sample/target split.")
 @click.option("--robot", "robot_path", required=True, type=click.Path(dir_okay=False),
-              help="Nominal kinematics of a 4- to 7-joint arm: a robot.toml (copied), or a URDF (then --tip).")
+              help="Nominal kinematics of a 4- to 7-joint arm: a robot.toml (copied), a URDF (then --tip), or a UR's "
+                   "calibration.conf (then --ur-model).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Campaign folder to write (robot.toml, poses.csv, tracker.csv, campaign.toml); replaced as a whole.")
 @click.option("--tip", default=None, metavar="LINK", help="URDF only: the link whose origin is the SMR (or the flange).")
 @click.option("--base", default=None, metavar="LINK",
               help="URDF only: the fixed link whose frame is the robot's base (z along joint 1; default the root).")
 @click.option("--tool-mm", "tool_mm", nargs=3, type=float, default=None, metavar="X Y Z",
-              help="SMR position (mm) in the --tip link's frame (URDF) or the flange frame (robot.toml).")
-def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
+              help="SMR position (mm) in the --tip link's frame (URDF) or the flange frame (robot.toml, "
+                   "calibration.conf).")
+@click.option("--ur-model", "ur_model", default=None,
+              type=click.Choice(["ur3", "ur5", "ur10", "ur3e", "ur5e", "ur10e", "ur16e", "ur20", "ur30"]),
+              help="--robot is a Universal Robots calibration.conf of this model: the robot's own factory-calibrated "
+                   "kinematics (UR's published DH plus the file's [mounting] deltas) become the nominal robot.")
+def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm, ur_model):
     """Turn a measurement export into a robot campaign folder (contract sections 2 and 6).
 
     The robot has N joints, 4 to 7 (its [[joint]] tables, or the URDF's revolute joints from
@@ -39,7 +45,7 @@ def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm):
     from ..robot.model.lm import limit_blas_threads
 
     limit_blas_threads(1)
-    s = import_campaign(source_path, map_path, robot_path, out_dir, tip, base, tool_mm)
+    s = import_campaign(source_path, map_path, robot_path, out_dir, tip, base, tool_mm, ur_model)
     how = "after a rigid fit of the tracker frame" if s["frame"] == "tracker" else "in the base frame"
     click.echo(f"{out_dir}: {s['n']} poses ({s['sample']} sample, {s['target']} target) from {source_path}; "
                f"nominal kinematics miss them by {s['nominal_rms_mm']:.3f} mm RMS {how}", err=True)

@@ -209,3 +209,19 @@ def yaml_positions(text: str, q_deg) -> np.ndarray:
             M = M * o * pin.SE3(pin.utils.rotate("z", qi), np.zeros(3))
         out.append((M * tail).translation * 1000.0)
     return np.array(out)
+
+
+def published_reference(robot, effects, parameters, folded) -> dict | None:
+    """UR's published DH of the robot's model as :func:`standard_dh` gives it (``x`` axes included, for
+    the fitted chain's sign choices), or None for a robot not imported from a calibration.conf.
+
+    ``folded`` is :func:`pipeline.export.chain.folded_chain`; ``parameters`` the fit's (set to zero here).
+    """
+    if not getattr(robot, "ur_model", ""):
+        return None
+    from ..robot.campaign.ur import KEYS, robot_from_calibration
+    from ..robot.model.calibrate import RobotErrorModel
+
+    pub = robot_from_calibration({k: np.zeros(6) for k in KEYS}, robot.ur_model, robot.tool_xyz_mm)
+    zero = RobotErrorModel.from_parameters(pub, effects, [dict(p, value=0.0) for p in parameters])
+    return standard_dh(folded(pub, zero))

@@ -3,14 +3,18 @@
 Read: the ``/MN`` motion lines ``J``, ``L`` and ``C`` (with its continuation line ``:  P[j] ...``) to
 ``P[n]`` and the group-1 data of their ``/POS`` entries: Cartesian ``X Y Z W P R`` with
 ``CONFIG : 'F|N U|D T|B, t1, t2, t3'`` (t1, t2, t3 the turns of joints 1, 4 and 6: decision), or joint
-``J1 .. J6`` (the robot.toml's joint angles: no J2/J3 interaction is applied: decision). A ``J`` move
+``J1 .. J6`` (the robot.toml's joint angles: no J2/J3 interaction is applied: decision). Group 1 is
+the robot (decision); an entry of other groups only (a positioner, a rail) is named and left as
+given, and the other groups of an entry are never rewritten. A ``J`` move
 goes to the branch its CONFIG names; ``L`` and ``C`` keep the branch of the point before. ``UF : 0``
 is the robot's base frame; another user frame, and every ``UT`` (a tool number, not in the program),
 is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
 
-Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, the ``Offset``, ``Tool_Offset``, ``VOFFSET``
-and ``INC`` options. Refused (file:line): a file without ``/PROG`` or ``/END``, an ``/MN`` line that is
-not ``n: ... ;``, a motion to a ``P[n]`` without a ``/POS`` entry, a ``/POS`` entry without its ``};``.
+Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
+``Offset``, ``Tool_Offset``, ``VOFFSET`` and ``INC`` options. ``/MN`` lines of other forms (``:``
+lines without a number, ``------ ;``) are kept. The payload is a controller schedule
+(``PAYLOAD[n]``), never in the program: ``--payload``. Refused (file:line): a file without ``/PROG``
+or ``/END``, a numbered ``/MN`` line without its ``;``, a ``/POS`` entry without its ``};``.
 """
 
 from __future__ import annotations
@@ -65,18 +69,21 @@ class _Pos:
 
     @staticmethod
     def _entry(src, lines, offsets, head, body):
-        gp1 = []
+        gp1, groups = [], []
         in_gp1 = False
         for i in body:
             s = lines[i]
+            mg = re.match(r"^\s*GP(\d+)\s*:", s)
+            if mg:
+                groups.append(int(mg.group(1)))
             if re.match(r"^\s*GP1\s*:", s):
                 in_gp1 = True
                 continue
-            if re.match(r"^\s*GP\d+\s*:", s):
+            if mg:
                 in_gp1 = False
             if in_gp1:
                 gp1.append(i)
-        info = {"line": head + 1, "uf": None, "ut": None, "config": None, "fields": {}}
+        info = {"line": head + 1, "uf": None, "ut": None, "config": None, "fields": {}, "groups": groups}
         for i in gp1:
             s = lines[i]
             m = re.search(r"\bUF\s*:\s*(\d+)", s)
@@ -113,7 +120,7 @@ def read(path) -> Program:
     pos = _Pos()
     if pos_at is not None:
         pos.parse(src, lines, offsets, pos_at + 1)
-    motions = []
+    motions, payloads = [], []
     k = mn + 1
     stop = pos_at if pos_at is not None else end_at
     while k < stop:
@@ -127,8 +134,8 @@ def read(path) -> Program:
             while j < stop and re.match(r"^\s*:", lines[j]) and not lines[j - 1].rstrip().endswith(";"):
                 j += 1
             if j == k + 1 or not lines[j - 1].rstrip().endswith(";"):
-                raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;')",
-                                 k + 1, None)
+                raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;'); "
+                                 "an instruction without its ';'", k + 1, None)
             raw = raw + " " + " ".join(re.sub(r"^\s*:", "", x.rstrip("\r\n")) for x in lines[k + 1:j])
             m = MN_LINE.match(raw)
             mm = MOTION.match(m.group(1))
@@ -148,8 +155,13 @@ def read(path) -> Program:
             continue
         m = MN_LINE.match(raw)
         if not m:
-            raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;')",
-                             k + 1, None)
+            if re.match(r"^\s*\d+\s*:", raw):
+                raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;'); "
+                                 "an instruction without its ';'", k + 1, None)
+            k += 1                       # a line of another form (':' lines without a number, '------ ;'): kept
+            continue
+        if re.match(r"^\s*PAYLOAD\s*\[", m.group(1), re.IGNORECASE):
+            payloads.append((k + 1, m.group(1).strip()))
         mm = MOTION.match(m.group(1))
         if mm:
             motions.append((k + 1, mm.group(1).upper(), mm.group(2), mm.group(3), int(mm.group(4)),
@@ -169,8 +181,14 @@ def read(path) -> Program:
         name = f"P[{n}]"
         e = pos.entries.get(n)
         if e is None:
-            raise InputError(src.path, f"{name} has no /POS entry", line, None)
+            targets.append(Target(src.path, line, name, CARTESIAN, branch, runtime=f"{name} has no /POS entry (its "
+                                  "value is not in the program)"))
+            continue
         f = e["fields"]
+        if 1 not in e["groups"] and e["groups"]:
+            targets.append(Target(src.path, line, name, JOINT, branch, runtime="moves group "
+                                  f"{', '.join(map(str, e['groups']))} only, not the robot (group 1)"))
+            continue
         mo = OFFSET_OPT.search(opts)
         if all(j in f for j in ("J1", "J2", "J3", "J4", "J5", "J6")):
             t = Target(src.path, line, name, JOINT, branch, [f[j] for j in ("J1", "J2", "J3", "J4", "J5", "J6")],
@@ -194,5 +212,8 @@ def read(path) -> Program:
             raise InputError(src.path, f"{name}: group 1 has neither X, Y, Z, W, P, R nor J1 .. J6", e["line"], None)
         if mo:
             t.runtime = f"the {mo.group(1)} option (an offset applied at run time)"
+        before = [pl for pl in payloads if pl[0] < line]
+        t.extra["payload"] = (None, f"{before[-1][1]} at line {before[-1][0]}: a payload schedule of the controller, "
+                              "not in the program") if before else (None, "a FANUC program states no payload")
         targets.append(t)
     return Program("fanuc", [src], targets)

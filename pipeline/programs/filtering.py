@@ -30,6 +30,53 @@ from .conventions import invert
 from .model import CARTESIAN, CONFIG, JOINT, Program
 
 OK = "ok"
+#: effects whose error depends on the payload (the gravity torque includes it)
+PAYLOAD_EFFECTS = ("compliance",)
+
+
+def payloads(program: Program, given: float | None = None, model_kg: float | None = None,
+             dependent: tuple = ()) -> tuple[np.ndarray, list]:
+    """The payload of each motion (kg) and where it comes from (contract section 11).
+
+    The program's own where its language states it (RAPID tooldata load, GripLoad, ``\\TLoad``;
+    URScript ``set_payload``; KRL ``$LOAD`` / ``LOAD_DATA[n]`` of a given ``$config.dat``); else
+    ``given`` (``--payload``); else ``model_kg``, the one payload the model was fitted at; else, for a
+    model with no payload-dependent effect, 0 kg (it does not matter).
+
+    Parameters
+    ----------
+    given : float, kg, optional
+    model_kg : float, kg, optional
+    dependent : tuple of str
+        The model's payload-dependent effects (:data:`PAYLOAD_EFFECTS` it has).
+
+    Returns
+    -------
+    kg : ndarray, shape (n,), kg
+        One per motion of ``program.targets``.
+    source : list of str, (n,)
+
+    Raises InputError (file:line, naming ``--payload``) for a motion whose payload nobody knows on a
+    model with a payload-dependent effect.
+    """
+    n = len(program.targets)
+    kg, source = np.zeros(n), [""] * n
+    for k, t in enumerate(program.targets):
+        stated, why = t.extra.get("payload", (None, "the program states no payload"))
+        if stated is not None:
+            kg[k], source[k] = stated, f"program: {why}"
+        elif given is not None:
+            kg[k], source[k] = given, "--payload"
+        elif model_kg is not None:
+            kg[k], source[k] = model_kg, f"the model's payload (fitted at {model_kg:g} kg only)"
+        elif dependent and not t.runtime:
+            raise InputError(t.file, f"{t.name}: {why}, and the model's {', '.join(dependent)} depends on the payload "
+                             "(fitted at several): give --payload KG", t.line, None)
+        elif dependent:
+            kg[k], source[k] = 0.0, "none known (the target is left as given)"
+        else:
+            kg[k], source[k] = 0.0, "none stated (the model has no payload-dependent effect)"
+    return kg, source
 
 
 @dataclass
@@ -51,10 +98,9 @@ def _frame(t, which: str, given, slots: dict, fmt: str):
         raise InputError(t.file, f"Cartesian target {t.name}: {fr.why or 'no ' + which + ' frame'}; the program does "
                          f"not define its {which} frame, so give it with --{which}", t.line, None)
     first = slots.setdefault(which, (fr.key, t.file, t.line))
-    if first[0] != fr.key:
-        raise InputError(t.file, f"Cartesian target {t.name} uses {which} {fr.key}, but --{which} already stands for "
-                         f"{first[0]} (first used at {first[1]}:{first[2]}); a program with two undefined {which} "
-                         "frames cannot be filtered with one --" + which, t.line, None)
+    if first[0] != fr.key:                # named and left as given: --tool / --base stands for one frame
+        return (f"it uses {which} {fr.key} ({fr.why or 'not defined in the program'}), and --{which} stands for "
+                f"{first[0]} (first used at {first[1]}:{first[2]})")
     return fm.frame_pose(fmt, given)
 
 
@@ -69,7 +115,9 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` in the format's convention (:func:`pipeline.programs.formats.frame_pose`).
 
-    Raises InputError (file:line) for a Cartesian target whose tool or base frame nobody gave.
+    Raises InputError (file:line) for a Cartesian target whose tool or base frame nobody gave; a
+    target in a second undefined frame, when ``--tool`` / ``--base`` already stands for another, is
+    left as given (its reason says so).
     """
     if robot.n_joints != 6:
         raise InputError(robot.path, f"program filtering needs a six-joint arm; this robot has {robot.n_joints}", 1, 1)
@@ -99,6 +147,9 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
             continue
         tool_T = _frame(t, "tool", tool, slots, fmt)
         base_T = _frame(t, "base", base, slots, fmt)
+        if isinstance(tool_T, str) or isinstance(base_T, str):
+            reason[k] = tool_T if isinstance(tool_T, str) else base_T
+            continue
         tools[k], bases[k] = tool_T, base_T
         T_fl[k] = base_T @ fm.pose(fmt, t.values) @ invert(tool_T)
         w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
@@ -155,8 +206,8 @@ class Filtered:
     texts: list = field(default_factory=list)
 
 
-def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg: float | None = None,
-                   max_correction_deg: float = 0.5) -> Filtered:
+def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg=None,
+                   max_correction_deg: float = 0.5, payload_source=None) -> Filtered:
     """Filter a program's targets through a fitted model (see the module docstring).
 
     Parameters
@@ -167,9 +218,11 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         Joint ranges the model was fitted on (``{"lower_deg": [6], "upper_deg": [6]}``).
     tool, base : sequence of float, optional
         ``--tool`` / ``--base`` (format's convention).
-    payload_kg : float, kg, optional
-        Mass the robot carries while it runs the program (None: what ``correct_commands`` assumes
-        for a row without a payload).
+    payload_kg : float or ndarray of shape (n motions,), kg, optional
+        Mass the robot carries at each motion (:func:`payloads`; None: what ``correct_commands``
+        assumes for a row without a payload).
+    payload_source : list of str, optional
+        Where each motion's payload comes from (for the report).
     max_correction_deg : float, deg
     """
     from ..correct.robot import correct_commands
@@ -188,7 +241,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     if idx:
         start = (robot.lower_deg + robot.upper_deg) / 2
         dirs = directions_from_sequence(q0, start_deg=start)
-        payload = None if payload_kg is None else np.full(len(idx), float(payload_kg))
+        payload = None if payload_kg is None else np.broadcast_to(np.asarray(payload_kg, float), (n,))[idx]
         res = correct_commands(kin, q0, None, dirs, payload, None, sampled, max_correction_deg)
         for r, k in enumerate(idx):
             if res.status[r] != "ok":
@@ -209,6 +262,9 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
     for k, t in enumerate(targets):
         row = {"file": t.file, "line": t.line, "name": t.name, "kind": t.kind, "status": OK, "reason": "",
                "max_correction_arcsec": 0.0, "move_mm": 0.0}
+        if payload_kg is not None:
+            row["payload_kg"] = float(np.broadcast_to(np.asarray(payload_kg, float), (n,))[k])
+            row["payload_source"] = payload_source[k] if payload_source else ""
         rows.append(row)
         if t.decl and t.decl in seen:
             first = seen[t.decl]
@@ -254,4 +310,6 @@ def _status_word(reason: str, t) -> str:
             return w
     if "joint range" in reason:
         return "beyond_joint_range"
+    if reason.startswith("it uses "):
+        return "frame_unknown"
     return "no_ik_solution"

@@ -1,4 +1,5 @@
-"""KUKA KRL: a ``.src`` and the ``.dat`` of the same name beside it (contract section 11).
+"""KUKA KRL: a ``.src``, the ``.dat`` of the same name beside it and the controller's ``$config.dat``
+(contract section 11).
 
 Read: ``DECL E6POS/POS/E6AXIS/AXIS/FRAME/FDAT`` data (in either file), and in the ``.src`` the motions
 ``PTP``, ``LIN``, ``CIRC`` (and the spline single motions ``SPTP``, ``SLIN``, ``SCIRC``) to a declared
@@ -6,16 +7,21 @@ name or an inline aggregate (``{X 1,Y 2,...}``, ``{E6POS: ...}``, ``{AXIS: A1 ..
 from ``$TOOL = {...}`` / ``$BASE = {...}``, ``BAS(#TOOL, n)`` / ``BAS(#BASE, n)``, ``$TOOL = TOOL_DATA[n]``,
 ``$BASE = BASE_DATA[n]`` and ``FDAT_ACT = FPn`` (``TOOL_NO``, ``BASE_NO``). Tool 0 is the flange and
 base 0 the robot's base frame; any other number is ``TOOL_DATA``/``BASE_DATA`` of the controller's
-``$config.dat``, not in the program: ``--tool`` / ``--base``. ``S`` names the branch of a ``PTP``
-(bit 0 rear, bit 1 elbow up, bit 2 flip; ignored for ``LIN``/``CIRC`` as the controller does), ``T``
-the sign of each joint.
+``$config.dat``: read from it when it lies beside the ``.src`` (or in the ``--program`` folder), else
+``--tool`` / ``--base``. The payload: ``$LOAD = {M ...}``, ``$LOAD.M = ...``, ``$LOAD = LOAD_DATA[n]``,
+and the ``LOAD_DATA[n]`` a tool change (``BAS(#TOOL, n)``, ``FDAT_ACT``, ``STOOL2``) activates, from a
+given ``$config.dat`` (``M -1``, the controller's default load, states no mass). ``S`` names the
+branch of a ``PTP`` (bit 0 rear, bit 1 elbow up, bit 2 flip; ignored for ``LIN``/``CIRC`` as the
+controller does), ``T`` the sign of each joint. A UTF-8 byte-order mark is not read (``text``).
 
 Left as given and named: geometric operators (``XP1 : {X 10}``), ``PTP_REL``/``LIN_REL``, ``$POS_ACT``
 and other system variables, indexed arrays, partial aggregates (``{X 10, Y 20}``), targets under
-``IPO_FRAME #TCP`` (a stationary tool), and names declared outside the program (``XHOME`` of
-``$config.dat``). KSS 8 inline forms (``SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)``)
+``IPO_FRAME #TCP`` (a stationary tool), names declared nowhere or without a value, names declared in
+``$config.dat`` (``XHOME``: shared by every program, never rewritten; the file is read, not written),
+the segments of spline blocks (``SPLINE``/``PTP_SPLINE`` ... ``ENDSPLINE``) and asynchronous motions
+(``ASYPTP`` ...). KSS 8 inline forms (``SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO)``)
 take the tool and base of their FDAT. Refused (file:line): unbalanced braces, a ``DEF`` without
-``END``, a ``DEFDAT`` without ``ENDDAT``, spline blocks (``SPLINE``/``SPL``) and asynchronous motions.
+``END``, a ``DEFDAT`` without ``ENDDAT``, a ``SPLINE`` without ``ENDSPLINE``.
 """
 
 from __future__ import annotations
@@ -30,8 +36,12 @@ from . import conventions as cv
 from .model import CARTESIAN, CONFIG, JOINT, PREVIOUS, Frame, Program, Target
 from .text import NUMBER, Number, balanced, read_source, split_top, strip_comment
 
-DECL_RE = re.compile(r"^(\s*(?:DECL\s+)?(?:GLOBAL\s+)?)(E6POS|POS|E6AXIS|AXIS|FRAME|FDAT)\s+([A-Za-z_$][\w$]*)\s*=\s*",
+DECL_RE = re.compile(r"^(\s*(?:DECL\s+)?(?:GLOBAL\s+)?)(E6POS|POS|E6AXIS|AXIS|FRAME|FDAT)\s+([A-Za-z_$][\w$]*)\s*(=\s*|$)",
                      re.IGNORECASE)
+#: the controller's numbered frames and loads in $config.dat: ``TOOL_DATA[1]={X ...}``, ``LOAD_DATA[1]={M 60,...}``
+NUMBERED_RE = re.compile(r"^\s*(?:DECL\s+(?:FRAME|LOAD)\s+)?(TOOL_DATA|BASE_DATA|LOAD_DATA)\s*\[\s*(\d+)\s*\]\s*=\s*",
+                         re.IGNORECASE)
+CONFIG_DAT = "$config.dat"
 MOTION_RE = re.compile(r"^\s*(PTP_REL|LIN_REL|SPTP_REL|SLIN_REL|PTP|LIN|CIRC|SPTP|SLIN|SCIRC)\b(.*)$", re.IGNORECASE)
 UNSUPPORTED_RE = re.compile(r"^\s*(SPLINE|PTP_SPLINE|SPL|ASYPTP|ASYLIN|ASYCIRC|ASYCONT)\b", re.IGNORECASE)
 POSE_KEYS = ("X", "Y", "Z", "A", "B", "C")
@@ -109,16 +119,35 @@ def _st(items):
     return val("S"), val("T")
 
 
+def config_of(src: Path) -> Path | None:
+    """The controller's ``$config.dat`` beside a ``.src`` (any case), or None."""
+    for cand in src.parent.iterdir():
+        if cand.name.lower() == CONFIG_DAT and cand.is_file():
+            return cand
+    return None
+
+
 class _Data:
     def __init__(self):
         self.decls = {}
+        self.numbered = {}             # ("TOOL_DATA", n) -> (items, file index, line)
+        self.config = None             # file index of $config.dat, when read
 
     def scan(self, src, fidx):
         text = src.text
         pos = 0
         for line, raw in enumerate(text.splitlines(keepends=True), 1):
             code = strip_comment(raw, ";") if ";" in raw else raw
+            mn = NUMBERED_RE.match(code)
+            if mn and code.find("{", mn.end()) >= 0 and balanced(code):
+                _, items, _ = _aggregate(text, pos + code.find("{", mn.end()), src.path, line)
+                self.numbered[(mn.group(1).upper(), int(mn.group(2)))] = (items, fidx, line)
             m = DECL_RE.match(code)
+            if m and not m.group(4).startswith("="):
+                if not code[m.end():].strip():
+                    self.decls[m.group(3).upper()] = (m.group(2).upper(), fidx, None, None, line, m.group(3))
+                pos += len(raw)
+                continue
             if m:
                 brace = code.find("{", m.end())
                 if brace < 0 or code[m.end():brace].strip():
@@ -149,25 +178,33 @@ def _target_of(items, prefix, fidx, decl_type=""):
     return CARTESIAN, nums, flags, T
 
 
-def read(path) -> Program:
-    """Read a KRL program (``.src`` and its ``.dat``); InputError (file:line) on broken syntax."""
+def read(path, config=None) -> Program:
+    """Read a KRL program (``.src``, its ``.dat``, and ``config`` or the ``$config.dat`` beside it);
+    InputError (file:line) on broken syntax."""
     src = read_source(path)
     sources = [src]
     dat = dat_of(Path(path))
+    config = config or config_of(Path(path))
     data = _Data()
+    if config is not None:
+        sources.append(read_source(config, writable=False))
+        data.config = len(sources) - 1
+        data.scan(sources[-1], data.config)
     if dat is not None:
         sources.append(read_source(dat))
-        data.scan(sources[1], 1)
-        codes = [strip_comment(x, ";").strip().upper() for x in sources[1].text.splitlines()]
+        data.scan(sources[-1], len(sources) - 1)
+        codes = [strip_comment(x, ";").strip().upper() for x in sources[-1].text.splitlines()]
         opened = [k for k, c in enumerate(codes, 1) if re.match(r"^DEFDAT\b", c)]
         if opened and not any(re.match(r"^ENDDAT\b", c) for c in codes):
-            raise InputError(sources[1].path, "DEFDAT without ENDDAT", opened[0], None)
+            raise InputError(sources[-1].path, "DEFDAT without ENDDAT", opened[0], None)
     data.scan(src, 0)
     text = src.text
     targets = []
     tool = Frame(None, "the program never sets $TOOL (nor BAS(#TOOL, n), nor FDAT_ACT)", "$TOOL (not set)")
     base = Frame(None, "the program never sets $BASE (nor BAS(#BASE, n), nor FDAT_ACT)", "$BASE (not set)")
+    load = (None, "the program never sets $LOAD (nor BAS(#TOOL, n) with LOAD_DATA of a given $config.dat)")
     external = False
+    spline, spline_line = None, 0
     depth_def, def_line = 0, None
     pos = 0
     for lineno, raw in enumerate(text.splitlines(keepends=True), 1):
@@ -189,22 +226,40 @@ def read(path) -> Program:
             if depth_def < 0:
                 raise InputError(src.path, "END without DEF", lineno, None)
             continue
-        if UNSUPPORTED_RE.match(s):
-            raise InputError(src.path, f"unknown motion statement '{s.split()[0]}' (spline blocks and asynchronous "
-                             "motions are not read: PTP, LIN, CIRC, SPTP, SLIN, SCIRC are)", lineno, None)
+        mu = UNSUPPORTED_RE.match(s)
+        if mu or spline is not None:
+            word = mu.group(1).upper() if mu else ""
+            if word in ("SPLINE", "PTP_SPLINE"):
+                spline, spline_line = word, lineno
+            elif re.match(r"^ENDSPLINE\b", up):
+                spline = None
+            elif mu or MOTION_RE.match(code) or re.match(r"^SPL\b", up):
+                how = (f"a segment of a {spline} block (spline blocks are not read)" if spline else
+                       f"{s.split()[0]}: a motion statement this filter does not read")
+                targets.append(Target(src.path, lineno, f"{s.split()[0]}@{lineno}", CARTESIAN, PREVIOUS, runtime=how))
+            continue
+        m = re.match(r"^\$LOAD\s*=\s*(.*)$", s, re.IGNORECASE)
+        if m:
+            load = _load_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, data)
+            continue
+        m = re.match(r"^\$LOAD\.M\s*=\s*(" + NUMBER + r")\s*$", s, re.IGNORECASE)
+        if m:
+            load = (float(m.group(1)), f"$LOAD.M at line {lineno}")
+            continue
         m = re.match(r"^\$TOOL\s*=\s*(.*)$", s, re.IGNORECASE)
         if m:
-            tool = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "TOOL")
+            tool = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "TOOL", data)
             continue
         m = re.match(r"^\$BASE\s*=\s*(.*)$", s, re.IGNORECASE)
         if m:
-            base = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "BASE")
+            base = _frame_stmt(m.group(1), text, here + code.index(m.group(1)), src.path, lineno, "BASE", data)
             continue
         m = re.match(r"^BAS\s*\(\s*#(TOOL|BASE)\s*,\s*(\d+)\s*\)", s, re.IGNORECASE)
         if m:
-            fr = _numbered(m.group(1).upper(), int(m.group(2)))
+            fr = _numbered(m.group(1).upper(), int(m.group(2)), data)
             if m.group(1).upper() == "TOOL":
                 tool = fr
+                load = _load_data(int(m.group(2)), data, f"BAS(#TOOL, {m.group(2)})")
             else:
                 base = fr
             continue
@@ -216,9 +271,10 @@ def read(path) -> Program:
                                  lineno, None)
             items = d[3]
             if "TOOL_NO" in items:
-                tool = _numbered("TOOL", int(float(items["TOOL_NO"][0])))
+                tool = _numbered("TOOL", int(float(items["TOOL_NO"][0])), data)
+                load = _load_data(int(float(items["TOOL_NO"][0])), data, f"FDAT_ACT = {m.group(1)}")
             if "BASE_NO" in items:
-                base = _numbered("BASE", int(float(items["BASE_NO"][0])))
+                base = _numbered("BASE", int(float(items["BASE_NO"][0])), data)
             external = items.get("IPO_FRAME", ("#BASE",))[0].strip().upper() == "#TCP"
             continue
         m = MOTION_RE.match(code)
@@ -228,7 +284,8 @@ def read(path) -> Program:
         rest = m.group(2)
         rest_at = here + m.start(2)
         if word.endswith("_REL"):
-            targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})"))
+            targets.append(Target(src.path, lineno, f"{word}@{lineno}", CARTESIAN, runtime=f"a relative move ({word})",
+                                  extra={"payload": load}))
             continue
         with_parts = re.split(r"\bWITH\b", rest, maxsplit=1, flags=re.IGNORECASE)
         rest_main = with_parts[0]
@@ -243,9 +300,10 @@ def read(path) -> Program:
                 if d is None or d[0] != "FDAT" or key not in d[3]:
                     raise InputError(src.path, f"{word} ... WITH: no DECL FDAT {mw.group(1)} with {key} in the .src or "
                                      ".dat", lineno, None)
-                fr = _numbered(which, int(float(d[3][key][0])))
+                fr = _numbered(which, int(float(d[3][key][0])), data)
                 if which == "TOOL":
                     tool = fr
+                    load = _load_data(int(float(d[3][key][0])), data, f"{word} ... WITH $TOOL = STOOL2({mw.group(1)})")
                 else:
                     base = fr
         rest_main = re.sub(r"\s+(C_PTP|C_DIS|C_VEL|C_ORI|C_SPL)(\s+C_\w+)*\s*$", "", rest_main, flags=re.IGNORECASE)
@@ -259,27 +317,61 @@ def read(path) -> Program:
         for off, expr in parts:
             t = _motion_target(expr, rest_at + off, text, data, src.path, lineno, word)
             t.tool, t.base = tool, base
+            t.extra["payload"] = load
             if external and t.kind == CARTESIAN and not t.runtime:
                 t.runtime = "IPO_FRAME #TCP: a stationary tool (the roles of $TOOL and $BASE are swapped)"
             targets.append(t)
     if depth_def > 0:
         raise InputError(src.path, f"DEF at line {def_line} has no END", def_line, None)
+    if spline is not None:
+        raise InputError(src.path, f"{spline} without ENDSPLINE", spline_line, None)
     return Program("krl", sources, targets)
 
 
-def _numbered(which: str, n: int) -> Frame:
+def _numbered(which: str, n: int, data=None) -> Frame:
+    """Tool or base number n: 0 is the flange / the robot's base; n is TOOL_DATA[n] / BASE_DATA[n] of a
+    given $config.dat, else unknown (``--tool`` / ``--base``)."""
     if n == 0:
         return Frame(np.eye(4), "", f"{which} 0")
-    data = "TOOL_DATA" if which == "TOOL" else "BASE_DATA"
-    return Frame(None, f"{which.lower()} {n} is {data}[{n}] of the controller's $config.dat, not in the program",
-                 f"{data}[{n}]")
+    name = "TOOL_DATA" if which == "TOOL" else "BASE_DATA"
+    got = data.numbered.get((name, n)) if data is not None else None
+    if got is not None and set(POSE_KEYS) <= set(got[0]) and all(re.fullmatch(NUMBER, got[0][k][0].strip())
+                                                                  for k in POSE_KEYS):
+        v = [float(got[0][k][0]) for k in POSE_KEYS]
+        return Frame(cv.homogeneous(cv.kuka_matrix(*v[3:]), v[:3]), "", f"{name}[{n}]")
+    return Frame(None, f"{which.lower()} {n} is {name}[{n}] of the controller's $config.dat, not in the program",
+                 f"{name}[{n}]")
 
 
-def _frame_stmt(expr, text, at, path, line, which):
+def _load_data(n: int, data, how: str):
+    """(kg, where from) of LOAD_DATA[n] of a given $config.dat; (None, why) when unknown (M -1: the
+    controller's default load, not a stated mass)."""
+    got = data.numbered.get(("LOAD_DATA", n))
+    if got is None:
+        return None, f"{how}: LOAD_DATA[{n}] is in the controller's $config.dat, which was not given"
+    m = got[0].get("M")
+    if m is None or not re.fullmatch(NUMBER, m[0].strip()) or float(m[0]) < 0:
+        return None, f"{how}: LOAD_DATA[{n}] of $config.dat (line {got[2]}) states no mass (M -1 is the default load)"
+    return float(m[0]), f"LOAD_DATA[{n}] of $config.dat ({how})"
+
+
+def _load_stmt(expr, text, at, path, line, data):
+    e = expr.strip()
+    m = re.match(r"^LOAD_DATA\s*\[\s*(\d+)\s*\]$", e, re.IGNORECASE)
+    if m:
+        return _load_data(int(m.group(1)), data, f"$LOAD at line {line}")
+    if e.startswith("{"):
+        _, items, _ = _aggregate(text, at + expr.index("{"), path, line)
+        if "M" in items and re.fullmatch(NUMBER, items["M"][0].strip()) and float(items["M"][0]) >= 0:
+            return float(items["M"][0]), f"$LOAD at line {line}"
+    return None, f"$LOAD = {e} at line {line} states no mass the filter can read"
+
+
+def _frame_stmt(expr, text, at, path, line, which, data=None):
     e = expr.strip()
     m = re.match(r"^(TOOL_DATA|BASE_DATA)\s*\[\s*(\d+)\s*\]$", e, re.IGNORECASE)
     if m:
-        return _numbered(which, int(m.group(2)))
+        return _numbered(which, int(m.group(2)), data)
     if e.upper() == "$NULLFRAME":
         return Frame(np.eye(4), "", "$NULLFRAME")
     if e.startswith("{"):
@@ -318,6 +410,11 @@ def _motion_target(expr, at, text, data, path, line, word) -> Target:
         return Target(path, line, e, CARTESIAN, branch,
                       runtime=f"{e} is declared outside the program (not in the .src or its .dat; e.g. $config.dat)")
     dtype, fidx, brace, items, dline, name = d
+    if items is None:
+        return Target(path, line, name, CARTESIAN, branch, runtime=f"{name} is declared without a value (line {dline})")
+    if fidx == data.config:
+        return Target(path, line, name, CARTESIAN, branch, runtime=f"{name} is declared in the controller's $config.dat "
+                      "(shared by every program; not rewritten)")
     if dtype in ("FDAT", "FRAME"):
         if dtype == "FDAT":
             raise InputError(path, f"{word} {e}: {e} is FDAT data, not a position", line, None)

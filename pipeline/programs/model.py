@@ -21,6 +21,8 @@ class Frame:
     pose: np.ndarray | None = None
     why: str = ""
     key: str = ""          # what the program calls it (for --tool / --base: the first unknown one they stand for)
+    moving: bool = False   # a frame that moves at run time (a stationary tool, a work object a unit moves): the
+                           # targets in it are left as given, never given a --tool / --base
 
 
 @dataclass

@@ -1,20 +1,37 @@
-"""ABB RAPID: a ``.mod`` module (contract section 11).
+r"""ABB RAPID: a program's modules, ``.mod``, ``.prg``, ``.sys``, ``.modx`` (contract section 11).
+
+The modules of a program are read together, as the controller loads them into one task: a target,
+tool, work object or load declared in any of them is known in all (``LOCAL`` ones are not told
+apart: decision). A module is split into statements as the controller does: a statement runs to its
+``;`` over any number of lines; ``MODULE``, ``PROC``/``FUNC``/``TRAP`` headers (their parameter
+lists over several lines too), ``IF ... THEN``, ``WHILE ... DO``, ``FOR ... DO``, ``TEST``/``CASE``,
+labels and the ``END...`` words are statements of their own; ``!`` starts a comment; the ``%%%``
+header of old ``.prg``/``.sys`` files is not read. Keywords are case-insensitive.
 
 Read: ``CONST``/``PERS``/``VAR`` (``LOCAL``, ``TASK``) declarations of ``robtarget``, ``jointtarget``,
-``tooldata`` and ``wobjdata``; the motions ``MoveJ``, ``MoveL``, ``MoveC`` (Cartesian) and ``MoveAbsJ``
-(joint) to a declared name or an inline literal, with their tool argument and ``\\WObj``; ``ConfJ``.
-A ``MoveJ`` goes to the branch its ``cf1 cf4 cf6 cfx`` name (``ConfJ \\Off``: the branch of the point
-before, nearest its joints); ``MoveL`` and ``MoveC`` keep the branch of the point before. Tool
-``tool0`` is the flange and work object ``wobj0`` (or no ``\\WObj``) the robot's base frame; a tool or
-work object declared in the module is used as declared (``uframe . oframe``); one that is not: ``--tool``
-/ ``--base``. Keywords are case-insensitive; ``!`` starts a comment.
+``tooldata``, ``wobjdata`` and ``loaddata``; the motions ``MoveJ``, ``MoveL``, ``MoveC``
+(Cartesian) and ``MoveAbsJ`` (joint), and the instructions that move like them to a ToPoint given
+first (``TriggJ``/``TriggL``/``TriggC``, ``MoveJDO``/``MoveLDO``/``MoveCDO``, ``...AO``, ``...GO``,
+``...Sync``, ``ArcL``/``ArcC`` and their ``Start``/``End`` forms, ``SpotL``/``SpotJ``, ``CapL``/``CapC``,
+``DispL``/``DispC``, ``PaintL``/``PaintC``), to a declared name or an inline literal, with their tool
+(the standard instructions: the argument after Speed and Zone; the others: the first argument that
+is a declared tool, else the last positional one) and ``\WObj``; ``ConfJ``; ``GripLoad``.
+A J-type move goes to the branch its ``cf1 cf4 cf6 cfx`` name (``ConfJ \Off``: the branch of the
+point before, nearest its joints); linear and circular moves keep the branch of the point before.
+Tool ``tool0`` is the flange and work object ``wobj0`` (or no ``\WObj``) the robot's base frame; a
+tool or work object declared in a module is used as declared (``uframe . oframe``); one that is not:
+``--tool`` / ``--base``. The payload of a motion is its tool's load mass plus the ``GripLoad`` in
+force (the one before it in the text: decision), or ``\TLoad``'s mass; with ``tool0`` and no
+``GripLoad`` the program states none.
 
-Left as given and named: ``Offs``, ``RelTool``, ``CRobT``, ``CalcRobT`` and any other function at
-the motion, ``*`` (a point stored in the instruction), indexed arrays, ``\\Corr``, a stationary tool
-(``robhold`` FALSE) or a moving work object. Refused (file:line): a statement without its ``;``,
-unbalanced brackets, a robtarget or jointtarget with the wrong number of values, a name nobody
-declared, ``MODULE`` without ``ENDMODULE``, and motion instructions not read here (``MoveJDO``,
-``SearchL``, ...).
+A call of any other name (``moveToHome;``, a procedure of the program or of another module) is a
+call, passed through. Left as given and named: ``Offs``, ``RelTool``, ``CRobT``, ``CalcRobT`` and any
+other function at the motion, ``*`` (a point stored in the instruction), indexed arrays, a name
+declared in none of the modules or declared without a value (a parameter, a ``VAR`` set at run
+time), ``\Corr``, a stationary tool (``robhold`` FALSE) or a moving work object, and the motions not
+read (``SearchL``, ``SearchC``, ``MoveExtJ``, ...). Refused (file:line): a statement without its
+``;``, unbalanced brackets, a robtarget or jointtarget with the wrong number of values, ``MODULE``
+without ``ENDMODULE``.
 """
 
 from __future__ import annotations
@@ -28,13 +45,28 @@ from . import conventions as cv
 from .model import CARTESIAN, CONFIG, JOINT, PREVIOUS, Frame, Program, Target
 from .text import NUMBER, Number, balanced, read_source, split_top
 
-DECL_RE = re.compile(r"(?:(?:LOCAL|TASK)\s+)*(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata)\s+"
+DECL_RE = re.compile(r"(?:(?:LOCAL|TASK)\s+)*(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata|loaddata)\s+"
                      r"([A-Za-z_]\w*)\s*(\{[^}]*\})?\s*(?::=\s*(.*))?$", re.IGNORECASE | re.DOTALL)
-MOTION_RE = re.compile(r"(MoveJ|MoveL|MoveC|MoveAbsJ)\b(.*)$", re.IGNORECASE | re.DOTALL)
-OTHER_MOTION_RE = re.compile(r"(Move\w+|Search\w+|Trigg[JLC]\w*|Arc[LC]\w*|Cap[LC]\w*)\b", re.IGNORECASE)
-STATEMENT_START = re.compile(r"(?:LOCAL\s+|TASK\s+)*(CONST|PERS|VAR|Move\w+|ConfJ|ConfL|Search\w+)\b", re.IGNORECASE)
-
-
+#: motions read: instruction -> (kind, points before the speed, J-type, standard argument order)
+_ONE = ("TriggL", "MoveLDO", "MoveLAO", "MoveLGO", "MoveLSync", "TriggLIOs", "ArcL", "ArcLStart", "ArcLEnd", "ArcL1",
+        "ArcL2", "SpotL", "SpotML", "CapL", "DispL", "PaintL")
+_ONE_J = ("TriggJ", "MoveJDO", "MoveJAO", "MoveJGO", "MoveJSync", "TriggJIOs", "SpotJ", "SpotMJ")
+_TWO = ("TriggC", "MoveCDO", "MoveCAO", "MoveCGO", "MoveCSync", "ArcC", "ArcCStart", "ArcCEnd", "ArcC1", "ArcC2", "CapC",
+        "DispC", "PaintC")
+MOTIONS = {"MOVEJ": (CARTESIAN, 1, True, True), "MOVEL": (CARTESIAN, 1, False, True),
+           "MOVEC": (CARTESIAN, 2, False, True), "MOVEABSJ": (JOINT, 1, False, True),
+           **{w.upper(): (CARTESIAN, 1, False, False) for w in _ONE},
+           **{w.upper(): (CARTESIAN, 1, True, False) for w in _ONE_J},
+           **{w.upper(): (CARTESIAN, 2, False, False) for w in _TWO}}
+#: motion instructions that are not read: named and left as given
+NOT_READ = {w.upper() for w in ("SearchL", "SearchC", "SearchJ", "SearchExtJ", "MoveExtJ", "ArcMoveExtJ", "ContactL",
+                                "PathRecMoveBwd", "PathRecMoveFwd", "StepBwdPath", "MoveLStart", "CSSDeactMoveL")}
+HEADER_LINE = re.compile(r"(?:(?:LOCAL|SYSMODULE)\s+)*(MODULE|PROC|FUNC|TRAP|RECORD|ALIAS)\b|(TEST|ERROR)\b", re.IGNORECASE)
+HEADER_WORD = re.compile(r"(ENDMODULE|ENDPROC|ENDFUNC|ENDTRAP|ENDRECORD|ENDIF|ENDWHILE|ENDFOR|ENDTEST|ELSE|BACKWARD|"
+                         r"UNDO)\b(?!\s*IF)", re.IGNORECASE)
+UNTIL_WORD = {"IF": "THEN", "ELSEIF": "THEN", "WHILE": "DO", "FOR": "DO"}
+ENDS_A_STATEMENT = re.compile(r"(ENDMODULE|ENDPROC|ENDFUNC|ENDTRAP|ENDIF|ENDWHILE|ENDFOR|ENDTEST|PROC|FUNC|TRAP|MODULE|"
+                              r"ELSE|ELSEIF)\b", re.IGNORECASE)
 def _mask(text: str) -> str:
     """The text with comments and string contents blanked (same length: offsets stay)."""
     out, k, n = list(text), 0, len(text)
@@ -126,13 +158,23 @@ def _pose_list(v, what, path, line):
     return cv.homogeneous(cv.abb_matrix(*q), t)
 
 
+def _mass(v, what, path, line) -> float:
+    """The mass (kg) of a loaddata literal ``[mass,[cog],[aom],ix,iy,iz]`` (parsed by :func:`_nested`)."""
+    try:
+        return float(v[0])
+    except (ValueError, TypeError, IndexError):
+        raise InputError(path, f"{what}: expected [mass,[x,y,z],[q1,q2,q3,q4],ix,iy,iz]", line, None) from None
+
+
 def _tooldata(lit, path, line, name):
+    """The tool's frame and its load mass (kg, None when the tool holds none: robhold FALSE)."""
     g = _nested(lit, path, line)
     if not isinstance(g, list) or len(g) < 2 or not isinstance(g[1], list):
         raise InputError(path, f"tooldata {name}: expected [robhold,[[x,y,z],[q1,q2,q3,q4]],[load]]", line, None)
     if str(g[0]).upper() != "TRUE":
-        return Frame(None, f"tool {name} is a stationary tool (robhold FALSE)", name)
-    return Frame(_pose_list(g[1], f"tooldata {name} tframe", path, line), "", name)
+        return Frame(None, f"tool {name} is a stationary tool (robhold FALSE)", name, moving=True), None
+    mass = _mass(g[2], f"tooldata {name} tload", path, line) if len(g) > 2 and isinstance(g[2], list) else None
+    return Frame(_pose_list(g[1], f"tooldata {name} tframe", path, line), "", name), mass
 
 
 def _wobjdata(lit, path, line, name):
@@ -140,145 +182,310 @@ def _wobjdata(lit, path, line, name):
     if not isinstance(g, list) or len(g) != 5:
         raise InputError(path, f"wobjdata {name}: expected [robhold,ufprog,ufmec,uframe,oframe]", line, None)
     if str(g[0]).upper() != "FALSE" or str(g[1]).upper() != "TRUE" or str(g[2]).strip('"').strip():
-        return Frame(None, f"work object {name} moves (robhold TRUE, ufprog FALSE or a mechanical unit)", name)
+        return Frame(None, f"work object {name} moves (robhold TRUE, ufprog FALSE or a mechanical unit)", name,
+                     moving=True)
     U = _pose_list(g[3], f"wobjdata {name} uframe", path, line)
     O = _pose_list(g[4], f"wobjdata {name} oframe", path, line)
     return Frame(U @ O, "", name)
 
 
-def _statements(src, masked):
-    """Statements of interest: (start, end, text) from a statement keyword to its ``;``."""
-    out = []
-    for m in re.finditer(r"(?m)^[ \t]*", masked):
-        k = m.end()
-        if not STATEMENT_START.match(masked, k):
-            continue
-        depth, j = 0, k
-        while j < len(masked):
-            ch = masked[j]
-            if ch in "([{":
-                depth += 1
-            elif ch in ")]}":
-                depth -= 1
-            elif ch == ";" and depth == 0:
-                break
-            j += 1
+def _mask_header(text: str, masked: str) -> str:
+    """Blank the ``%%%`` ... ``%%%`` header of old ``.prg`` / ``.sys`` files (VERSION, LANGUAGE)."""
+    m = re.match(r"\s*%%%[^\n]*\n.*?%%%[^\n]*", masked, re.DOTALL)
+    if not m:
+        return masked
+    return re.sub(r"[^\r\n]", " ", masked[:m.end()]) + masked[m.end():]
+
+
+def _scan_to(masked: str, k: int, stop) -> int:
+    """First position at or after ``k`` where ``stop(j)`` holds at bracket depth 0 (len at the end)."""
+    depth = 0
+    for j in range(k, len(masked)):
+        ch = masked[j]
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth -= 1
+        elif depth <= 0 and stop(j):
+            return j
+    return len(masked)
+
+
+def statements(src, masked):
+    """A module's statements as the controller reads them: (start, end, masked text, line).
+
+    A statement ends at its ``;`` (over any number of lines); headers and block words are statements
+    of their own (module docstring). InputError (file:line) for a statement without its ``;``
+    and for unbalanced brackets.
+    """
+    out, k, n = [], 0, len(masked)
+    word = re.compile(r"[A-Za-z_]\w*")
+    while True:
+        m = re.compile(r"\S").search(masked, k)
+        if not m:
+            return out
+        k = m.start()
         line = src.line_of(k)
-        stmt = masked[k:j]
-        nxt = re.search(r"\n[ \t]*(?:LOCAL\s+|TASK\s+)*(CONST|PERS|VAR|Move\w+|ConfJ|ConfL|ENDPROC|ENDMODULE|PROC|ENDFUNC)\b",
-                        stmt, re.IGNORECASE)
-        if j >= len(masked) or nxt:
-            raise InputError(src.path, "statement without its ';'", line, None)
-        if not balanced(stmt):
+        w = word.match(masked, k)
+        up = w.group(0).upper() if w else ""
+        if w and HEADER_LINE.match(masked, k):
+            j = _scan_to(masked, k, lambda j: masked[j] == "\n")               # to the end of its line
+        elif w and HEADER_WORD.fullmatch(up):
+            j = w.end()
+        elif up in UNTIL_WORD:
+            until = UNTIL_WORD[up]
+            j = _scan_to(masked, w.end(), lambda j: masked[j] == ";" or (
+                masked[j - 1:j].isspace() or masked[j - 1] in ")]}") and re.match(until + r"\b", masked[j:j + 6], re.I))
+            if j < n and masked[j] != ";":
+                j += len(until)
+            elif j < n:
+                j += 1
+        elif up in ("CASE", "DEFAULT") or (w and re.match(r"\s*:(?!=)", masked[w.end():w.end() + 3]) and up not in
+                                           ("CONST", "PERS", "VAR")):
+            j = _scan_to(masked, k, lambda j: masked[j] == ":" and masked[j + 1:j + 2] != "=") + 1
+        else:
+            j = _scan_to(masked, k, lambda j: masked[j] == ";")
+            stmt = masked[k:j]
+            nxt = re.search(r"\n[ \t]*(?:" + ENDS_A_STATEMENT.pattern + r"|(?:CONST|PERS|VAR|ConfJ|ConfL|"
+                            + "|".join(MOTIONS) + r")\b)", stmt, re.IGNORECASE)
+            if j >= n or nxt:
+                raise InputError(src.path, "statement without its ';'", line, None)
+            if not balanced(stmt):
+                raise InputError(src.path, "unbalanced brackets", line, None)
+            out.append((k, j, stmt, line))
+            k = j + 1
+            continue
+        if not balanced(masked[k:j]):
             raise InputError(src.path, "unbalanced brackets", line, None)
-        out.append((k, j, stmt, line))
-    return out
+        out.append((k, j, masked[k:j], line))
+        k = max(j, k + 1)
+
+
+class _Declared:
+    """What the modules declare, by upper-case name."""
+
+    def __init__(self):
+        self.targets, self.procs, self.loads = {}, set(), {}
+        self.tools = {"TOOL0": (Frame(np.eye(4), "", "tool0"), 0.0)}
+        self.wobjs = {"WOBJ0": Frame(np.eye(4), "", "wobj0")}
+
+    def scan(self, src, fidx, stmts, masked):
+        text = src.text                  # tool and work object data: strings matter (ufmec)
+        for k, j, stmt, line in stmts:
+            mp = re.match(r"(?:LOCAL\s+)?(?:PROC|TRAP)\s+([A-Za-z_]\w*)|(?:LOCAL\s+)?FUNC\s+\w+\s+([A-Za-z_]\w*)", stmt,
+                          re.IGNORECASE)
+            if mp:
+                self.procs.add((mp.group(1) or mp.group(2)).upper())
+                continue
+            m = DECL_RE.match(stmt)
+            if not m:
+                continue
+            kind, typ, name, dims, value = m.group(1), m.group(2).lower(), m.group(3), m.group(4), m.group(5)
+            key = name.upper()
+            if value is None or dims:
+                how = "an array" if dims else "declared without a value (set at run time)"
+                if typ in ("robtarget", "jointtarget"):
+                    self.targets.setdefault(key, (typ, None, line, name, how, src.path))
+                elif typ == "tooldata":
+                    self.tools.setdefault(key, (Frame(None, f"tool {name} is {how}", name), None))
+                elif typ == "wobjdata":
+                    self.wobjs.setdefault(key, Frame(None, f"work object {name} is {how}", name))
+                continue
+            at = k + m.start(5)
+            lit = text[at:j]
+            if typ in ("robtarget", "jointtarget"):
+                lit = masked[at:j]       # comments between the lines of a literal blanked
+            if typ == "robtarget":
+                self.targets[key] = (typ, _robtarget(lit, at, fidx, src.path, line), line, name, kind.upper(), src.path)
+            elif typ == "jointtarget":
+                self.targets[key] = (typ, _jointtarget(lit, at, fidx, src.path, line), line, name, kind.upper(),
+                                     src.path)
+            elif typ == "tooldata":
+                self.tools[key] = _tooldata(lit, src.path, line, name)
+            elif typ == "wobjdata":
+                self.wobjs[key] = _wobjdata(lit, src.path, line, name)
+            else:
+                self.loads[key] = (_mass(_nested(lit, src.path, line), f"loaddata {name}", src.path, line), name)
 
 
 def read(path) -> Program:
-    """Read a RAPID module; InputError (file:line) on broken syntax."""
-    src = read_source(path)
-    text = src.text
-    masked = _mask(text)
-    if re.search(r"(?im)^\s*MODULE\b", masked) and not re.search(r"(?im)^\s*ENDMODULE\b", masked):
-        raise InputError(src.path, "MODULE without ENDMODULE", src.line_of(re.search(r"(?im)^\s*MODULE\b", masked).start()),
-                         None)
-    decls, tools, wobjs = {}, {"TOOL0": Frame(np.eye(4), "", "tool0")}, {"WOBJ0": Frame(np.eye(4), "", "wobj0")}
-    stmts = _statements(src, masked)
-    for k, j, stmt, line in stmts:
-        m = DECL_RE.match(stmt)
-        if not m:
+    """Read one RAPID module (:func:`read_modules` of it)."""
+    return read_modules([path])
+
+
+def read_modules(paths) -> Program:
+    """Read a RAPID program's modules together; InputError (file:line) on broken syntax."""
+    sources = [read_source(p) for p in paths]
+    masks, all_stmts = [], []
+    decl = _Declared()
+    for fidx, src in enumerate(sources):
+        masked = _mask_header(src.text, _mask(src.text))
+        mo = re.search(r"(?im)^\s*MODULE\b", masked)
+        if mo and not re.search(r"(?im)^\s*ENDMODULE\b", masked):
+            raise InputError(src.path, "MODULE without ENDMODULE", src.line_of(mo.start()), None)
+        stmts = statements(src, masked)
+        masks.append(masked)
+        all_stmts.append(stmts)
+        decl.scan(src, fidx, stmts, masked)
+    targets = []
+    for fidx, (src, stmts, masked) in enumerate(zip(sources, all_stmts, masks)):
+        targets += _motions(src, fidx, stmts, decl, masked)
+    used = {t.decl for t in targets if t.decl}
+    for typ, data, dline, name, how, dpath in decl.targets.values():      # declared, and no motion read goes there
+        if data is None:
             continue
-        kind, typ, name, dims, value = m.group(1), m.group(2).lower(), m.group(3), m.group(4), m.group(5)
-        if value is None or dims:
-            decls[name.upper()] = (typ, None, line, name, "an array or a declaration without a value")
-            continue
-        at = k + m.start(5)
-        lit = text[at:j]
-        if typ == "robtarget":
-            decls[name.upper()] = (typ, _robtarget(lit, at, 0, src.path, line), line, name, kind.upper())
-        elif typ == "jointtarget":
-            decls[name.upper()] = (typ, _jointtarget(lit, at, 0, src.path, line), line, name, kind.upper())
-        elif typ == "tooldata":
-            tools[name.upper()] = _tooldata(lit, src.path, line, name)
-        else:
-            wobjs[name.upper()] = _wobjdata(lit, src.path, line, name)
+        first = data[0] if typ == "jointtarget" else data[0][0]
+        if (first.file, first.start) not in used:
+            targets.append(Target(dpath, dline, name, JOINT if typ == "jointtarget" else CARTESIAN, PREVIOUS,
+                                  runtime="declared, but no motion the filter reads goes to it (an argument of a "
+                                  "call, Offs or RelTool, or a motion not read): left as given"))
+    return Program("rapid", sources, targets)
+
+
+def _motions(src, fidx, stmts, decl, masked) -> list:
+    text = masked
     targets = []
     conf_j = True
+    grip = None                          # (kg, name) of the GripLoad in force
     for k, j, stmt, line in stmts:
         s = stmt.strip()
-        mc = re.match(r"ConfJ\s*\\(On|Off)", s, re.IGNORECASE)
-        if mc:
-            conf_j = mc.group(1).lower() == "on"
+        lead = k + (len(stmt) - len(stmt.lstrip()))
+        mi = re.match(r"IF\b", s, re.IGNORECASE)
+        if mi:                           # a compact IF: IF cond instruction;
+            inner = [mm for mm in re.finditer(r"(?<![\w.])([A-Za-z_]\w*)\b", s) if mm.group(1).upper() in MOTIONS
+                     or mm.group(1).upper() in NOT_READ]
+            if not inner:
+                continue
+            lead += inner[0].start()
+            s = s[inner[0].start():]
+        w = re.match(r"([A-Za-z_]\w*)", s)
+        if not w:
             continue
-        if re.match(r"ConfL\b", s, re.IGNORECASE) or DECL_RE.match(stmt):
+        up = w.group(1).upper()
+        if up == "CONFJ":
+            mc = re.match(r"ConfJ\s*\\(On|Off)", s, re.IGNORECASE)
+            if mc:
+                conf_j = mc.group(1).lower() == "on"
             continue
-        m = MOTION_RE.match(s)
-        if not m or not re.match(r"\s|\\|$", m.group(2) or " "):
-            mo = OTHER_MOTION_RE.match(s)
-            if mo:
-                raise InputError(src.path, f"unknown motion instruction '{mo.group(1)}' (MoveJ, MoveL, MoveC and "
-                                 "MoveAbsJ are read)", line, None)
+        if up == "GRIPLOAD":
+            name = s[len("GripLoad"):].strip()
+            key = name.upper()
+            if key == "LOAD0":
+                grip = (0.0, "load0")
+            elif key in decl.loads:
+                grip = decl.loads[key]
+            else:
+                grip = (None, name)
             continue
-        word = m.group(1)
-        args_at = k + (len(stmt) - len(stmt.lstrip())) + m.start(2)
+        if up in decl.procs and up not in MOTIONS:
+            continue
+        if up in NOT_READ:
+            targets.append(Target(src.path, line, f"{w.group(1)}@{line}", CARTESIAN, PREVIOUS,
+                                  runtime=f"{w.group(1)}: a motion instruction this filter does not read"))
+            continue
+        if up not in MOTIONS:
+            continue                     # another instruction or a call of a procedure: passed through
+        kind, n_points, jtype, standard = MOTIONS[up]
+        word = w.group(1)
+        rest = s[w.end():]
+        if rest and not re.match(r"\s|\\", rest):
+            continue
+        args_at = lead + w.end()
         args = text[args_at:j]
         parts = split_top(args)
-        if parts and parts[0][1].strip().lower() == "\\conc":
+        while parts and re.match(r"\s*\\(Conc|WObj|ID)\b", parts[0][1], re.IGNORECASE) and ":=" not in parts[0][1]:
             parts = parts[1:]
-        wobj = None
-        for _, p in parts:
-            mw = re.search(r"\\WObj\s*:=\s*([A-Za-z_]\w*)", p, re.IGNORECASE)
+        wobj = tl = None
+        for _, part in parts:
+            mw = re.search(r"\\WObj\s*:=\s*([A-Za-z_]\w*)", part, re.IGNORECASE)
             if mw:
                 wobj = mw.group(1)
-        n_points = 2 if word.lower() == "movec" else 1
-        if len(parts) < n_points + 3:
-            raise InputError(src.path, f"{word}: expected {'CirPoint, ' if n_points == 2 else ''}ToPoint, Speed, Zone, "
-                             "Tool", line, None)
-        tool_name = re.split(r"\\", parts[n_points + 2][1])[0].strip()
-        tool = tools.get(tool_name.upper(), Frame(None, f"tool {tool_name} is not declared in the module", tool_name))
-        base = wobjs.get((wobj or "wobj0").upper(),
-                         Frame(None, f"work object {wobj} is not declared in the module", wobj or "wobj0"))
+            mt = re.search(r"\\TLoad\s*:=\s*([A-Za-z_]\w*)", part, re.IGNORECASE)
+            if mt:
+                tl = mt.group(1)
+        if len(parts) < n_points + (3 if standard else 1):
+            targets.append(Target(src.path, line, f"{word}@{line}", kind, PREVIOUS,
+                                  runtime=f"{word}: fewer arguments than a ToPoint, Speed, Zone and Tool"))
+            continue
+        tool_name, tool, mass = _tool_of(parts, n_points, standard, decl)
+        base = decl.wobjs.get((wobj or "wobj0").upper(),
+                              Frame(None, f"work object {wobj} is not declared in the program's modules",
+                                    wobj or "wobj0"))
+        payload = _payload(tool_name, mass, grip, tl, decl)
         corr = re.search(r"\\Corr\b", args, re.IGNORECASE)
+        branch = CONFIG if (jtype and conf_j) else PREVIOUS
         for off, expr in parts[:n_points]:
             e = re.split(r"\\", expr)[0]
-            t = _motion_target(word, e, args_at + off, text, decls, src.path, line, conf_j)
+            t = _motion_target(word, kind, branch, e, args_at + off, fidx, decl, src.path, line)
             t.tool, t.base = tool, base
+            t.extra["payload"] = payload
+            moving = [f.why for f in (tool, base) if f.moving]
+            if moving and not t.runtime and kind == CARTESIAN:
+                t.runtime = moving[0]
             if corr and not t.runtime:
                 t.runtime = "\\Corr: a path correction added at run time"
             targets.append(t)
-    return Program("rapid", [src], targets)
+    return targets
 
 
-def _motion_target(word, expr, at, text, decls, path, line, conf_j) -> Target:
-    w = word.lower()
-    joint = w == "moveabsj"
-    branch = CONFIG if (w == "movej" and conf_j) else PREVIOUS
-    kind = JOINT if joint else CARTESIAN
-    e = expr.strip()
-    lead = at + (expr.index(e) if e else 0)
+def _tool_of(parts, n_points, standard, decl):
+    """(name, Frame, load kg or None) of a motion's tool argument."""
+    names = [re.split(r"\\", p)[0].strip() for _, p in parts[n_points:]]
+    names = [x for x in names if x]
+    if standard:
+        name = names[2] if len(names) > 2 else ""
+    else:
+        found = [x for x in names if x.upper() in decl.tools]
+        name = found[0] if found else (names[-1] if names else "")
+    fr, mass = decl.tools.get(name.upper(), (Frame(None, f"tool {name} is not declared in the program's modules",
+                                                   name), None))
+    return name, fr, mass
+
+
+def _payload(tool_name, mass, grip, tload, decl):
+    """(kg, where from) of a motion's payload as the program states it; (None, why) when it states none."""
+    if tload:
+        d = decl.loads.get(tload.upper())
+        if d is not None:
+            return d[0], f"\\TLoad:={d[1]}"
+        return None, f"\\TLoad:={tload} is not declared in the program's modules"
+    gkg, gname = grip if grip is not None else (0.0, "")
+    if tool_name.upper() == "TOOL0" and not gname:
+        return None, "tool0 and no GripLoad: the program states no payload"
+    if mass is None or gkg is None:
+        return None, f"the load of {gname if gkg is None else tool_name} is not declared in the program's modules"
+    where = f"tooldata {tool_name}" + (f" + GripLoad {gname}" if gname and gname.upper() != "LOAD0" else "")
+    return mass + gkg, where
+
+
+def _motion_target(word, kind, branch, expr, at, fidx, decl, path, line) -> Target:
+    joint = kind == JOINT
+    text_e = expr.strip()
+    lead = at + (expr.index(text_e) if text_e else 0)
+    e = text_e
     if not e:
         raise InputError(path, f"{word} without a target", line, None)
     if e.startswith("["):
         name = f"<inline>@{line}"
         if joint:
-            return Target(path, line, name, JOINT, branch, _jointtarget(e, lead, 0, path, line), decl=(0, lead))
-        nums, flags, turn = _robtarget(e, lead, 0, path, line)
-        return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(0, lead))
+            return Target(path, line, name, JOINT, branch, _jointtarget(e, lead, fidx, path, line), decl=(fidx, lead))
+        nums, flags, turn = _robtarget(e, lead, fidx, path, line)
+        return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(fidx, lead))
     if e == "*":
         return Target(path, line, "*", kind, branch, runtime="a point stored in the instruction (*)")
     if not re.fullmatch(r"[A-Za-z_]\w*", e):
         return Target(path, line, e, kind, branch, runtime=f"a target computed at run time ({e})")
-    d = decls.get(e.upper())
+    d = decl.targets.get(e.upper())
     if d is None:
-        raise InputError(path, f"{word} {e}: no robtarget or jointtarget {e} declared in the module", line, None)
-    typ, data, dline, name, how = d
+        return Target(path, line, e, kind, branch, runtime=f"{e} is declared in none of the program's modules (a "
+                      "parameter, or a module not given)")
+    typ, data, dline, name, how, dpath = d
     if data is None:
         return Target(path, line, name, kind, branch, runtime=f"{name} is {how}")
     if joint != (typ == "jointtarget"):
-        raise InputError(path, f"{word} {e}: {e} is a {typ}", line, None)
+        return Target(path, line, name, kind, branch, runtime=f"{word} {e}: {e} is a {typ} ({dpath}:{dline})")
     if joint:
-        return Target(path, line, name, JOINT, branch, data, decl=(0, data[0].start))
+        return Target(path, line, name, JOINT, branch, data, decl=(data[0].file, data[0].start))
     nums, flags, turn = data
-    return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(0, nums[0].start),
+    return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(nums[0].file, nums[0].start),
                   extra={"pers": how == "PERS"})

@@ -1,8 +1,9 @@
 """Program text: bytes kept as they are, numbers found and rewritten in their own spelling.
 
 A program is read as bytes and decoded as Latin-1, one character per byte, so that any encoding
-(a controller's Windows code page, UTF-8) and any line ending (CRLF) survives a round trip byte
-for byte: only ASCII digits, signs and points are ever replaced. A rewritten number keeps its
+(a controller's Windows code page, UTF-8, Shift-JIS) and any line ending (CRLF) survives a round
+trip byte for byte: only ASCII digits, signs and points are ever replaced. A UTF-8 byte-order mark
+is kept and not read; a file with a UTF-16 byte-order mark is decoded as UTF-16 and written back so. A rewritten number keeps its
 number of decimals, its explicit ``+``, a missing leading zero (``.582``, ``-.593``); a number
 whose rounded new value spells the same is not touched at all.
 """
@@ -13,6 +14,7 @@ import bisect
 import re
 from dataclasses import dataclass
 
+from ..core.errors import InputError
 from ..core.files import read_bytes_input
 
 #: a number as the four languages spell it (``12``, ``-3.5``, ``.582``, ``9E+09``, ``1.5e-3``)
@@ -20,12 +22,27 @@ NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 NUMBER_RE = re.compile(NUMBER)
 
 
+#: byte-order marks a controller accepts at the start of a program file, and the codec each names
+BOMS = ((b"\xef\xbb\xbf", "latin-1"), (b"\xff\xfe", "utf-16-le"), (b"\xfe\xff", "utf-16-be"))
+
+
 @dataclass
 class Source:
-    """One program file: its path as given and its text (Latin-1, one character per byte)."""
+    """One program file: its path as given and its text.
+
+    ``text`` is what the readers see: the bytes decoded one character per byte (Latin-1) or, for a
+    file that starts with a UTF-16 byte-order mark, as UTF-16, with the byte-order mark blanked to
+    spaces (offsets stay). :meth:`encode` gives the bytes of a (rewritten) text: the mark and the
+    codec as read, so an unchanged text is the file's bytes exactly. ``writable`` is False for a file
+    read for its data only (the controller's ``$config.dat``), which the filter never writes.
+    """
 
     path: str
     text: str
+    encoding: str = "latin-1"
+    bom: str = ""
+    writable: bool = True
+    rel: str = ""          # the path inside the --program folder it was read from ("": its own name)
 
     def line_of(self, pos: int) -> int:
         """1-based line of a character position."""
@@ -33,11 +50,39 @@ class Source:
             self._starts = [m.end() for m in re.finditer("\n", self.text)]
         return bisect.bisect_right(self._starts, pos) + 1
 
+    def encode(self, text: str) -> bytes:
+        """Bytes of ``text`` (this file's text with numbers replaced): byte-order mark and codec as read."""
+        return (self.bom + text[len(self.bom):]).encode(self.encoding)
 
-def read_source(path) -> Source:
-    """Read a program file byte for byte (InputError when it is missing)."""
-    data = read_bytes_input(path, "program file", "a program file, not a folder")
+
+def decode_program(data: bytes, path: str = "<program>") -> Source:
+    """A program file's bytes as a :class:`Source` (see there); InputError for a file that is not text."""
+    for mark, codec in BOMS:
+        if data.startswith(mark):
+            if codec == "latin-1":
+                bom = mark.decode("latin-1")
+                text = data.decode("latin-1")
+            else:
+                try:
+                    text = data.decode(codec)
+                except UnicodeDecodeError as exc:
+                    raise InputError(path, f"not a program: a UTF-16 byte-order mark, but byte {exc.start} is not "
+                                     "UTF-16 text", 1, None) from None
+                bom = text[0]
+            return Source(str(path), " " * len(bom) + text[len(bom):], codec, bom)
+    if b"\x00" in data:
+        at = data.index(b"\x00")
+        raise InputError(path, "not a program: a binary file (NUL bytes; a program is text)",
+                         data.count(b"\n", 0, at) + 1, at - (data.rfind(b"\n", 0, at) + 1) + 1)
     return Source(str(path), data.decode("latin-1"))
+
+
+def read_source(path, writable: bool = True) -> Source:
+    """Read a program file byte for byte (InputError when it is missing or not text)."""
+    data = read_bytes_input(path, "program file", "a program file, not a folder")
+    src = decode_program(data, str(path))
+    src.writable = writable
+    return src
 
 
 @dataclass

@@ -1,19 +1,23 @@
-"""Universal Robots URScript ``.script`` (contract section 11).
+"""Universal Robots URScript ``.script`` / ``.urscript`` (contract section 11).
 
-Read: ``movej``, ``movel``, ``movep`` (one target) and ``movec`` (via point and target), to an
+A statement is a logical line: a line, continued on the next ones while a bracket or parenthesis is
+open. Read: ``movej``, ``movel``, ``movep`` (one target) and ``movec`` (via point and target), to an
 inline ``p[x, y, z, rx, ry, rz]`` (m and rotation vector, rad: Cartesian) or ``[q1 .. q6]`` (rad: joint),
 to a variable assigned once (``global P1 = p[...]``, ``Q1 = [...]``), or to
 ``get_inverse_kin(pose, qnear=...)`` of one; the TCP from ``set_tcp(p[...])`` (or a variable assigned
-once). UR has no configuration data: every Cartesian target goes to the solution nearest the joints
-of the point before (decision: the ``qnear`` hint is not read, and not rewritten). Poses are in the
-robot's base frame (``--base`` is not used for UR); without ``set_tcp`` the TCP is ``--tool``
-(mm and a rotation vector, rad). ``#`` starts a comment.
+once); the payload from ``set_payload(m, ...)``, ``set_payload_mass(m)`` and ``set_target_payload(m, ...)``
+(kg; from that statement on, in the text's order: decision). UR has no configuration data: every
+Cartesian target goes to the solution nearest the joints of the point before (decision: the
+``qnear`` hint is not read, and not rewritten). Poses are in the robot's base frame (``--base`` is
+not used for UR); without ``set_tcp`` the TCP is ``--tool`` (mm and a rotation vector, rad). ``#``
+starts a comment.
 
 Left as given and named: poses built at run time (``pose_trans``, ``pose_add``,
-``get_actual_tcp_pose()``, a variable assigned more than once). Refused (file:line): unbalanced
-brackets or parentheses, a ``def``/``if``/``while``/``for``/``thread`` block without its ``end``, a
-variable nobody assigned, and motion functions not read here (``servoj``, ``servoc``, ``speedj``,
-``speedl``, ``movecs``).
+``get_actual_tcp_pose()``, a variable assigned more than once or nowhere, e.g. a function's
+parameter), and motions streamed at run time (``servoj``, ``servoc``, ``servol``, ``speedj``,
+``speedl``, ``movecs``). Every other statement (calls of functions of any name, threads, URCap
+code) passes through. Refused (file:line): unbalanced brackets or parentheses, a
+``def``/``if``/``while``/``for``/``thread`` block without its ``end``.
 """
 
 from __future__ import annotations
@@ -28,7 +32,8 @@ from .model import CARTESIAN, JOINT, PREVIOUS, Frame, Program, Target
 from .text import NUMBER, Number, balanced, read_source, split_top, strip_comment
 
 MOVE_RE = re.compile(r"\b(movej|movel|movep|movec)\s*\(")
-OTHER_RE = re.compile(r"\b(servoj|servoc|speedj|speedl|movecs|servol)\s*\(")
+STREAMED_RE = re.compile(r"\b(servoj|servoc|speedj|speedl|movecs|servol)\s*\(")
+PAYLOAD_RE = re.compile(r"\b(set_payload|set_payload_mass|set_target_payload)\s*\(")
 ASSIGN_RE = re.compile(r"^\s*(?:global\s+|local\s+)?([A-Za-z_]\w*)\s*=(?!=)\s*(.*?)\s*$")
 OPEN_RE = re.compile(r"^\s*(def|thread|if|while|for)\b.*:\s*$")
 
@@ -66,16 +71,43 @@ def _args(code: str, open_at: int):
     return None, None
 
 
+def logical_lines(text: str):
+    """A script's statements: (first line index, start, end, code) with comments blanked (offsets kept);
+    a line continues on the next while a bracket or parenthesis is open."""
+    lines = text.splitlines(keepends=True)
+    masked = []
+    for raw in lines:
+        body = raw.rstrip("\r\n")
+        code = strip_comment(body, "#")
+        masked.append(code + " " * (len(body) - len(code)) + raw[len(body):])
+    out, first, start, depth, pos, inside = [], 0, 0, 0, 0, False
+    for i, raw in enumerate(masked):
+        if depth == 0:
+            first, start = i, pos
+        for ch in raw:
+            if ch == '"':
+                inside = not inside
+            elif not inside and ch in "([":
+                depth += 1
+            elif not inside and ch in ")]":
+                depth -= 1
+        inside = False
+        pos += len(raw)
+        if depth <= 0:
+            out.append((first, start, pos, "".join(masked[first:i + 1]).rstrip("\r\n")))
+            depth = 0
+    if depth > 0:
+        out.append((first, start, pos, "".join(masked[first:]).rstrip("\r\n")))
+    return out
+
+
 def read(path) -> Program:
     """Read a URScript program; InputError (file:line) on broken syntax."""
     src = read_source(path)
-    text = src.text
-    lines = text.splitlines(keepends=True)
-    offsets = np.cumsum([0] + [len(x) for x in lines]).tolist()
-    codes = [strip_comment(s, "#").rstrip("\r\n") for s in lines]
+    stmts = logical_lines(src.text)
     assigned = {}
     depth, opened = 0, []
-    for i, code in enumerate(codes):
+    for i, start, _, code in stmts:
         if not balanced(code):
             raise InputError(src.path, "unbalanced brackets or parentheses", i + 1, None)
         s = code.strip()
@@ -89,30 +121,39 @@ def read(path) -> Program:
             opened.pop()
         m = ASSIGN_RE.match(code)
         if m and not s.startswith(("if ", "while ", "elif ")):
-            assigned.setdefault(m.group(1), []).append((i, m.start(2), m.group(2)))
+            assigned.setdefault(m.group(1), []).append((start + m.start(2), m.group(2), i + 1))
     if depth:
         raise InputError(src.path, "block without its 'end'", opened[-1], None)
 
     def lookup(name, line):
         if name not in assigned:
-            raise InputError(src.path, f"{name} is not assigned in the script", line, None)
+            return None, f"{name} is assigned nowhere in the script (a parameter, or set at run time)"
         if len(assigned[name]) > 1:
             return None, f"{name} is assigned {len(assigned[name])} times (its value is known at run time only)"
-        i, col, expr = assigned[name][0]
-        lit = _list(expr, offsets[i] + col, src.path, i + 1)
+        at, expr, aline = assigned[name][0]
+        lit = _list(expr, at, src.path, aline)
         if lit is None:
             return None, f"{name} = {expr.strip()} is computed at run time"
-        return lit, (name, offsets[i] + col)
+        return lit, (name, at)
 
     tool = Frame(None, "the script sets no TCP (set_tcp) before it", "TCP (no set_tcp)")
     base = Frame(np.eye(4), "", "base")
+    payload = (None, "the script sets no payload (set_payload) before it")
     targets = []
-    for i, code in enumerate(codes):
+    for i, start, _, code in stmts:
         line = i + 1
-        mo = OTHER_RE.search(code)
-        if mo:
-            raise InputError(src.path, f"unknown motion function '{mo.group(1)}' (movej, movel, movep and movec "
-                             "are read)", line, None)
+        for mo in STREAMED_RE.finditer(code):
+            targets.append(Target(src.path, line, f"{mo.group(1)}@{line}", JOINT if mo.group(1).endswith("j") else
+                                  CARTESIAN, PREVIOUS, runtime=f"{mo.group(1)}: a motion streamed at run time"))
+        mp = PAYLOAD_RE.search(code)
+        if mp:
+            args, _ = _args(code, mp.end() - 1)
+            first = split_top(args or "")[0][1].strip()
+            if re.fullmatch(NUMBER, first):
+                payload = (float(first), f"{mp.group(1)} at line {line}")
+            else:
+                payload = (None, f"{mp.group(1)}({first}) at line {line} is computed at run time")
+            continue
         mt = re.search(r"\bset_tcp\s*\(", code)
         if mt:
             args, at = _args(code, mt.end() - 1)
@@ -131,8 +172,9 @@ def read(path) -> Program:
             parts = split_top(args)
             n_pts = 2 if m.group(1) == "movec" else 1
             for off, expr in parts[:n_pts]:
-                t = _target(m.group(1), expr, offsets[i] + at + off, src.path, line, lookup)
+                t = _target(m.group(1), expr, start + at + off, src.path, line, lookup)
                 t.tool, t.base = tool, base
+                t.extra["payload"] = payload
                 targets.append(t)
     return Program("ur", [src], targets)
 

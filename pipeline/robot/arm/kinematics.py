@@ -72,6 +72,7 @@ class Robot:
     joints: tuple
     tool_xyz_mm: tuple
     path: str = "<robot>"
+    ur_model: str = ""     # a UR imported from its calibration.conf: the model whose published DH it is against
     #: orientation of the probe frame (a 6-DoF probe) in the flange frame, URDF's rpy in deg:
     #: R = Rz(yaw) Ry(pitch) Rx(roll) (``[tool] rpy_deg``; 0, 0, 0 when not given)
     tool_rpy_deg: tuple = (0.0, 0.0, 0.0)
@@ -101,7 +102,8 @@ class Robot:
         return pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(self.tool_rpy_deg, float)))
 
     def to_toml(self) -> str:
-        lines = [f'name = "{self.name}"', "", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
+        lines = [f'name = "{self.name}"'] + ([f'ur_model = "{self.ur_model}"'] if self.ur_model else [])
+        lines += ["", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
         if any(float(v) != 0.0 for v in self.tool_rpy_deg):
             lines.append(f"rpy_deg = [{', '.join(_num(v) for v in self.tool_rpy_deg)}]")
         for j in self.joints:
@@ -205,7 +207,8 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
         raise InputError(path, "bad [tool] rpy_deg = [roll, pitch, yaw] (the probe frame in the flange frame, deg, "
                          "R = Rz(yaw) Ry(pitch) Rx(roll))", line, col)
     name = str(doc.get("name", Path(str(path)).parent.name or "robot"))
-    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path), tuple(float(c) for c in rpy))
+    return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path), str(doc.get("ur_model", "")),
+                 tuple(float(c) for c in rpy))
 
 
 def load_robot(path) -> Robot:

@@ -923,14 +923,30 @@ def is_urdf(path) -> bool:
     return False
 
 
-def load_import_robot(robot_path, tip=None, base=None, tool_mm=None):
-    """The robot of an import: ``robot.toml`` as parsed, or derived from a URDF (``tip`` needed).
+def load_import_robot(robot_path, tip=None, base=None, tool_mm=None, ur_model=None):
+    """The robot of an import: ``robot.toml`` as parsed, derived from a URDF (``tip`` needed), or a
+    UR's own ``calibration.conf`` with ``ur_model`` (:mod:`pipeline.robot.campaign.ur`).
 
     Returns the Robot, the text of the campaign's robot.toml and a provenance line.
     """
+    from .ur import UR_DH, calibration_header, is_calibration_conf, parse_calibration_conf, robot_from_calibration
+
     name = Path(robot_path).name
     if not Path(robot_path).exists():
         raise InputError(robot_path, "robot file not found (a robot.toml, or a URDF with --tip LINK)")
+    if ur_model is not None or is_calibration_conf(robot_path):
+        if ur_model is None:
+            raise InputError(robot_path, f"a UR calibration.conf needs --ur-model ({', '.join(UR_DH)}): its deltas "
+                             "are against that model's published DH", None, None)
+        if tip or base:
+            raise InputError(robot_path, "--tip and --base name links of a URDF; a calibration.conf is a UR's own "
+                             "kinematics (give the SMR with --tool-mm X Y Z in the tool flange frame)")
+        deltas = parse_calibration_conf(read_text_input(robot_path, "UR calibration.conf"), str(robot_path))
+        robot = robot_from_calibration(deltas, ur_model, tool_mm if tool_mm is not None else (0.0, 0.0, 0.0),
+                                       str(robot_path))
+        sha = _sha(robot_path)
+        return robot, calibration_header(name, sha, ur_model, deltas) + "\n" + robot.to_toml(), \
+            f"# robot: {name} (sha256 {sha}), UR calibration.conf of a {ur_model.upper()}"
     if is_urdf(robot_path):
         if not tip:
             raise InputError(robot_path, "a URDF robot needs --tip LINK: the link whose origin is the SMR "
@@ -972,14 +988,15 @@ def check_joint_count(imap: ImportMap, robot, robot_path) -> None:
                          f"({Path(robot_path).name}) has {n} joints", line, col)
 
 
-def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=None, tool_mm=None) -> dict:
+def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=None, tool_mm=None,
+                    ur_model=None) -> dict:
     """Read, check and install a campaign folder (contract section 6). Returns a summary.
 
     Nothing is written unless everything passes, including ``ingest_robot`` on the result.
     """
     map_text = read_text_input(map_path, "map")
     imap = parse_map(map_text, str(map_path))
-    robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm)
+    robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm, ur_model)
     check_joint_count(imap, robot, robot_path)
     source = read_source_file(source_path, imap)
     prov = [f"# source: {Path(source_path).name} (sha256 {source.sha256})",

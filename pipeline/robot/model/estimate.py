@@ -16,15 +16,16 @@ def error_stats(err_mm) -> dict:
             "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0, "n": int(n.size)}
 
 
-def effects_estimator(robot, effects, start=None) -> RobotErrorModel:
+def effects_estimator(robot, effects, start=None, checks: bool = True) -> RobotErrorModel:
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
-    start the solver from (a nested model's solution)."""
+    start the solver from (a nested model's solution). ``checks``: judge the fitted model's plausibility
+    (:class:`~pipeline.robot.model.calibrate.RobotErrorModel`); off for a fit used only to predict."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
-        est.start = start
+        est.start, est.checks = start, checks
         return est
-    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start)
+    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, checks=checks)
 
 
 #: A fit may leave its sample poses' RMS at most this much (relative) above a model nested in it:
@@ -58,7 +59,7 @@ def nested_models(effects, robot=None) -> list[list]:
     return out
 
 
-def fit_effects(robot, effects, data, check_nested: bool = False):
+def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool = True):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -67,9 +68,10 @@ def fit_effects(robot, effects, data, check_nested: bool = False):
     With ``check_nested`` the fit is checked against the models nested in it (:func:`nested_models`):
     when it fits the sample poses worse than one of them (by more than :data:`NESTED_RTOL`), it is
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
-    (else it is ''). ``nested_`` lists each nested model's sample RMS (mm).
+    (else it is ''). ``nested_`` lists each nested model's sample RMS (mm). Without ``checks`` the fit
+    is not judged for plausibility (a fit used only for its predictions).
     """
-    model = effects_estimator(robot, effects).fit(data)
+    model = effects_estimator(robot, effects, checks=checks).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
@@ -166,6 +168,6 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS) -> CVResult:
         if not effects:
             pred = Design(robot, [], held).predict(np.zeros(0))
         else:
-            pred = fit_effects(robot, effects, train).predict(held)
+            pred = fit_effects(robot, effects, train, checks=False).predict(held)
         res[test] = data.measured_mm[test] - pred
     return CVResult(res, np.arange(data.n))

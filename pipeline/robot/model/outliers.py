@@ -171,9 +171,9 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
     for _ in range(MAX_REFITS):
         fitted = sample.subset(~ws) if ws.any() else sample
         try:
-            model = fit_effects(robot, flex, fitted)
+            model = fit_effects(robot, flex, fitted, checks=False)
         except np.linalg.LinAlgError:
-            model = fit_effects(robot, list(effects), fitted)
+            model = fit_effects(robot, list(effects), fitted, checks=False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
         new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))

@@ -590,6 +590,9 @@ class RobotErrorModel:
     identifiability_ : dict (see :func:`identifiability`)
     cost_ : float, 0.5 ||F||^2 at the solution, mm^2
     rms_mm_ : float, RMS of the 3-D position residual norms of the fitted poses
+    dof_ : float, the effective number of parameters (trace of the hat matrix of the last Gauss-Newton
+        linearisation, penalties included; Gauss-Newton only): a fit with ``dof_`` near its number of
+        residuals (3 a pose) interpolates them
     n_iter_, seconds_ : iterations and wall time of the solver
     solver_result_ : LMResult or None
     """
@@ -783,6 +786,7 @@ class RobotErrorModel:
             scale = np.zeros(free.size)
             # a start from a nested model's solution counts as having left nominal
             lam, moved, converged, it = 0.0, bool(self.start), False, 0
+            dof = float("nan")
             reason = f"iteration limit ({self.max_iter}) reached"
             for it in range(1, self.max_iter + 1):
                 if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Gf if large else Jf))):
@@ -796,6 +800,9 @@ class RobotErrorModel:
                     r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
                     sv, Vt = sv[:r], Vt[:r]
                     c = (Vt @ (gF / sc)) / sv
+                    # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
+                    Gd = (Gf - PtP) / np.outer(sc, sc)
+                    dof = float(np.sum(np.einsum("ij,jk,ik->i", Vt, Gd, Vt) / sv ** 2))
                 else:
                     scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
                     sc = np.where(scale > 0, scale, 1.0)
@@ -803,6 +810,8 @@ class RobotErrorModel:
                     r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
                     U, sv, Vt = U[:, :r], sv[:r], Vt[:r]
                     c = U.T @ F
+                    nd = F.size - PB.shape[0]
+                    dof = float(np.sum(U[:nd] ** 2))
                 gain = float(c @ c)
                 stationary = gain <= max(GN_PHI, GAIN_REL_CONVERGED * 2.0 * cost)
                 if gain <= 1e-12 * 2.0 * cost:  # the linear model predicts no decrease beyond rounding
@@ -832,6 +841,7 @@ class RobotErrorModel:
                 cost = 0.5 * float(F @ F)
             self.n_iter_ = it
             self.converged_, self.convergence_ = bool(converged), reason
+            self.dof_ = dof
         elif self.solver == "lm":
             result = lm.improved_lm(fun, None, z0, fun_and_jac=fun_and_jac, **(self.lm_options or {}))
             xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter

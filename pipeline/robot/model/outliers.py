@@ -26,8 +26,13 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
    nonparametric check that a pose is not the edge of a physical effect the flexible model lacks:
    physics is smooth in the joint angles, a wild point is alone.
 
-More than :data:`MAX_WILD_FRACTION` of a campaign's poses wild: refused with one line (a wrong
-frame, unit or robot is not a handful of outliers).
+**No scale**: when the flexible model leaves less than :data:`MIN_RESIDUAL_DOF_FRACTION` of its
+residuals' degrees of freedom (a small campaign, e.g. the 20 poses ``jointcal plan`` proposes, which
+it nearly interpolates), its residuals give no scale: no pose is named, and ``no_scale`` says why
+(console, JSON).
+
+More than :data:`MAX_WILD_FRACTION` of a campaign's poses wild, and more than :data:`HANDFUL`: refused
+with one line (a wrong frame, unit or robot is not a handful of outliers).
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import parse_spec
 from ...core.tables import text_table
-from ...core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
+from ...core.wild import HANDFUL, MAX_WILD_FRACTION, MIN_RESIDUAL_DOF_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
 
 #: Refits of the robust fit at most (it stops earlier when the set named no longer changes).
 MAX_REFITS = 5
@@ -58,12 +63,15 @@ class Wild:
     outliers: list = field(default_factory=list)
     sigma_mm: dict = field(default_factory=dict)
     kept: bool = False
+    #: why the residuals gave no scale ('' when they did; see the module docstring)
+    no_scale: str = ""
 
     def document(self) -> dict:
         """The JSON keys (contract section 12): ``outliers``, and how they were found."""
-        return {"outliers": self.outliers,
-                "outlier_rule": {"rule": RULE, "sigma_mm": self.sigma_mm, "threshold_sigmas": WILD_SIGMAS,
-                                 "kept": self.kept}}
+        rule = {"rule": RULE, "sigma_mm": self.sigma_mm, "threshold_sigmas": WILD_SIGMAS, "kept": self.kept}
+        if self.no_scale:
+            rule["no_scale"] = self.no_scale
+        return {"outliers": self.outliers, "outlier_rule": rule}
 
     def clean(self, sample, target):
         """The sample and target poses without the wild ones (all of them with ``kept``)."""
@@ -156,13 +164,17 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
     Raises
     ------
     InputError
-        More than :data:`MAX_WILD_FRACTION` of the poses wild (not with ``keep``).
+        More than :data:`MAX_WILD_FRACTION` of the poses wild, and more than :data:`HANDFUL` (not with
+        ``keep``).
     """
     from .estimate import fit_effects
 
     ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
-    if sample.n < max(20, 2 * NEIGHBOURS) or sample.measured_mm is None:
+    if sample.measured_mm is None:
         return Wild(ws, wt, [], {}, keep)
+    if sample.n < max(20, 2 * NEIGHBOURS):
+        return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "
+                                          "none is named")
     flex = flexible_effects(robot, effects, sample)
     lo = np.min(sample.q_deg, axis=0)
     span = np.maximum(np.ptp(sample.q_deg, axis=0), 1e-9)
@@ -176,6 +188,14 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
             model = fit_effects(robot, list(effects), fitted, checks=False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
+        n_res = rs.shape[1] * fitted.n
+        dof = getattr(model, "dof_", float("nan"))
+        if np.isfinite(dof) and n_res - dof < MIN_RESIDUAL_DOF_FRACTION * n_res:
+            why = (f"the flexible model ({dof:.0f} effective parameters on {fitted.n} sample poses, {n_res} residuals) "
+                   f"leaves {100 * (n_res - dof) / n_res:.0f} % of its residuals' degrees of freedom, less than "
+                   f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sig_s:.2g} mm), "
+                   "so they give no scale to judge wild points by; none is named")
+            return Wild(np.zeros(sample.n, bool), np.zeros(target.n, bool), [], {}, keep, why)
         new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))
         if np.array_equal(new, ws):
             break
@@ -195,7 +215,7 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
                              "line": int(lines.get(pid, 0))})
     wild = Wild(ws, wt, outliers, sigma, keep)
     n_all = sample.n + target.n
-    if not keep and len(outliers) > MAX_WILD_FRACTION * n_all:
+    if not keep and len(outliers) > max(MAX_WILD_FRACTION * n_all, HANDFUL):
         worst = max(outliers, key=lambda o: o["error_mm"])
         raise InputError(Path(campaign or ".") / "tracker.csv",
                          f"{len(outliers)} of {n_all} poses ({100 * len(outliers) / n_all:.1f} %) look wild (more than "
@@ -206,7 +226,10 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
 
 
 def describe(wild: Wild) -> str:
-    """One console line naming the wild poses ('' when there are none)."""
+    """One console line naming the wild poses, or saying why there is no scale to judge them by ('' when
+    there are none)."""
+    if wild.no_scale:
+        return f"no wild-point check: {wild.no_scale}"
     if not wild.outliers:
         return ""
     what = "kept (--keep-outliers)" if wild.kept else "left out (of fitting, registering and the errors)"

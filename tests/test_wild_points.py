@@ -173,3 +173,33 @@ def test_no_scale_on_a_campaign_the_flexible_model_interpolates(tmp_path):
     doc = json.loads(out.read_text())
     assert doc["outliers"] == [] and "interpolates" in doc["outlier_rule"]["no_scale"]
     assert "no wild-point check" in r.output
+
+
+def test_wild_points_are_found_once_per_measurements(tmp_path, monkeypatch):
+    """Issue 32: what find_wild found is kept (JOINTCAL_CACHE) under a key of the code, the robot, the
+    flexible model and every measurement: read again it is the same result to the bit; one tracker point
+    moved is another key (found afresh: the point is named); JOINTCAL_CACHE=off keeps nothing."""
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model import outliers
+
+    thrown = _throw(tmp_path / "c", 2, 1, 5)
+    robot, (s, tg) = robot_data_sets(tmp_path / "c", ("sample",), ("target",))
+    effects = list(load_spec(SPEC).effects)
+    monkeypatch.setenv("JOINTCAL_CACHE", str(tmp_path / "cache"))
+    first = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 1
+    calls = []
+    monkeypatch.setattr(outliers, "_search", lambda *a: calls.append(a) or {})
+    again = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert calls == [] and json.dumps(again.document()) == json.dumps(first.document())
+    assert {o["point_id"] for o in first.outliers} == set(thrown)
+    monkeypatch.undo()
+    monkeypatch.setenv("JOINTCAL_CACHE", str(tmp_path / "cache"))
+    s.measured_mm[0, 0] += 9.0
+    moved = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert str(s.point_id[0]) in {o["point_id"] for o in moved.outliers}
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2
+    monkeypatch.setenv("JOINTCAL_CACHE", "off")
+    outliers.find_wild(robot, effects, s.subset(np.arange(s.n) > 0), tg, tmp_path / "c")
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2

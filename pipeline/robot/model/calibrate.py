@@ -99,18 +99,18 @@ class Design:
         self.p = len(names)
         self.p_idx = np.asarray(p_idx, int)
         self.c_idx = np.asarray(c_idx, int)
-        self.V = np.stack(vals, axis=1) if vals else np.zeros((n, 0))   # (n, E)
+        # each entry's channel values, (E, n) in memory (configurations() reads an entry's values at once);
+        # V is its (n, E) view
+        self._VT = np.stack(vals, axis=0) if vals else np.zeros((0, n))
+        self.V = self._VT.T
         # the entries of each configuration channel and of each parameter, in entry order: sums over
         # them are taken in that order (as np.add.at did), never by a dense selection matrix
         self._by_channel = _groups(self.c_idx)
         self._by_param = _groups(self.p_idx)
         self._nonzero = None
-        self._VT = None
 
     def configurations(self, x) -> np.ndarray:
         """Error-model configurations (n, nq) at the parameters ``x`` (p,), internal units."""
-        if self._VT is None:
-            self._VT = np.ascontiguousarray(self.V.T)          # (E, n): each entry's channel values
         xe = np.asarray(x, float)[self.p_idx]
         dQ = np.zeros((self.Q0.shape[1], self.Q0.shape[0]))
         for c, entries in self._by_channel:
@@ -802,7 +802,7 @@ class RobotErrorModel:
                     c = (Vt @ (gF / sc)) / sv
                     # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
                     Gd = (Gf - PtP) / np.outer(sc, sc)
-                    dof = float(np.sum(np.einsum("ij,jk,ik->i", Vt, Gd, Vt) / sv ** 2))
+                    dof = float(np.sum(np.sum((Vt @ Gd) * Vt, axis=1) / sv ** 2))
                 else:
                     scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
                     sc = np.where(scale > 0, scale, 1.0)

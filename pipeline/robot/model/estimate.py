@@ -59,7 +59,7 @@ def nested_models(effects, robot=None) -> list[list]:
     return out
 
 
-def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool = True):
+def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool = True, start=None):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -69,9 +69,10 @@ def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool =
     when it fits the sample poses worse than one of them (by more than :data:`NESTED_RTOL`), it is
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
     (else it is ''). ``nested_`` lists each nested model's sample RMS (mm). Without ``checks`` the fit
-    is not judged for plausibility (a fit used only for its predictions).
+    is not judged for plausibility (a fit used only for its predictions). ``start``: parameter name ->
+    value (internal units) to start the solver from (a fit of the same model on nearly the same poses).
     """
-    model = effects_estimator(robot, effects, checks=checks).fit(data)
+    model = effects_estimator(robot, effects, start=start, checks=checks).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []

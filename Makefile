@@ -46,7 +46,7 @@ mk/deps.mk: mk/deps.py $(PIPELINE_PY) $(sort $(dir $(PIPELINE_PY)))
 -include mk/deps.mk
 -include $(filter-out mk/deps.mk,$(wildcard mk/*.mk))
 
-.PHONY: all help encoder diagnosis test bench fixtures clean distclean
+.PHONY: all help encoder diagnosis test bench fixtures reference clean distclean
 
 all: $(ALL_TARGETS) results/summary.json ## set up .venv and run the whole pipeline on raw/
 
@@ -108,6 +108,11 @@ test: $(STAMP) ## check the import contracts (lint-imports, .importlinter), then
 
 bench: $(STAMP) ## speed, scale, FIGAROH side by side (own venv in .bench/), 1,000-module fleet: about 7 min -> results/bench.json
 	$(BIN)/python -m bench.run --out results/bench.json
+
+# the reproducibility test compares one `make all` with tests/data/make-all.sha256 (mk/reference.py): a change
+# meant to change what `make all` writes (or a merge of one) rewrites it here, and its commit says which files
+reference: $(STAMP) ## run `make all` in a scratch copy and rewrite tests/data/make-all.sha256, the bytes make test expects
+	$(BIN)/python mk/reference.py make
 
 fixtures: $(STAMP) ## regenerate the synthetic fixtures in raw/ byte for byte
 	$(JC) simulate encoder --out raw/encoder --truth raw/truth/encoder

@@ -133,3 +133,73 @@ def test_export_heldout_leaves_the_wild_targets_out(tmp_path):
     assert doc["with_outliers"]["full_rms_mm"] > 3 * doc["full_rms_mm"]
     # the model is geometry + base + tool: its chain is that geometry, and judged as fit judges it
     assert doc["chain_rms_mm"] == pytest.approx(json.loads(fit.read_text())["heldout"]["rms_after_mm"], abs=2e-6)
+
+
+def _keep_first(folder, n_sample, n_target):
+    """Keep the first ``n_sample`` sample and ``n_target`` target poses of a campaign copy (and their points)."""
+    p = pd.read_csv(folder / "poses.csv", dtype=str)
+    keep = pd.concat([p[p.set == "sample"].head(n_sample), p[p.set == "target"].head(n_target)]).point_id
+    p[p.point_id.isin(keep)].to_csv(folder / "poses.csv", index=False)
+    t = pd.read_csv(folder / "tracker.csv", dtype=str)
+    t[t.point_id.isin(keep)].to_csv(folder / "tracker.csv", index=False)
+
+
+def test_a_handful_in_a_small_campaign_is_named_not_refused(tmp_path):
+    """Issue 32: 3 wild points among 120 poses are 2.5 % of them: named and left out, not refused (a
+    handful is an SMR reseated, not a wrong frame); a fourth (3.3 %) is refused."""
+    for n_wild, refused in ((3, False), (4, True)):
+        thrown = _throw(tmp_path / f"c{n_wild}", n_wild, 0, 7)     # sample poses: all 100 are kept
+        _keep_first(tmp_path / f"c{n_wild}", 100, 20)
+        poses = pd.read_csv(tmp_path / f"c{n_wild}" / "poses.csv", dtype=str)
+        assert set(thrown) <= set(poses.point_id) and len(poses) == 120
+        out = tmp_path / f"fit{n_wild}.json"
+        r = cli_invoker()("fit", "--campaign", tmp_path / f"c{n_wild}", "--spec", SPEC, "--out", out)
+        if refused:
+            assert r.exit_code == 2 and "look wild" in r.output and not out.exists()
+        else:
+            assert r.exit_code == 0, r.output
+            assert {o["point_id"] for o in json.loads(out.read_text())["outliers"]} == set(thrown)
+
+
+def test_no_scale_on_a_campaign_the_flexible_model_interpolates(tmp_path):
+    """Issue 32: on 20 sample poses (what jointcal plan proposes) the flexible model nearly interpolates
+    (its residuals 1e-4 mm): no scale, so nothing is named and nothing refused, and the command says so
+    (console and JSON), even with a point 5 mm off."""
+    _throw(tmp_path / "c", 1, 0, 3)
+    _keep_first(tmp_path / "c", 20, 10)
+    out = tmp_path / "fit.json"
+    r = cli_invoker()("fit", "--campaign", tmp_path / "c", "--spec", SPEC, "--out", out)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert doc["outliers"] == [] and "interpolates" in doc["outlier_rule"]["no_scale"]
+    assert "no wild-point check" in r.output
+
+
+def test_wild_points_are_found_once_per_measurements(tmp_path, monkeypatch):
+    """Issue 32: what find_wild found is kept (JOINTCAL_CACHE) under a key of the code, the robot, the
+    flexible model and every measurement: read again it is the same result to the bit; one tracker point
+    moved is another key (found afresh: the point is named); JOINTCAL_CACHE=off keeps nothing."""
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model import outliers
+
+    thrown = _throw(tmp_path / "c", 2, 1, 5)
+    robot, (s, tg) = robot_data_sets(tmp_path / "c", ("sample",), ("target",))
+    effects = list(load_spec(SPEC).effects)
+    monkeypatch.setenv("JOINTCAL_CACHE", str(tmp_path / "cache"))
+    first = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 1
+    calls = []
+    monkeypatch.setattr(outliers, "_search", lambda *a: calls.append(a) or {})
+    again = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert calls == [] and json.dumps(again.document()) == json.dumps(first.document())
+    assert {o["point_id"] for o in first.outliers} == set(thrown)
+    monkeypatch.undo()
+    monkeypatch.setenv("JOINTCAL_CACHE", str(tmp_path / "cache"))
+    s.measured_mm[0, 0] += 9.0
+    moved = outliers.find_wild(robot, effects, s, tg, tmp_path / "c")
+    assert str(s.point_id[0]) in {o["point_id"] for o in moved.outliers}
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2
+    monkeypatch.setenv("JOINTCAL_CACHE", "off")
+    outliers.find_wild(robot, effects, s.subset(np.arange(s.n) > 0), tg, tmp_path / "c")
+    assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2

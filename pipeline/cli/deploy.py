@@ -548,7 +548,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         # wild measurements are named and left out of the held-out errors, as fit and predict do (contract
         # section 12); the errors with them are given beside
         wild = find_wild(robot, effects, sample, target, heldout_campaign)
-        if wild.outliers:
+        if describe(wild):
             click.echo(f"jointcal: {heldout_campaign}: {describe(wild)}", err=True)
         h = heldout_by_carrier(robot, model, wild.clean(sample, target)[1], plain_model, tables_model)
         if wild.target.any():

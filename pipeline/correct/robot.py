@@ -157,7 +157,7 @@ class ModelKinematics:
         d = Design(self.robot, list(getattr(self.model, "effects_", self.model.effects)),
                    self.data(q_deg, dirs, payload_kg, temperature_c), (self.error_model_, self.index_))
         _, _, J = pose_jacobians(self.error_model_, d.configurations(self.model.coef_), "smr")
-        Jx = np.einsum("nke,ep->nkp", J[:, 3:, d.c_idx] * d.V[:, None, :], d.S, optimize=True)   # rad per unit
+        Jx = d.parameter_jacobian(J[:, 3:])   # rad per unit
         return Jx @ D
 
     def predict(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:

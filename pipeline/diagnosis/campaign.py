@@ -35,7 +35,7 @@ def run_diagnosis(campaign, spec_path, progress=None, workers=1, keep_outliers=F
         robot, (data, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
         check_spec_joints(spec, robot)
         wild = find_wild(robot, list(spec.effects), data, target, campaign, keep_outliers)
-        if wild.outliers and progress:
+        if describe(wild) and progress:
             progress(describe(wild))
         data, _ = wild.clean(data, target)
         adapter = RobotAdapter(robot, workers=workers, repeat=repeat)

@@ -100,7 +100,7 @@ def effect_columns(robot, effect, data, Jext, idx_model) -> tuple[np.ndarray, li
     d = Design(robot, [effect], data, idx_model)
     if d.p == 0:
         return np.zeros((Jext.shape[1] * data.n, 0)), [], []
-    J = np.einsum("nke,ep->nkp", Jext[:, :, d.c_idx] * d.V[:, None, :], d.S, optimize=True)
+    J = d.parameter_jacobian(Jext)
     return J.reshape(-1, d.p), d.names, d.units
 
 

@@ -324,7 +324,7 @@ def loop_on_campaigns(campaign, spec_path, other_campaign=None, max_rounds: int 
     robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
     check_spec_joints(spec, robot)
     wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
-    if wild.outliers:
+    if describe(wild):
         warn(f"{campaign}: {describe(wild)}")
     target_all = target if (wild.target.any() and not wild.kept) else None
     sample, target = wild.clean(sample, target)
@@ -332,7 +332,7 @@ def loop_on_campaigns(campaign, spec_path, other_campaign=None, max_rounds: int 
     if other_campaign:
         robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
         wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
-        if wild_other.outliers:
+        if describe(wild_other):
             warn(f"{other_campaign}: {describe(wild_other)}")
         other = wild_other.clean(os_, ot)
     result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, max_rounds, progress, repeat=repeat,

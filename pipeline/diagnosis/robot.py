@@ -347,7 +347,7 @@ class RobotAdapter:
             effects = lin.model.effects_ if lin.model is not None else []
             d = Design(self.robot, effects, box, lin.idx_model)
             Jext = channel_jacobian(d, lin.coef)
-            Jb = np.einsum("nke,ep->nkp", Jext[:, :, d.c_idx] * d.V[:, None, :], d.S, optimize=True).reshape(-1, d.p) \
+            Jb = d.parameter_jacobian(Jext).reshape(-1, d.p) \
                 if d.p else np.zeros((3 * n, 0))
             if lin.model is not None:
                 Jb = Jb[:, ~np.isin(d.names, lin.model.fixed_)]

@@ -327,6 +327,114 @@ def frame_id(model: pin.Model, name: str) -> int:
     return model.getFrameId(name)
 
 
+#: the 1-dof joints the batched kinematics (:func:`batch_placements`) evaluates: (revolute?, axis)
+_AXIS_JOINTS = {"JointModelRX": (True, 0), "JointModelRY": (True, 1), "JointModelRZ": (True, 2),
+                "JointModelPX": (False, 0), "JointModelPY": (False, 1), "JointModelPZ": (False, 2)}
+
+
+def _chain(model: pin.Model, frame: str):
+    """The joints from the root to ``frame``'s parent joint, as (joint id, revolute, axis, placement R,
+    placement p, q index); None when one of them is not a 1-dof axis joint (then pinocchio's loop)."""
+    key = ("_jointcal_chain", frame)
+    cache = getattr(model, "_jointcal_cache", None)
+    if cache is None:
+        cache = {}
+        try:
+            model._jointcal_cache = cache
+        except AttributeError:        # a model that takes no attributes: no cache
+            pass
+    if key in cache:
+        return cache[key]
+    fr = model.frames[model.getFrameId(frame)]
+    j = int(fr.parentJoint if hasattr(fr, "parentJoint") else fr.parent)
+    path = []
+    while j > 0:
+        path.append(j)
+        j = int(model.parents[j])
+    out = []
+    for j in reversed(path):
+        jm = model.joints[j]
+        kind = _AXIS_JOINTS.get(jm.shortname())
+        if kind is None:
+            out = None
+            break
+        M = model.jointPlacements[j]
+        R, p = np.array(M.rotation), np.array(M.translation)
+        out.append((j, kind[0], kind[1], None if np.array_equal(R, np.eye(3)) else R,
+                    None if not p.any() else p, int(jm.idx_q), int(jm.idx_v)))
+    result = None if out is None else (out, np.array(fr.placement.rotation), np.array(fr.placement.translation))
+    cache[key] = result
+    return result
+
+
+def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobian: bool = False):
+    """``frame``'s placement for every configuration at once (numpy, no loop over the poses), and with
+    ``jacobian`` its positional frame Jacobian (world-aligned), for models whose joints from the root to
+    the frame are 1-dof axis joints (the error model's, :func:`build_error_model`). The same numbers as
+    pinocchio's ``forwardKinematics`` / ``getFrameJacobian(LOCAL_WORLD_ALIGNED)`` to rounding (tested),
+    about 20 times faster on 51 joints (issue 32). None for any other model.
+
+    Parameters
+    ----------
+    Q : ndarray, shape (n, nq), rad (and m for prismatic joints)
+
+    Returns
+    -------
+    R : ndarray, shape (n, 3, 3); p : ndarray, shape (n, 3), m; J : ndarray, shape (n, 3, nv), m per unit
+    of each coordinate (only with ``jacobian``), or None
+    """
+    chain = _chain(model, frame)
+    if chain is None:
+        return None
+    joints, Rf, pf = chain
+    Q = np.asarray(Q, float)
+    n = len(Q)
+    # the rotation as its three columns and the origin, each (3, n) (x, y, z rows): a few axpys a joint
+    cols = [np.repeat(np.eye(3)[:, k:k + 1], n, axis=1) for k in range(3)]
+    p = np.zeros((3, n))
+
+    def moved(p, v):
+        for k in range(3):
+            if v[k] != 0.0:
+                p = p + cols[k] * v[k]
+        return p
+
+    def turned(M):
+        return [sum(cols[i] * M[i, k] for i in range(3) if M[i, k] != 0.0) for k in range(3)]
+
+    axes = []
+    for j, revolute, a, Rj, pj, iq, iv in joints:
+        if pj is not None:
+            p = moved(p, pj)
+        if Rj is not None:
+            cols = turned(Rj)
+        q = Q[:, iq]
+        if revolute:
+            b, c = (a + 1) % 3, (a + 2) % 3
+            if np.any(q):
+                cq, sq = np.cos(q), np.sin(q)
+                cols[b], cols[c] = cq * cols[b] + sq * cols[c], cq * cols[c] - sq * cols[b]
+        elif np.any(q):
+            p = p + cols[a] * q
+        if jacobian:
+            axes.append((iv, revolute, cols[a], p))
+    pw = moved(p, pf)
+    cols = turned(Rf)
+    Rw = np.stack(cols, axis=0).transpose(2, 1, 0)          # (n, 3, 3): [pose, row, column]
+    if not jacobian:
+        return Rw, pw.T, None
+    Jt = np.zeros((model.nv, 3, n))
+    for iv, revolute, w, o in axes:
+        if revolute:
+            d = pw - o
+            Jt[iv, 0] = w[1] * d[2] - w[2] * d[1]
+            Jt[iv, 1] = w[2] * d[0] - w[0] * d[2]
+            Jt[iv, 2] = w[0] * d[1] - w[1] * d[0]
+        else:
+            Jt[iv] = w
+    return Rw, pw.T, Jt.transpose(2, 1, 0)
+
+
 def positions(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> np.ndarray:
     """Position of ``frame`` for every configuration.
 
@@ -338,6 +446,9 @@ def positions(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> np.ndarray
     -------
     ndarray, shape (n, 3), mm
     """
+    batch = batch_placements(model, Q, frame)
+    if batch is not None:
+        return batch[1] * 1000.0
     data = model.createData()
     fid = model.getFrameId(frame)
     out = np.empty((len(Q), 3))
@@ -369,6 +480,9 @@ def positions_and_jacobians(model: pin.Model, Q: np.ndarray, frame: str = "smr")
     P : ndarray, shape (n, 3), mm
     J : ndarray, shape (n, 3, nv), mm per unit of each coordinate (rad or m)
     """
+    batch = batch_placements(model, Q, frame, jacobian=True)
+    if batch is not None:
+        return batch[1] * 1000.0, batch[2] * 1000.0
     data = model.createData()
     fid = model.getFrameId(frame)
     n = len(Q)

@@ -138,15 +138,26 @@ class Design:
         self.p = len(names)
         self.p_idx = np.asarray(p_idx, int)
         self.c_idx = np.asarray(c_idx, int)
-        self.V = np.stack(vals, axis=1) if vals else np.zeros((n, 0))   # (n, E)
-        self.S = np.zeros((len(p_idx), self.p))
-        self.S[np.arange(len(p_idx)), self.p_idx] = 1.0
+        # each entry's channel values, (E, n) in memory (configurations() reads an entry's values at once);
+        # V is its (n, E) view
+        self._VT = np.stack(vals, axis=0) if vals else np.zeros((0, n))
+        self.V = self._VT.T
+        # the entries of each configuration channel and of each parameter, in entry order: sums over
+        # them are taken in that order (as np.add.at did), never by a dense selection matrix
+        self._by_channel = _groups(self.c_idx)
+        self._by_param = _groups(self.p_idx)
+        self._nonzero = None
 
     def configurations(self, x) -> np.ndarray:
-        dQ = np.zeros_like(self.Q0)
-        contrib = self.V * np.asarray(x, float)[self.p_idx]
-        np.add.at(dQ.T, self.c_idx, contrib.T)
-        return self.Q0 + dQ
+        """Error-model configurations (n, nq) at the parameters ``x`` (p,), internal units."""
+        xe = np.asarray(x, float)[self.p_idx]
+        dQ = np.zeros((self.Q0.shape[1], self.Q0.shape[0]))
+        for c, entries in self._by_channel:
+            dq = self._VT[entries[0]] * xe[entries[0]]
+            for e in entries[1:]:
+                dq = dq + self._VT[e] * xe[e]
+            dQ[c] = dq
+        return self.Q0 + dQ.T
 
     #: weight of the orientation rows of the residual (mm per mrad), None: positions only
     weight = None
@@ -167,7 +178,34 @@ class Design:
     def predict_and_jacobian(self, x):
         """Positions (n, 3) mm and Jacobian (n, 3, p) mm per internal unit."""
         P, Jext = positions_and_jacobians(self.model, self.configurations(x))
-        J = np.einsum("nke,ep->nkp", Jext[:, :, self.c_idx] * self.V[:, None, :], self.S, optimize=True)
+        return P, self.parameter_jacobian(Jext)
+
+    def parameter_jacobian(self, Jext) -> np.ndarray:
+        """The parameters' Jacobian (n, m, p) from the configuration channels' (n, m, nq) (any rows m:
+        position mm, or position and orientation), each parameter's entries summed in order."""
+        Jext = np.asarray(Jext, float)
+        J = np.zeros((Jext.shape[0], Jext.shape[1], self.p))
+        for k, entries in self._by_param:
+            col = Jext[:, :, self.c_idx[entries[0]]] * self.V[:, entries[0], None]
+            for e in entries[1:]:
+                col = col + Jext[:, :, self.c_idx[e]] * self.V[:, e, None]
+            J[:, :, k] = col
+        return J
+
+    def predict_and_sparse_jacobian(self, x):
+        """Positions (n, 3) mm and the Jacobian as a sparse matrix (3 n, p) (CSR; rows x, y, z of each
+        pose), mm per internal unit: what :meth:`predict_and_jacobian` gives, without its zeros (a joint
+        map's value moves only the poses near its knot)."""
+        import scipy.sparse
+
+        P, Jext = positions_and_jacobians(self.model, self.configurations(x))
+        if self._nonzero is None:
+            self._nonzero = np.nonzero(self.V)           # (pose, entry), pose-major
+        ii, ee = self._nonzero
+        vals = Jext[ii, :, self.c_idx[ee]] * self.V[ii, ee][:, None]          # (nnz, 3)
+        rows = (3 * ii[:, None] + np.arange(3)).ravel()
+        cols = np.repeat(self.p_idx[ee], 3)
+        J = scipy.sparse.csr_matrix((vals.ravel(), (rows, cols)), shape=(3 * self.data.n, self.p))
         return P, J
 
     def pose_and_jacobian(self, x):
@@ -175,8 +213,27 @@ class Design:
         probe frame's turn about x, y, z (base frame) in mrad, per internal unit."""
         R, P, Jext = pose_jacobians(self.model, self.configurations(x), "smr")
         Jext[:, 3:] *= 1000.0
-        J = np.einsum("nke,ep->nkp", Jext[:, :, self.c_idx] * self.V[:, None, :], self.S, optimize=True)
-        return R, P, J
+        return R, P, self.parameter_jacobian(Jext)
+
+    def residual_and_sparse_jacobian(self, x):
+        """A 6-DoF design's positions (n, 3) mm, :meth:`residual` and its Jacobian as a sparse matrix
+        (6 n, p) (CSR; rows as the residual's: every pose's x, y, z, then every pose's weighted turn)."""
+        import scipy.sparse
+
+        R, P, Jext = pose_jacobians(self.model, self.configurations(x), "smr")
+        Jext[:, 3:] *= 1000.0 * self.weight
+        if self._nonzero is None:
+            self._nonzero = np.nonzero(self.V)
+        ii, ee = self._nonzero
+        n = self.data.n
+        vals = Jext[ii, :, self.c_idx[ee]] * self.V[ii, ee][:, None]          # (nnz, 6)
+        rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(), (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
+        cols = np.concatenate([np.repeat(self.p_idx[ee], 3)] * 2)
+        data = np.concatenate([vals[:, :3].ravel(), vals[:, 3:].ravel()])
+        J = scipy.sparse.csr_matrix((data, (rows, cols)), shape=(6 * n, self.p))
+        F = np.concatenate([(P - self.data.measured_mm).ravel(),
+                            self.weight * orientation_errors(R, self.data.measured_R).ravel()])
+        return P, F, J
 
     def residual(self, x) -> np.ndarray:
         """Residual vector of the fit (predicted - measured): the positions (3 n, mm) and, for a 6-DoF
@@ -206,6 +263,45 @@ class Design:
         return P, np.vstack([J[:, :3].reshape(-1, self.p), self.weight * J[:, 3:].reshape(-1, self.p)])
 
 
+
+def _groups(index) -> list[tuple[int, np.ndarray]]:
+    """(value, the positions holding it in order) for each distinct value of an int array."""
+    index = np.asarray(index, int)
+    order = np.argsort(index, kind="stable")
+    vals, starts = np.unique(index[order], return_index=True)
+    return [(int(v), order[a:b]) for v, a, b in zip(vals, starts, list(starts[1:]) + [index.size])]
+
+
+#: A fit with more directions to solve for than this (a joint map's grid values) is solved on its
+#: normal equations, built from the sparse Jacobian (:func:`gram`), and its unseen directions found
+#: from them (:func:`physical_subspace` with ``gram``): the dense SVD of a (3 n) x k Jacobian each
+#: iteration cost 45 of predict's 47 s on 11,911 poses (issue 32). Smaller fits (geometry, base, tool,
+#: compliance, backlash: at most a few dozen directions) keep the dense SVD.
+GRAM_MIN_K = 64
+
+
+def gram(J, r=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """``J^T J`` (p, p) and ``J^T r`` (p,) of a sparse Jacobian (3 n, p), its dense columns (the
+    kinematic parameters: every pose) by BLAS and its sparse ones (joint-map values) sparse."""
+    import scipy.sparse
+
+    J = scipy.sparse.csc_matrix(J)
+    nnz = np.diff(J.indptr)
+    dense = nnz > 0.25 * J.shape[0]
+    di, si = np.flatnonzero(dense), np.flatnonzero(~dense)
+    H = np.zeros((J.shape[1], J.shape[1]))
+    Jd = J[:, di].toarray()
+    Js = J[:, si]
+    H[np.ix_(di, di)] = Jd.T @ Jd
+    if si.size:
+        cross = np.asarray((Js.T @ Jd))
+        H[np.ix_(si, di)] = cross
+        H[np.ix_(di, si)] = cross.T
+        H[np.ix_(si, si)] = (Js.T @ Js).toarray()
+    g = None if r is None else np.asarray(J.T @ np.asarray(r, float)).ravel()
+    return H, g
+
+
 def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, priority=None,
                     weak_tol: float | None = None, units=None, penalised=None) -> dict:
     """Rank, condition number and identifiable parameters of a Jacobian.
@@ -226,14 +322,16 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
     to the identifiable parameters), ``condition_number_all``, ``singular_values`` (scaled),
     ``keep`` (bool mask) and ``not_identifiable`` (names fixed at 0).
     """
+    sparse = hasattr(J, "tocsc")          # a scipy.sparse Jacobian (Design.predict_and_sparse_jacobian)
     if penalised is not None and np.any(penalised):
         # parameters kept smooth and unique by their effect's penalty (a joint map's hundreds of
         # grid values) are not ranked here; only the rotations the SMR barely feels are left out
         pen = np.asarray(penalised, bool)
-        rest = identifiability(J[:, ~pen], [n for n, q in zip(names, pen) if not q], tol,
+        Jr = J.tocsc()[:, np.flatnonzero(~pen)].toarray() if sparse else J[:, ~pen]
+        rest = identifiability(Jr, [n for n, q in zip(names, pen) if not q], tol,
                                None if priority is None else [int(np.sum(~pen[:c])) for c in priority if not pen[c]],
                                weak_tol, None if units is None else [u for u, q in zip(units, pen) if not q])
-        norms = np.linalg.norm(J, axis=0)
+        norms = (np.sqrt(np.asarray(J.multiply(J).sum(axis=0)).ravel()) if sparse else np.linalg.norm(J, axis=0))
         angle = np.array([u[0] == "arcsec" for u in units], bool) if units is not None else np.zeros(len(names), bool)
         ref = norms[angle & ~pen & (norms > 0)]
         short = pen & (norms < SHORT_LEVER * (np.median(ref) if ref.size else norms.max(initial=0.0)))
@@ -250,6 +348,8 @@ def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, prio
                                            "(an axis the SMR sits on or near): not identifiable"}
         return {**rest, "n_params": int(J.shape[1]), "keep": keep, "zero": zero, "fixed_reasons": reasons,
                 "not_identifiable": [n for n, k in zip(names, keep) if not k], "penalised": int(pen.sum())}
+    if sparse:
+        J = J.toarray()
     norms = np.linalg.norm(J, axis=0)
     zero = norms <= 1e-12 * max(norms.max(initial=0.0), 1e-300)
     # a parameter that moves the measured point a hundred times less than a typical one (a rotation
@@ -397,7 +497,7 @@ def frame_deviations(model, idx, Q, Q0) -> list[dict]:
     return out
 
 
-def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = RANK_TOL):
+def physical_subspace(A: np.ndarray | None, B0: np.ndarray, free, sizes, tol: float = RANK_TOL, gram=None):
     """What the measurements determine, represented nearest the nominal robot (contract section 8).
 
     The fit moves the parameters ``x`` in the span of ``B0`` (the parameters kept, or the leading
@@ -420,6 +520,11 @@ def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = R
         Parameters that may move (not fixed at nominal).
     sizes : ndarray, shape (p,)
         Typical size of each parameter (internal units).
+    gram : ndarray, shape (p, p), optional
+        ``A^T A`` in place of ``A`` (``A`` may then be None): the singular values and right singular
+        vectors are those of its eigen-decomposition (a relative singular value resolves down to
+        about 1e-8, below ``tol``'s 1e-7; what the measurements cannot see at all comes out near 1e-8
+        or below), for fits of hundreds of parameters on thousands of poses (:data:`GRAM_MIN_K`).
 
     Returns
     -------
@@ -429,16 +534,23 @@ def physical_subspace(A: np.ndarray, B0: np.ndarray, free, sizes, tol: float = R
     U : ndarray, shape (p, r)
         The directions the measurements cannot see (``u`` coordinates, orthonormal; 0 outside ``free``).
     """
-    p = A.shape[1]
+    p = B0.shape[0]
     cols = np.flatnonzero(free)
     U = np.zeros((p, 0))
-    if cols.size:
+    if cols.size and gram is not None:
+        G = gram[np.ix_(cols, cols)] * np.outer(sizes[cols], sizes[cols])
+        nrm = np.sqrt(np.maximum(np.diag(G), 0.0))
+        nrm = np.where(nrm > 0, nrm, 1.0)
+        w, V = np.linalg.eigh(G / np.outer(nrm, nrm))
+        sv, Vt = np.sqrt(np.maximum(w[::-1], 0.0)), V[:, ::-1].T
+    elif cols.size:
         Af = A[:, cols] * sizes[cols]
         nrm = np.linalg.norm(Af, axis=0)
         nrm = np.where(nrm > 0, nrm, 1.0)
         R = np.linalg.qr(Af / nrm, mode="r") if Af.shape[0] > Af.shape[1] else Af / nrm
         _, sv, Vt = np.linalg.svd(R, full_matrices=True)
         sv = np.concatenate([sv, np.zeros(cols.size - sv.size)])
+    if cols.size:
         null = Vt[sv <= tol * max(sv[0], 1e-300)].T / nrm[:, None]      # u coordinates, not orthonormal
         if null.shape[1]:
             Q, r, _ = scipy.linalg.qr(null, mode="economic", pivoting=True)
@@ -576,6 +688,11 @@ class RobotErrorModel:
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
         solves in the span of the leading right singular vectors of the column-scaled
         Jacobian (truncated SVD: the minimum-norm solution; no parameter is singled out).
+    checks : bool
+        Check the fitted model against what a real robot can be (``plausible_``, ``implausible_``: the
+        parameters' bounds, its frames' deviations, the error budget). A fit used only for its
+        predictions (a cross-validation fold, the wild-point detector's flexible model) skips them
+        (``plausible_`` is then None).
 
     Attributes (after fit)
     ----------------------
@@ -586,6 +703,9 @@ class RobotErrorModel:
     rms_mm_ : float, RMS of the 3-D position residual norms of the fitted poses
     orientation_rms_arcsec_ : float or None, RMS of the orientation errors (angles) of the fitted poses
     weighting_ : dict or None, how positions and orientations were weighed (6-DoF fits)
+    dof_ : float, the effective number of parameters (trace of the hat matrix of the last Gauss-Newton
+        linearisation, penalties included; Gauss-Newton only): a fit with ``dof_`` near its number of
+        residuals (3 a pose) interpolates them
     n_iter_, seconds_ : iterations and wall time of the solver
     solver_result_ : LMResult or None
     """
@@ -593,8 +713,9 @@ class RobotErrorModel:
     def __init__(self, robot: Robot, effects, solver: str = "gauss-newton", identifiability: bool = True,
                  lm_options: dict | None = None, max_iter: int = 100, rank_tol: float = RANK_TOL,
                  reduction: str = "fix", weak_tol: float | None = WEAK_TOL, start: dict | None = None,
-                 orientation: bool = True, orientation_weight: float | None = None):
+                 checks: bool = True, orientation: bool = True, orientation_weight: float | None = None):
         self.robot = robot
+        self.checks = checks
         self.start = start
         self.orientation = orientation
         self.orientation_weight = orientation_weight
@@ -628,7 +749,7 @@ class RobotErrorModel:
             d.weight = getattr(self, "_weight", None) or self.orientation_weight or start_weight(data)[0]
         return d
 
-    def identification(self, data: RobotData):
+    def identification(self, data: RobotData, sparse: bool = False):
         """The identification problem of ``data`` at the nominal parameters, as :meth:`fit` sees it.
 
         Prepares the effects on ``data`` (``effects_``), and returns ``(design, P, J, Pen, penalised,
@@ -637,13 +758,19 @@ class RobotErrorModel:
         (m, p), which parameters are penalised (p,) bool, and :func:`identifiability`'s verdict
         (rank, condition number, the parameters kept and why the others are fixed) with this
         estimator's rank and weak-determination tolerances. It needs joint values only (no
-        measurement): ``jointcal plan`` chooses poses on the same problem.
+        measurement): ``jointcal plan`` chooses poses on the same problem. With ``sparse`` J is a
+        scipy.sparse matrix (CSR), for fits of many parameters (:data:`GRAM_MIN_K`).
         """
         self.effects_ = [e.prepared(self.robot, data) for e in self.effects]
         d = self.design(data)
         self._model_and_index = (d.model, d.idx)
         x = np.zeros(d.p)
-        P, J2 = d.jacobian_rows(x)
+        if sparse and d.oriented:
+            P, _, J2 = d.residual_and_sparse_jacobian(x)
+        elif sparse:
+            P, J2 = d.predict_and_sparse_jacobian(x)
+        else:
+            P, J2 = d.jacobian_rows(x)
         # penalty rows of the effects that have one (smooth many-parameter effects), (m, p)
         blocks, penalised = [], np.zeros(d.p, bool)
         k = 0
@@ -662,6 +789,15 @@ class RobotErrorModel:
                                 penalised=penalised)
         ident["rank_exact"] = int(np.sum(np.asarray(ident["singular_values"]) > 1e-10 * ident["singular_values"][0]))
         return d, P, J2, Pen, penalised, ident
+
+    def _large(self, data: RobotData) -> bool:
+        """Solved on normal equations (:data:`GRAM_MIN_K`): more parameters than GRAM_MIN_K, kept or
+        fixed by name (the default reduction), and some of them penalised (a joint map's grid values)."""
+        if not (self.identifiability and self.reduction == "fix" and self.solver == "gauss-newton"):
+            return False
+        effects = [e.prepared(self.robot, data) for e in self.effects]
+        return (sum(len(e.parameter_names(self.robot)) for e in effects) > GRAM_MIN_K
+                and any(e.penalty(self.robot, 1) is not None for e in effects))
 
     def fit(self, data: RobotData) -> "RobotErrorModel":
         """Fit on ``data``'s measured positions (and orientations, a 6-DoF campaign); returns self.
@@ -742,9 +878,15 @@ class RobotErrorModel:
                                                              ** 2)))
 
     def _fit_once(self, data: RobotData, t0) -> "RobotErrorModel":
-        d, P, J2, Pen, penalised, ident = self.identification(data)
+        large = self._large(data)
+        d, P, J2, Pen, penalised, ident = self.identification(data, sparse=large)
         meas = np.asarray(data.measured_mm, float)
-        norms = np.linalg.norm(J2, axis=0)
+        F0 = d.residual(np.zeros(d.p)) if d.oriented else (P - meas).ravel()
+        if large:
+            H0, g0 = gram(J2, F0)
+            norms = np.sqrt(np.maximum(np.diag(H0), 0.0))
+        else:
+            norms = np.linalg.norm(J2, axis=0)
         norms = np.where(norms > 0, norms, 1.0)
         if self.identifiability and self.reduction == "svd":
             Js2 = J2 / norms
@@ -772,7 +914,10 @@ class RobotErrorModel:
             movable = ~ident["zero"]
         else:
             movable = np.ones(d.p, bool)
-        B, U = physical_subspace(np.vstack([J2, Pen]), B, movable, d.sizes)
+        if large:
+            B, U = physical_subspace(None, B, movable, d.sizes, gram=H0 + Pen.T @ Pen)
+        else:
+            B, U = physical_subspace(np.vstack([J2, Pen]), B, movable, d.sizes)
         moves = (np.abs(B).max(axis=1, initial=0.0) > 0) | (np.abs(U).max(axis=1, initial=0.0) > 0)
         groups = unseen_groups(U, d.names, d.units, d.sizes)
         in_group = {n for g in groups for n in g["parameters"]}
@@ -796,6 +941,22 @@ class RobotErrorModel:
             F_, J_ = d.residual_and_jacobian(full(z))
             return np.concatenate([F_, PB @ z]), np.vstack([J_ @ B, PB])
 
+        PtP = PB.T @ PB
+        rows = np.flatnonzero(np.abs(B).max(axis=1, initial=0.0) > 0)     # the parameters that move
+        Br = B[rows]
+
+        def normal_equations(z, Fd=None, H=None, g=None):
+            """F, and the normal equations of the fitted directions: Jf^T Jf (k, k) and Jf^T F (k,)."""
+            if H is None:
+                if d.oriented:
+                    _, Fd, J_ = d.residual_and_sparse_jacobian(full(z))
+                else:
+                    P_, J_ = d.predict_and_sparse_jacobian(full(z))
+                    Fd = (P_ - meas).ravel()
+                H, g = gram(J_, Fd)
+            F_ = np.concatenate([Fd, PB @ z])
+            return F_, Br.T @ H[np.ix_(rows, rows)] @ Br + PtP, Br.T @ g[rows] + PtP @ z
+
         free = np.arange(B.shape[1])
         result = None
         z0 = np.zeros(free.size)
@@ -813,27 +974,47 @@ class RobotErrorModel:
             # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
             GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
             xf = z0.copy()
-            if self.start:
+            if large:
+                # the same iteration on the normal equations (GRAM_MIN_K): Jf^T Jf = V diag(sv^2) V^T
+                # gives the SVD's sv and V, and U^T F = diag(1/sv) V^T Jf^T F
+                F, Gf, gF = normal_equations(xf) if self.start else normal_equations(xf, F0, H0, g0)
+                Jf = None
+            elif self.start:
                 F, Jf = fun_and_jac(xf)
             elif d.oriented:
-                F, Jf = np.concatenate([d.residual(np.zeros(d.p)), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
+                F, Jf = np.concatenate([F0, np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             else:
                 F, Jf = np.concatenate([(P - meas).ravel(), np.zeros(PB.shape[0])]), np.vstack([J2 @ B, PB])
             cost = 0.5 * float(F @ F)
             scale = np.zeros(free.size)
             # a start from a nested model's solution counts as having left nominal
             lam, moved, converged, it = 0.0, bool(self.start), False, 0
+            dof = float("nan")
             reason = f"iteration limit ({self.max_iter}) reached"
             for it in range(1, self.max_iter + 1):
-                if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Jf))):
+                if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Gf if large else Jf))):
                     reason = "non-finite residual or Jacobian"
                     break
-                scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
-                sc = np.where(scale > 0, scale, 1.0)
-                U, sv, Vt = np.linalg.svd(Jf / sc, full_matrices=False)
-                r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
-                U, sv, Vt = U[:, :r], sv[:r], Vt[:r]
-                c = U.T @ F
+                if large:
+                    scale = np.maximum(scale, np.sqrt(np.maximum(np.diag(Gf), 0.0)))
+                    sc = np.where(scale > 0, scale, 1.0)
+                    w, V = np.linalg.eigh(Gf / np.outer(sc, sc))
+                    sv, Vt = np.sqrt(np.maximum(w[::-1], 0.0)), V[:, ::-1].T
+                    r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
+                    sv, Vt = sv[:r], Vt[:r]
+                    c = (Vt @ (gF / sc)) / sv
+                    # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
+                    Gd = (Gf - PtP) / np.outer(sc, sc)
+                    dof = float(np.sum(np.sum((Vt @ Gd) * Vt, axis=1) / sv ** 2))
+                else:
+                    scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
+                    sc = np.where(scale > 0, scale, 1.0)
+                    U, sv, Vt = np.linalg.svd(Jf / sc, full_matrices=False)
+                    r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
+                    U, sv, Vt = U[:, :r], sv[:r], Vt[:r]
+                    c = U.T @ F
+                    nd = F.size - PB.shape[0]
+                    dof = float(np.sum(U[:nd] ** 2))
                 gain = float(c @ c)
                 stationary = gain <= max(GN_PHI, GAIN_REL_CONVERGED * 2.0 * cost)
                 if gain <= 1e-12 * 2.0 * cost:  # the linear model predicts no decrease beyond rounding
@@ -856,10 +1037,14 @@ class RobotErrorModel:
                 lam = lam / 10.0 if lam > 1e-9 * float(sv[0] ** 2) else 0.0
                 xf = xf + step
                 moved = True
-                F, Jf = fun_and_jac(xf)
+                if large:
+                    F, Gf, gF = normal_equations(xf)
+                else:
+                    F, Jf = fun_and_jac(xf)
                 cost = 0.5 * float(F @ F)
             self.n_iter_ = it
             self.converged_, self.convergence_ = bool(converged), reason
+            self.dof_ = dof
         elif self.solver == "lm":
             result = lm.improved_lm(fun, None, z0, fun_and_jac=fun_and_jac, **(self.lm_options or {}))
             xf, cost, self.n_iter_ = result.x, result.cost, result.n_iter
@@ -886,6 +1071,10 @@ class RobotErrorModel:
             self.orientation_rms_arcsec_ = None
         self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
         self.solver_result_ = result
+        if not self.checks:
+            self.implausible_, self.plausible_ = [], None
+            self.seconds_ = time.perf_counter() - t0
+            return self
         # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
         # whether a real robot can have the fitted parameters (pipeline.robot.model.lm.PLAUSIBLE_BOUNDS)
         params, checked, k = self.parameters(), [], 0

@@ -16,20 +16,20 @@ def error_stats(err_mm) -> dict:
             "std_mm": float(n.std(ddof=1)) if n.size > 1 else 0.0, "n": int(n.size)}
 
 
-def effects_estimator(robot, effects, start=None, orientation: bool = True,
+def effects_estimator(robot, effects, start=None, checks: bool = True, orientation: bool = True,
                       orientation_weight: float | None = None) -> RobotErrorModel:
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
-    start the solver from (a nested model's solution). ``orientation``: fit a 6-DoF campaign's
-    orientations too (False: its positions alone); ``orientation_weight`` (mm per mrad): their weight,
-    None to estimate it (variance components)."""
+    start the solver from (a nested model's solution). ``checks``: judge the fitted model's plausibility
+    (:class:`~pipeline.robot.model.calibrate.RobotErrorModel`); off for a fit used only to predict.
+    ``orientation``: fit a 6-DoF campaign's orientations too (False: its positions alone);
+    ``orientation_weight`` (mm per mrad): their weight, None to estimate it (variance components)."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
-        est.start = start
-        est.orientation = orientation
-        est.orientation_weight = orientation_weight
+        est.start, est.checks = start, checks
+        est.orientation, est.orientation_weight = orientation, orientation_weight
         return est
-    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, orientation=orientation,
+    return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, checks=checks, orientation=orientation,
                            orientation_weight=orientation_weight)
 
 
@@ -80,8 +80,8 @@ def nested_models(effects, robot=None) -> list[list]:
     return out
 
 
-def fit_effects(robot, effects, data, check_nested: bool = False, orientation: bool = True,
-                orientation_weight: float | None = None):
+def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool = True, start=None,
+                orientation: bool = True, orientation_weight: float | None = None):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -90,9 +90,12 @@ def fit_effects(robot, effects, data, check_nested: bool = False, orientation: b
     With ``check_nested`` the fit is checked against the models nested in it (:func:`nested_models`):
     when it fits the sample poses worse than one of them (by more than :data:`NESTED_RTOL`), it is
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
-    (else it is ''). ``nested_`` lists each nested model's sample RMS (mm).
+    (else it is ''). ``nested_`` lists each nested model's sample RMS (mm). Without ``checks`` the fit
+    is not judged for plausibility (a fit used only for its predictions). ``start``: parameter name ->
+    value (internal units) to start the solver from (a fit of the same model on nearly the same poses).
     """
-    model = effects_estimator(robot, effects, orientation=orientation, orientation_weight=orientation_weight).fit(data)
+    model = effects_estimator(robot, effects, start=start, checks=checks, orientation=orientation,
+                              orientation_weight=orientation_weight).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
@@ -199,7 +202,8 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bo
     for f in range(n_folds):
         test = folds == f
         train, held = data.subset(~test), data.subset(test)
-        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, orientation=orientation,
+        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, checks=False,
+                                                                    orientation=orientation,
                                                                     orientation_weight=orientation_weight)
         if ori is not None:
             R, pred = m.predict_pose(np.zeros(0)) if not effects else m.predict_pose(held)

@@ -76,7 +76,7 @@ def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orie
         warn(f"warning: {outside_message(outside, worst=True)}")
     check_spec_joints(spec, robot)
     wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
-    if wild.outliers:
+    if describe(wild):
         warn(describe(wild))
     return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild, orientation=orientation)
 

@@ -26,8 +26,13 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
    nonparametric check that a pose is not the edge of a physical effect the flexible model lacks:
    physics is smooth in the joint angles, a wild point is alone.
 
-More than :data:`MAX_WILD_FRACTION` of a campaign's poses wild: refused with one line (a wrong
-frame, unit or robot is not a handful of outliers).
+**No scale**: when the flexible model leaves less than :data:`MIN_RESIDUAL_DOF_FRACTION` of its
+residuals' degrees of freedom (a small campaign, e.g. the 20 poses ``jointcal plan`` proposes, which
+it nearly interpolates), its residuals give no scale: no pose is named, and ``no_scale`` says why
+(console, JSON).
+
+More than :data:`MAX_WILD_FRACTION` of a campaign's poses wild, and more than :data:`HANDFUL`: refused
+with one line (a wrong frame, unit or robot is not a handful of outliers).
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import parse_spec
 from ...core.tables import text_table
-from ...core.wild import MAX_WILD_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
+from ...core.wild import HANDFUL, MAX_WILD_FRACTION, MIN_RESIDUAL_DOF_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
 
 #: Refits of the robust fit at most (it stops earlier when the set named no longer changes).
 MAX_REFITS = 5
@@ -58,12 +63,15 @@ class Wild:
     outliers: list = field(default_factory=list)
     sigma_mm: dict = field(default_factory=dict)
     kept: bool = False
+    #: why the residuals gave no scale ('' when they did; see the module docstring)
+    no_scale: str = ""
 
     def document(self) -> dict:
         """The JSON keys (contract section 12): ``outliers``, and how they were found."""
-        return {"outliers": self.outliers,
-                "outlier_rule": {"rule": RULE, "sigma_mm": self.sigma_mm, "threshold_sigmas": WILD_SIGMAS,
-                                 "kept": self.kept}}
+        rule = {"rule": RULE, "sigma_mm": self.sigma_mm, "threshold_sigmas": WILD_SIGMAS, "kept": self.kept}
+        if self.no_scale:
+            rule["no_scale"] = self.no_scale
+        return {"outliers": self.outliers, "outlier_rule": rule}
 
     def clean(self, sample, target):
         """The sample and target poses without the wild ones (all of them with ``kept``)."""
@@ -146,6 +154,89 @@ def tracker_lines(campaign) -> dict:
     return {p: int(line) for p, line in zip(table[0]["point_id"].str.strip(), table[1])}
 
 
+# ------------------------------------------------------------------ computed once per measurements
+#: Environment variable naming the folder of the wild-point cache, or ``off``; default
+#: ``$XDG_CACHE_HOME/jointcal`` (``~/.cache/jointcal``).
+CACHE_ENV = "JOINTCAL_CACHE"
+
+
+def cache_folder() -> Path | None:
+    """Where :func:`find_wild` keeps what it found (None: ``JOINTCAL_CACHE=off``)."""
+    import os
+
+    where = os.environ.get(CACHE_ENV, "")
+    if where.lower() in ("off", "0", "no", "none"):
+        return None
+    if where:
+        return Path(where)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jointcal"
+
+
+_CODE = []
+
+
+def _code_fingerprint() -> str:
+    """SHA-256 of the package's source (every module): a cached result is that code's on those data."""
+    import hashlib
+
+    if not _CODE:
+        root = Path(__file__).resolve().parents[2]
+        h = hashlib.sha256()
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+        _CODE.append(h.hexdigest())
+    return _CODE[0]
+
+
+def measurements_key(robot, flex, sample, target) -> str:
+    """What the wild points depend on, hashed: the code, the robot, the flexible model's effects and every
+    array of the sample and target poses (angles, directions, payloads, temperatures, torques, points, ids)."""
+    import hashlib
+
+    h = hashlib.sha256(_code_fingerprint().encode())
+    h.update(robot.to_toml().encode())
+    for e in flex:
+        h.update(e.spec_lines().encode())
+    for data in (sample, target):
+        for a in (data.q_deg, data.dir, data.payload_kg, data.temperature_c, data.torque_nm, data.measured_mm,
+                  data.lower_deg, data.upper_deg, getattr(data, "measured_R", None)):
+            a = np.ascontiguousarray(np.asarray(a if a is not None else [], float))
+            h.update(str(a.shape).encode() + a.tobytes())
+        h.update("\0".join(map(str, data.point_id)).encode())
+        h.update(str(getattr(data, "grating_joints", ())).encode())
+    return h.hexdigest()
+
+
+def _cached(key):
+    import json
+
+    folder = cache_folder()
+    if folder is None:
+        return None
+    try:
+        return json.loads((folder / f"wild-{key}.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _keep(key, found: dict) -> None:
+    import json
+    import os
+    import tempfile
+
+    folder = cache_folder()
+    if folder is None:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".wild-", suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            json.dump(found, f)
+        os.replace(tmp, folder / f"wild-{key}.json")
+    except OSError:
+        pass
+
+
 def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False) -> Wild:
     """The wild sample and target poses of a campaign (see the module docstring).
 
@@ -164,26 +255,78 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
     Raises
     ------
     InputError
-        More than :data:`MAX_WILD_FRACTION` of the poses wild (not with ``keep``).
+        More than :data:`MAX_WILD_FRACTION` of the poses wild, and more than :data:`HANDFUL` (not with
+        ``keep``).
     """
+    ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
+    if sample.measured_mm is None:
+        return Wild(ws, wt, [], {}, keep)
+    if sample.n < max(20, 2 * NEIGHBOURS):
+        return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "
+                                          "none is named")
+    flex = flexible_effects(robot, effects, sample)
+    # the wild points are the measurements', not the model's: found once, kept in the cache (the same result,
+    # to the bit, as finding them again), and read by every later fit, diagnose, loop or predict on them
+    key = measurements_key(robot, flex, sample, target)
+    found = _cached(key)
+    if found is None:
+        found = _search(robot, effects, flex, sample, target)
+        _keep(key, found)
+    ws[found["sample"]] = True
+    wt[found["target"]] = True
+    if found["no_scale"]:
+        return Wild(ws, wt, [], {}, keep, found["no_scale"])
+    sigma, sig_s = found["sigma"], found["sigma"]["sample"]
+    lines = tracker_lines(campaign) if campaign is not None else {}
+    outliers = []
+    for name, mask, data in (("sample", ws, sample), ("target", wt, target)):
+        for k, (i, size) in enumerate(zip(np.flatnonzero(mask), found[f"{name}_mm"])):
+            pid = str(data.point_id[i])
+            outliers.append({"point_id": pid, "set": name, "error_mm": float(size), "line": int(lines.get(pid, 0))})
+            if f"{name}_arcsec" in found:
+                outliers[-1]["orientation_error_arcsec"] = found[f"{name}_arcsec"][k]
+    wild = Wild(ws, wt, outliers, sigma, keep)
+    n_all = sample.n + target.n
+    if not keep and len(outliers) > max(MAX_WILD_FRACTION * n_all, HANDFUL):
+        worst = max(outliers, key=lambda o: o["error_mm"])
+        raise InputError(Path(campaign or ".") / "tracker.csv",
+                         f"{len(outliers)} of {n_all} poses ({100 * len(outliers) / n_all:.1f} %) look wild (more than "
+                         f"{100 * MAX_WILD_FRACTION:g} %; the worst, {worst['point_id']}, {worst['error_mm']:.3g} mm off "
+                         f"a flexible model, sigma {sig_s:.3g} mm): a wrong frame, unit or robot is not a handful of "
+                         "outliers; check the campaign (or --keep-outliers)", worst["line"] or None, "x_mm")
+    return wild
+
+
+def _search(robot, effects, flex, sample, target) -> dict:
+    """The robust fit and the rule of the module docstring: the wild sample and target poses (indices), the
+    size of each (mm), the robust sigmas, or why there is no scale (JSON-ready)."""
     from .estimate import fit_effects
 
     ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
-    if sample.n < max(20, 2 * NEIGHBOURS) or sample.measured_mm is None:
-        return Wild(ws, wt, [], {}, keep)
-    flex = flexible_effects(robot, effects, sample)
     lo = np.min(sample.q_deg, axis=0)
     span = np.maximum(np.ptp(sample.q_deg, axis=0), 1e-9)
     qs = _scaled(sample.q_deg, lo, span)
     rs = rt = None
+    start = None
     for _ in range(MAX_REFITS):
         fitted = sample.subset(~ws) if ws.any() else sample
         try:
-            model = fit_effects(robot, flex, fitted)
+            # a refit without the poses named starts from the fit before (the same model on all but a few
+            # of the same poses: one or two Gauss-Newton steps, not a fit from nominal)
+            model = fit_effects(robot, flex, fitted, checks=False, start=start)
         except np.linalg.LinAlgError:
-            model = fit_effects(robot, list(effects), fitted)
+            model = fit_effects(robot, list(effects), fitted, checks=False)
+        start = dict(zip(model.names_, model.coef_))
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
+        n_res = rs.shape[1] * fitted.n
+        dof = getattr(model, "dof_", float("nan"))
+        if np.isfinite(dof) and n_res - dof < MIN_RESIDUAL_DOF_FRACTION * n_res:
+            why = (f"the flexible model ({dof:.0f} effective parameters on {fitted.n} sample poses, {n_res} residuals) "
+                   f"leaves {100 * (n_res - dof) / n_res:.0f} % of its residuals' degrees of freedom, less than "
+                   f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sig_s:.2g} mm), "
+                   "so they give no scale to judge wild points by; none is named")
+            return {"sample": [], "target": [], "sample_mm": [], "target_mm": [], "sigma": {}, "no_scale": why}
         new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))
         if sample.has_orientation:
             # a 6-DoF probe: a pose is wild in its orientation alone too (judged on its own robust scale)
@@ -209,29 +352,21 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
             sigma["target_orientation_arcsec"] = sig_ot
             ori["target"] = ot
             wt = wt | _flag(ot, sig_ot, _scaled(target.q_deg, lo, span), qs, os_, ~ws)
-    lines = tracker_lines(campaign) if campaign is not None else {}
-    outliers = []
-    for name, mask, res, data in (("sample", ws, rs, sample), ("target", wt, rt, target)):
-        for i in np.flatnonzero(mask):
-            pid = str(data.point_id[i])
-            outliers.append({"point_id": pid, "set": name, "error_mm": float(np.linalg.norm(res[i])),
-                             "line": int(lines.get(pid, 0))})
-            if name in ori:
-                outliers[-1]["orientation_error_arcsec"] = float(np.linalg.norm(ori[name][i]))
-    wild = Wild(ws, wt, outliers, sigma, keep)
-    n_all = sample.n + target.n
-    if not keep and len(outliers) > MAX_WILD_FRACTION * n_all:
-        worst = max(outliers, key=lambda o: o["error_mm"])
-        raise InputError(Path(campaign or ".") / "tracker.csv",
-                         f"{len(outliers)} of {n_all} poses ({100 * len(outliers) / n_all:.1f} %) look wild (more than "
-                         f"{100 * MAX_WILD_FRACTION:g} %; the worst, {worst['point_id']}, {worst['error_mm']:.3g} mm off "
-                         f"a flexible model, sigma {sig_s:.3g} mm): a wrong frame, unit or robot is not a handful of "
-                         "outliers; check the campaign (or --keep-outliers)", worst["line"] or None, "x_mm")
-    return wild
+    out = {"sigma": sigma, "no_scale": ""}
+    for name, mask, res in (("sample", ws, rs), ("target", wt, rt)):
+        idx = np.flatnonzero(mask)
+        out[name] = idx.tolist()
+        out[f"{name}_mm"] = [float(np.linalg.norm(res[i])) for i in idx]
+        if name in ori:
+            out[f"{name}_arcsec"] = [float(np.linalg.norm(ori[name][i])) for i in idx]
+    return out
 
 
 def describe(wild: Wild) -> str:
-    """One console line naming the wild poses ('' when there are none)."""
+    """One console line naming the wild poses, or saying why there is no scale to judge them by ('' when
+    there are none)."""
+    if wild.no_scale:
+        return f"no wild-point check: {wild.no_scale}"
     if not wild.outliers:
         return ""
     what = "kept (--keep-outliers)" if wild.kept else "left out (of fitting, registering and the errors)"

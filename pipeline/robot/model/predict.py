@@ -353,7 +353,7 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     sets = table["set"].to_numpy().astype(object)
     wild = find_wild(robot, effects, data.subset(sets == "sample"), data.subset(sets == "target"), campaign,
                      keep_outliers)
-    if wild.outliers:
+    if describe(wild):
         warn(describe(wild))
     if not wild.kept:
         sets[np.flatnonzero(sets == "sample")[wild.sample]] = "wild"

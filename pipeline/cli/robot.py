@@ -511,6 +511,14 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False):
                f"({result['cv_folds']}); {len(fixed)} parameter(s) left at nominal"
                + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
                err=True)
+    if result.get("largest_relative_uncertainty"):
+        from ..robot.model.uncertainty import describe_relative
+
+        pu = result["prediction_uncertainty"]
+        click.echo(f"  least sure (1 sigma): {describe_relative(result['largest_relative_uncertainty'])}; "
+                   f"{len(result['correlations'])} pair(s) correlated beyond 0.9; a pose inside the sampled ranges is "
+                   f"stated to +-{pu['unexplained_rms_mm']:.3f} mm (1 sigma, unexplained scatter) and more from the "
+                   "parameters (u95_mm: jointcal predict)", err=True)
 
 
 @click.command("predict")
@@ -552,5 +560,8 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers):
                + (f"; re-registered on {reg['n']} sample poses ({reg['rotation_deg']:.3f} deg, "
                   f"{np.linalg.norm(reg['translation_mm']):.2f} mm)" if reg else "")
                + (f"; with the wild targets: RMS {result['with_outliers']['rms_mm']:.3f} mm, max "
-                  f"{result['with_outliers']['max_mm']:.3f} mm" if "with_outliers" in result else ""), err=True)
+                  f"{result['with_outliers']['max_mm']:.3f} mm" if "with_outliers" in result else "")
+               + (f"; {100 * result['coverage_95']:.1f} % within their u95_mm (mean {result['u95_mm']:.3f} mm, "
+                  f"errors' 95th percentile {result['error_p95_mm']:.3f} mm)" if "coverage_95" in result else ""),
+               err=True)
 

@@ -9,12 +9,13 @@ from pathlib import Path
 
 from ...core.errors import InputError
 from ...core.spec import _locate
-from .estimate import cross_validate, fit_effects, fold_description, heldout_fit
+from .estimate import N_FOLDS, cross_validate, fit_effects, fold_description, heldout_fit
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
 from .outliers import describe, find_wild
 from .predict import model_document, outside_calibrated_range, outside_message, outside_range, sampled_range
 from .rigid import chain_document, fit_rigid_chain, has_tables
+from .uncertainty import largest_relative, uncertainty_document
 
 
 def check_spec_joints(spec, robot) -> None:
@@ -116,9 +117,18 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
         if target_all.n > target.n:
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
-    out["cv_rms_mm"] = cross_validate(robot, effects, sample).rms
+    cv = cross_validate(robot, effects, sample)
+    out["cv_rms_mm"] = cv.rms
     out["cv_folds"] = fold_description(sample)
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))
+    # how sure (contract section 14): each parameter's 1-sigma uncertainty, the pairs that trade, and what
+    # predict and correct need for each point's u95_mm
+    stated = uncertainty_document(model, sample, cv.residuals, N_FOLDS)
+    for entry, u in zip(out["parameters"], stated["uncertainty"]):
+        entry["uncertainty"] = u
+    out["correlations"] = stated["correlations"]
+    out["largest_relative_uncertainty"] = largest_relative(out["parameters"])
+    out["prediction_uncertainty"] = stated["prediction"]
     # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
     chain, info = fit_rigid_chain(robot, model, sample)
     out["rigid_chain"] = chain_document(chain, info, out["payloads_kg"])

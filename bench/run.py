@@ -147,6 +147,7 @@ OPTIONAL_JOBS = {
     "programs": "bench.programs_bench",    # jointcal correct --program: 10,000-target KRL, RAPID and FANUC programs
     "plan": "bench.plan_bench",            # planned poses against random ones (real UR10, virtual cell)
     "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
+    "uncertainty": "bench.uncertainty_bench",  # stated parameter uncertainties against the truth, 20 virtual cells
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

@@ -127,7 +127,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None) -> dict:
     for entry, u in zip(out["parameters"], stated["uncertainty"]):
         entry["uncertainty"] = u
     out["correlations"] = stated["correlations"]
-    out["largest_relative_uncertainty"] = largest_relative(out["parameters"])
+    out["largest_relative_uncertainty"] = largest_relative(out["parameters"], skip=stated["penalised"])
     out["prediction_uncertainty"] = stated["prediction"]
     # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
     chain, info = fit_rigid_chain(robot, model, sample)

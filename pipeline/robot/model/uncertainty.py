@@ -33,9 +33,11 @@ hold). What this states, and what it does not:
    every effect the model lacks;
 3. beyond the joint ranges the model was fitted on (:func:`extrapolation_covariance`): a joint's angle
    error there is not determined by any measurement (a joint map fades to 0 at the edge: a guess), and is
-   taken as unknown with a standard deviation that grows from 0 at the edge to the whole
-   unexplained scatter of (2), expressed as that joint's angle (its lever arm to the SMR), one sampled
-   width beyond it (:data:`EXTRAPOLATION_WIDTHS`), and stays there.
+   taken as unknown with a standard deviation that grows from 0 at the edge, one sampled width beyond it
+   (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle (its
+   lever arm to the SMR) together with the spread of the model's own angle error of that joint over its
+   sample poses (:func:`joint_angle_spread`: what a joint map or backlash does inside the range), and
+   stays there.
 
 The 95 % radius of a 3-D error of covariance ``S`` is the 0.95 quantile of ``|e|``, ``e ~ N(0, S)``:
 ``|e|^2`` is a weighted sum of chi-square(1) variables (weights: eigenvalues of ``S``), taken as a
@@ -60,6 +62,7 @@ CORRELATION_LIMIT = 0.9
 #: whole unexplained scatter (as that joint's angle) at this many sampled widths beyond it
 #: (:func:`extrapolation_covariance`); further, it stays there.
 EXTRAPOLATION_WIDTHS = 1.0
+ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
 #: Singular values of the column-scaled fitted Jacobian below this (relative) are left out of the
 #: covariance (directions the fit could not move: none, normally)
 COVARIANCE_RCOND = 1e-12
@@ -182,13 +185,16 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
-def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained) -> np.ndarray:
+def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None) -> np.ndarray:
     """What a pose beyond the sampled joint ranges adds (3 x 3 per pose, mm^2; 0 inside them).
 
     Joint ``j`` beyond its range by ``b_j`` (deg) has an unknown angle error of standard deviation
-    ``min(b_j / (EXTRAPOLATION_WIDTHS w_j), 1) g_j`` (``w_j`` the sampled width, ``g_j`` the unexplained
-    scatter's 1-sigma size, sqrt(trace / 3), divided by the joint's lever arm at the pose), moving the
-    point along the joint's column of the position Jacobian.
+    ``min(b_j / (EXTRAPOLATION_WIDTHS w_j), 1) g_j`` (``w_j`` the sampled width), moving the point along
+    the joint's column of the position Jacobian. ``g_j`` holds two things no measurement there settles:
+    the unexplained scatter's 1-sigma size (sqrt(trace / 3)) as that joint's angle (divided by its lever
+    arm at the pose), and how much the model's own angle error of the joint varies over the poses it
+    was fitted on (``spread_rad``: a joint map, harmonic or backlash measured inside the range says
+    nothing of its values beyond it; a constant offset, geometry, extrapolates and adds nothing).
 
     Parameters
     ----------
@@ -196,6 +202,9 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained) -> np.ndarra
     sampled : dict, ``lower_deg`` / ``upper_deg`` (N,) (:func:`pipeline.robot.model.predict.sampled_range`)
     Jq : ndarray, shape (n, 3, N), mm per rad: the position Jacobian with respect to each joint angle
     unexplained : ndarray, shape (3, 3), mm^2 (:func:`unexplained_covariance`)
+    spread_rad : ndarray, shape (N,), rad, optional
+        Standard deviation of the model's angle error of each joint over its sample poses
+        (:func:`joint_angle_spread`); default 0.
     """
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
@@ -204,9 +213,18 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained) -> np.ndarra
     grow = np.minimum(beyond / (EXTRAPOLATION_WIDTHS * width), 1.0)                 # (n, N)
     scale = float(np.sqrt(max(np.trace(np.asarray(unexplained, float)), 0.0) / 3.0))
     lever = np.linalg.norm(Jq, axis=1)                                               # (n, N) mm/rad
-    sigma = grow * scale / np.maximum(lever, 1e-9)                                   # rad
+    spread = np.zeros(q.shape[1]) if spread_rad is None else np.asarray(spread_rad, float)
+    sigma = grow * np.sqrt((scale / np.maximum(lever, 1e-9)) ** 2 + spread ** 2)     # rad
     cols = Jq * sigma[:, None, :]
     return np.einsum("nkj,nlj->nkl", cols, cols)
+
+
+def joint_angle_spread(model, data) -> np.ndarray:
+    """Standard deviation over ``data``'s poses of each joint's angle error in a fitted model (every
+    effect on the joint's angle: joint maps, harmonics, compliance, backlash), shape (N,), rad."""
+    d = model.design(data)
+    dq = (d.configurations(model.coef_) - d.Q0)[:, d.idx.joints]
+    return dq.std(axis=0) if len(dq) > 1 else np.zeros(dq.shape[1])
 
 
 def joint_jacobian(model, data) -> np.ndarray:
@@ -278,21 +296,24 @@ def meaning(name: str) -> str:
     return ""
 
 
-def largest_relative(parameters: list[dict], k: int = 3) -> list[dict]:
+def largest_relative(parameters: list[dict], k: int = 3, skip=()) -> list[dict]:
     """The ``k`` fitted parameters of largest relative uncertainty (uncertainty / |value|).
 
     Parameters
     ----------
     parameters : list of dict with ``name``, ``value``, ``unit``, ``uncertainty`` (None when fixed)
+    skip : names left out (the knots of a smooth map, held by their effect's penalty: one knot is not
+        a physical quantity of its own)
 
     Returns
     -------
     list of ``{name, value, uncertainty, unit, relative, meaning}``, largest first
     """
     rows = []
+    skip = set(skip)
     for p in parameters:
         u = p.get("uncertainty")
-        if u is None or not np.isfinite(u) or u <= 0:
+        if p["name"] in skip or u is None or not np.isfinite(u) or u <= 0:
             continue
         rel = u / abs(p["value"]) if p["value"] != 0 else float("inf")
         rows.append({"name": p["name"], "value": p["value"], "uncertainty": u, "unit": p["unit"], "relative": rel,
@@ -354,14 +375,19 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int) -> dict:
             "coverage_factor": factor,
             "n_cv": int(n),
             "extrapolation_widths": EXTRAPOLATION_WIDTHS,
+            # how much each joint's angle error in the model varies over the sample poses (arcsec): beyond the
+            # sampled range it is not known (extrapolation_covariance)
+            "joint_angle_spread_arcsec": (joint_angle_spread(model, sample) * ARCSEC_PER_RAD).tolist(),
             "method": ("u95_mm = coverage_factor x the 95 % radius of a 3-D Gaussian error whose covariance is the "
                        "parameters' covariance propagated to the pose + the unexplained scatter of the "
                        f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an unknown joint angle "
                        "error (docs/uncertainty.md); coverage_factor: the 0.95 quantile of the cross-validated "
                        "residuals over their own Gaussian radius")}
     groups = [g["parameters"] for g in (model.identifiability_ or {}).get("redundant_groups", [])]
+    Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, len(model.names_)))), float)
+    penalised = [nm for nm, on in zip(model.names_, np.abs(Pen).sum(axis=0) > 0) if on]
     return {"uncertainty": unc, "correlations": correlated_pairs(model.names_, cov_rep, groups=groups),
-            "prediction": pred}
+            "prediction": pred, "penalised": penalised}
 
 
 def load_prediction(doc: dict, model):
@@ -384,11 +410,12 @@ def load_prediction(doc: dict, model):
         cov[np.ix_(idx, idx)] = C / np.outer(f, f)
         U = np.asarray(block["unexplained_mm2"], float).reshape(3, 3)
         factor = float(block["coverage_factor"])
+        spread = np.asarray(block.get("joint_angle_spread_arcsec", np.zeros(0)), float) / ARCSEC_PER_RAD
     except (KeyError, TypeError, ValueError):
         return None
-    if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(U)) and np.isfinite(factor)):
+    if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(U)) and np.isfinite(factor) and np.all(np.isfinite(spread))):
         return None
-    return {"covariance": cov, "unexplained": U, "factor": factor}
+    return {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None}
 
 
 def u95(model, data, stated: dict, sampled: dict) -> dict:
@@ -408,7 +435,8 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
     """
     J = model_jacobian(model, data)
     Sp = prediction_covariance(J, stated["covariance"])
-    Se = extrapolation_covariance(data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"])
+    Se = extrapolation_covariance(data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"],
+                                  stated.get("spread_rad"))
     S = Sp + stated["unexplained"][None] + Se
     tr = lambda M: np.sqrt(np.clip(np.einsum("nkk->n", M), 0.0, None))  # noqa: E731
     return {"u95_mm": stated["factor"] * radius95(S), "parameters_mm": tr(Sp),

@@ -179,3 +179,24 @@ def test_plan_states_the_u95_its_poses_promise(tmp_path):
     # the parameters' scatter and the noise together: more than the noise alone's 95 % radius
     assert s["predicted_u95_mm"] > noise * np.sqrt(stats.chi2.ppf(0.95, 3))
     assert s["predicted_u95_mm"] < noise * np.sqrt(stats.chi2.ppf(0.95, 3)) + 3 * s["predicted_rms_mm"]
+
+
+def test_the_real_report_tables_coverage_own_and_on_the_other_series():
+    from pipeline.robot.reporting.real_report import transfer_table
+
+    stats_ = {"max_mm": 1.0, "mean_mm": 0.5, "std_mm": 0.1}
+    fit = {"heldout": {"n_sample": 10, "n_target": 5, "rms_before_mm": 1.0, "rms_after_mm": 0.5, "before": stats_,
+                       "after": stats_},
+           "largest_relative_uncertainty": [{"name": "dd6", "value": 0.01, "uncertainty": 0.02, "unit": "mm",
+                                             "relative": 2.0, "meaning": "x"}]}
+
+    def pred(cov, u, p95):
+        return {"n": 5, "rms_mm": 0.5, "max_mm": 1.0, "mean_mm": 0.5, "std_mm": 0.1, "outside_sampled_range": 0,
+                "coverage_95": cov, "u95_mm": u, "error_p95_mm": p95, "points": []}
+
+    t = transfer_table({"B": {"fits": {"kinematic": fit}, "self": {"kinematic": pred(0.96, 0.8, 0.8)},
+                              "on": {"kinematic": {"C": pred(0.4, 0.8, 1.6)}}}})
+    c = t["B"]["kinematic_coverage"]
+    assert c["own"]["coverage_95"] == 0.96 and c["own"]["u95_over_p95"] == pytest.approx(1.0)
+    assert c["C"]["coverage_95"] == 0.4 and c["C"]["u95_over_p95"] == pytest.approx(0.5)
+    assert t["B"]["kinematic_least_sure"][0]["name"] == "dd6"

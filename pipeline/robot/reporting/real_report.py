@@ -109,13 +109,14 @@ def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
     specs = [sp for sp in SPECS if any(f"{sp}_coverage" in table[s] for s in series)]
     if not specs:
         return
-    lines = ["Each fitted model states, for every pose, u95_mm: the radius within which it expects the robot",
-             "to land with 95 % probability (the parameters' covariance propagated to the pose, the scatter its",
-             "5-fold cross-validation leaves unexplained, and an unknown joint angle error beyond the sampled",
-             "joint ranges; docs/uncertainty.md). Coverage: the share of poses within their u95_mm, on the",
-             "series' own held-out targets and on the other series (tracker re-registered). It should be",
-             "about 95 %; mean u95 / p95 near 1 says the intervals are not simply wide.", "",
-             f"{'series / model / on':34s}{'n':>6s}{'coverage':>10s}{'mean u95':>10s}{'p95 err':>9s}{'ratio':>7s}"]
+    lines = _wrap("Each fitted model states, for every pose, u95_mm: the radius within which it expects the robot "
+                  "to land with 95 % probability (the parameters' covariance propagated to the pose, the scatter its "
+                  "5-fold cross-validation leaves unexplained, and an unknown joint angle error beyond the sampled "
+                  "joint ranges; docs/uncertainty.md). Coverage: the share of poses within their u95_mm, on the "
+                  "series' own held-out targets and on the other series (tracker re-registered). It should be "
+                  "about 95 %; mean u95 / p95 (the errors' 95th percentile) near 1 says the intervals are not "
+                  "simply wide.")
+    lines += ["", f"{'series / model / on':34s}{'n':>6s}{'coverage':>10s}{'mean u95':>10s}{'p95 err':>9s}{'ratio':>7s}"]
     for s in series:
         for sp in specs:
             cov = table[s].get(f"{sp}_coverage") or {}
@@ -123,15 +124,17 @@ def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
                 label = f"{s} {sp} " + ("own targets" if where == "own" else f"on {where}")
                 lines.append(f"  {label:32s}{c['n']:6d}{100 * c['coverage_95']:9.1f}%{c['u95_mm']:10.3f}"
                              f"{c['error_p95_mm']:9.3f}{c['u95_over_p95'] or float('nan'):7.2f}")
-    notes = [results[s]["on"][sp][o].get("coverage_note") for s in series for sp in specs
-             for o in results[s]["on"].get(sp, {})]
-    notes = [n for n in notes if n]
-    if notes:
-        lines += [""] + _wrap("Where they do not hold: " + notes[0])
+    failing = [f"{s} {sp} on {o} ({100 * p['coverage_95']:.0f} %)" for s in series for sp in specs
+               for o, p in sorted(results[s]["on"].get(sp, {}).items()) if p.get("coverage_note")]
+    if failing:
+        lines += [""] + _wrap("Where they do not hold (predict warns): " + ", ".join(failing) + ". The other series "
+                              "scatters more than the fit's own did: measured on another day, in another part of the "
+                              "joint space; the stated uncertainty is the fit campaign's, and no model can know the "
+                              "difference from its own campaign.")
     lines += ["", "The parameters each fit is least sure of (1 sigma; relative to the value):"]
     for s in series:
         for sp in specs:
-            for r in table[s].get(f"{sp}_least_sure", [])[:3]:
+            for r in table[s].get(f"{sp}_least_sure", [])[:2]:
                 lines += _wrap(f"  {s} {sp}: {r['name']} = {r['value']:.4g} +- {r['uncertainty']:.2g} {r['unit']} "
                                f"({100 * r['relative']:.0f} %){': ' + r['meaning'] if r['meaning'] else ''}")
     lines += _wrap("A relative uncertainty beyond 50 % means the poses cannot tell the parameter from 0; a "

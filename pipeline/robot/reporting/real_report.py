@@ -147,7 +147,7 @@ def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
             ax = axes[i, k]
             own = results[s]["self"].get(sp) or {}
             top = 0.0
-            for pred, label, style in [(own, f"own targets of {s}", dict(ms=2, alpha=0.5))] + [
+            for pred, label, style in [(own, f"own targets of {s}", dict(ms=2, alpha=0.6, zorder=3))] + [
                     (p, f"on series {o} (registered)", dict(ms=2, alpha=0.35))
                     for o, p in sorted(results[s]["on"].get(sp, {}).items())]:
                 pts = [p for p in pred.get("points", []) if "u95_mm" in p]

@@ -200,3 +200,15 @@ def test_the_real_report_tables_coverage_own_and_on_the_other_series():
     assert c["own"]["coverage_95"] == 0.96 and c["own"]["u95_over_p95"] == pytest.approx(1.0)
     assert c["C"]["coverage_95"] == 0.4 and c["C"]["u95_over_p95"] == pytest.approx(0.5)
     assert t["B"]["kinematic_least_sure"][0]["name"] == "dd6"
+
+
+def test_a_model_written_before_it_states_no_u95_and_still_predicts(fitted, tmp_path):
+    fit, doc, _ = fitted
+    old = {k: v for k, v in doc.items() if k != "prediction_uncertainty"}
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(old))
+    out = tmp_path / "p.json"
+    r = cli_invoker()("predict", "--campaign", KR210, "--model", path, "--json", out)
+    assert r.exit_code == 0, r.output
+    p = json.loads(out.read_text())
+    assert "coverage_95" not in p and "u95_mm" not in p["points"][0]

@@ -148,6 +148,7 @@ OPTIONAL_JOBS = {
     "plan": "bench.plan_bench",            # planned poses against random ones (real UR10, virtual cell)
     "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
     "scale": "bench.scale_bench",          # issue 32: fit, predict, diagnose, the loop at 1,000-12,000 UR10 poses
+    "uncertainty": "bench.uncertainty_bench",  # stated parameter uncertainties against the truth, 20 virtual cells
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

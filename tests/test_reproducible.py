@@ -138,3 +138,22 @@ def test_real_wild_points_named_and_left_out(two_runs):
                 assert v["cv_rms_mm"] < v["baseline_cv_rms_mm"] and v["cv_rms_region_mm"] < v["baseline_cv_rms_region_mm"]
     b_last = loops["B"]["rounds"][loops["B"]["final_round"] - 1]
     assert b_last["own_with_outliers"]["max_mm"] > 1.5 > b_last["own"]["max_mm"]
+
+
+def test_real_u95_intervals_hold_on_held_out_poses_or_say_they_do_not(two_runs):
+    """Issue 33 on the real UR10, as `make all` wrote it: for the kinematic fit and the diagnosis loop's
+    model of each series, the stated 95 % intervals cover between 90 % and 99 % of the series' own
+    held-out targets, and their mean is within 1.5x the errors' 95th percentile (not simply wide). On
+    the other series (tracker re-registered) they either still cover 90 % or predict says plainly
+    that they do not (coverage_note, and the report's table has the coverage)."""
+    real = two_runs[0] / "results" / "real"
+    for s, o in (("B", "C"), ("C", "B")):
+        for spec in ("kinematic", "diagnosed"):
+            own = json.loads((real / f"{s}_{spec}_self.json").read_text())
+            assert 0.90 <= own["coverage_95"] <= 0.99, (s, spec, own["coverage_95"])
+            assert own["u95_mm"] <= 1.5 * own["error_p95_mm"], (s, spec, own["u95_mm"], own["error_p95_mm"])
+            far = json.loads((real / f"{s}_{spec}_on_{o}.json").read_text())
+            assert far["coverage_95"] >= 0.90 or "do not hold" in far.get("coverage_note", ""), (s, spec)
+    table = json.loads((real / "transfer.json").read_text())
+    assert table["B"]["kinematic_coverage"]["own"]["coverage_95"] == pytest.approx(
+        json.loads((real / "B_kinematic_self.json").read_text())["coverage_95"])

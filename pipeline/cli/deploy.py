@@ -180,12 +180,19 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     t0 = time.perf_counter()
     tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
                       default_payload_kg=payload or 0.0)
+    from ..robot.model.uncertainty import load_prediction
+
     res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
-                           max_correction_deg, target_R=tg.target_R)
+                           max_correction_deg, target_R=tg.target_R, stated=load_prediction(doc, model))
     write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
     c = res.counts()
     ok = res.status == "ok"
     worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
+    if res.u95_mm is not None and ok.any():
+        import numpy as np
+
+        worst += (f"; u95_mm {np.median(res.u95_mm[ok]):.3f} mm (median of the corrected rows, largest "
+                  f"{res.u95_mm[ok].max():.3f} mm)")
     largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
     click.echo(f"{out_path}: {len(res.status)} rows in {time.perf_counter() - t0:.1f} s: {c['ok']} corrected{largest}"
                f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "

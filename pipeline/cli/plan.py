@@ -102,6 +102,8 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
                f"{summary['n_params']} parameters identified"
                + (f"; predicted error {pred:.3f} mm RMS over the pool for {noise_mm:g} mm noise" if pred is not None
                   else "; too few poses to determine the model")
+               + (f" (u95_mm {summary['predicted_u95_mm']:.3f} mm with the noise)"
+                  if summary.get("predicted_u95_mm") is not None else "")
                + f"; path {summary['path_deg']:.0f} deg", err=True)
     if summary["not_identifiable_on_pool"]:
         click.echo(f"not identifiable from any poses of this pool (left at nominal by jointcal fit): "

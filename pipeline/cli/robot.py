@@ -528,6 +528,14 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
                f"({result['cv_folds']}); {len(fixed)} parameter(s) left at nominal"
                + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
                err=True)
+    if result.get("largest_relative_uncertainty"):
+        from ..robot.model.uncertainty import describe_relative
+
+        pu = result["prediction_uncertainty"]
+        click.echo(f"  least sure (1 sigma): {describe_relative(result['largest_relative_uncertainty'])}; "
+                   f"{len(result['correlations'])} pair(s) correlated beyond 0.9; a pose inside the sampled ranges is "
+                   f"stated to +-{pu['unexplained_rms_mm']:.3f} mm (1 sigma, unexplained scatter) and more from the "
+                   "parameters (u95_mm: jointcal predict)", err=True)
 
 
 @click.command("predict")
@@ -590,5 +598,8 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
                   f"{result['orientation_max_arcsec']:.1f} arcsec" if "orientation_rms_arcsec" in result else "")
                + (f"; the point {' '.join(f'{v:g}' for v in result['point_mm'])} mm on the probe: RMS "
                   f"{result['point_rms_mm']:.3f} mm, max {result['point_max_mm']:.3f} mm" if "point_rms_mm" in result
-                  else ""), err=True)
+                  else "")
+               + (f"; {100 * result['coverage_95']:.1f} % within their u95_mm (mean {result['u95_mm']:.3f} mm, "
+                  f"errors' 95th percentile {result['error_p95_mm']:.3f} mm)" if "coverage_95" in result else ""),
+               err=True)
 

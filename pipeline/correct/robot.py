@@ -85,6 +85,11 @@ class Correction:
     orientation_held : ndarray of str, shape (n,)
         The flange rotation directions the correction kept as the program has them (the ones the
         measurements determine, :func:`held_orientation`); '' where the row was left as given.
+    u95_mm : ndarray, shape (n,), mm, or None
+        The radius about the model's prediction at ``q_deg`` within which the robot lands with 95 %
+        probability (contract section 14, :func:`pipeline.robot.model.uncertainty.u95`): for an ``ok``
+        row, about the point to reach; for a row left as given, about where the model puts the given
+        commands (``model_residual_um`` from the point). None when the model states no uncertainty.
     """
 
     q_deg: np.ndarray
@@ -97,6 +102,7 @@ class Correction:
     reason: np.ndarray
     dirs: np.ndarray = None
     orientation_held: np.ndarray = None
+    u95_mm: np.ndarray = None
 
     def counts(self) -> dict:
         """Rows per status."""
@@ -247,7 +253,8 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
 
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
                      sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
-                     tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None) -> Correction:
+                     tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None,
+                     stated: dict | None = None) -> Correction:
     """Commands that make the fitted model reach the points (see the module docstring).
 
     Parameters
@@ -270,6 +277,9 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     target_R : ndarray, shape (n, 3, 3), optional
         The probe (tool) frame to reach, robot base frame (a 6-DoF model holds it where the measurements
         determine it); NaN rows or None: the nominal kinematics' frame at ``q_deg``.
+    stated : dict, optional
+        The model's stated uncertainty (:func:`pipeline.robot.model.uncertainty.load_prediction`): then
+        each row has its ``u95_mm`` at the commands written (``sampled`` needed).
     """
     from ..robot.arm.kinematics import directions_from_sequence
 
@@ -358,8 +368,13 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         orient[left] = np.nan
         held[left] = ""
     _, xyz = kin.nominal(q)
+    u95_mm = None
+    if stated is not None and sampled is not None:
+        from ..robot.model.uncertainty import u95
+
+        u95_mm = u95(kin.model, kin.data(q, dirs, payload, temp), stated, sampled)["u95_mm"]
     return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs,
-                      held.astype(str))
+                      held.astype(str), u95_mm)
 
 
 def angle_mismatch(sources, closed) -> str:

@@ -10,6 +10,8 @@ import numpy as np
 def corrected_csv(point_id, res, dirs=None, payload_kg=None, temperature_c=None) -> str:
     """CSV text: ``point_id, q1 … qN`` (deg, 9 decimals: 4e-6 arcsec), ``dq1_arcsec … dqN_arcsec``,
     ``x_mm, y_mm, z_mm`` (nominal kinematics of the corrected commands), ``model_residual_um``,
+    ``u95_mm`` (when the model states its uncertainty: the 95 % radius about the model's prediction at
+    the commands written, contract section 14),
     ``orientation_held`` (the flange rotation directions kept as the program has them: ``all``,
     ``none``, ``all but about (ux uy uz)``, ``about (hx hy hz) only``, axes in the base frame; '' for
     a row left as given), ``status``, ``reason``, and the conditions the correction assumed (``dir1 … dirN``,
@@ -31,6 +33,8 @@ def corrected_csv(point_id, res, dirs=None, payload_kg=None, temperature_c=None)
     for k, c in enumerate(("x_mm", "y_mm", "z_mm")):
         out[c] = [f"{v:.6f}" for v in res.xyz_mm[:, k]]
     out["model_residual_um"] = [f"{v:.6f}" for v in res.residual_um]
+    if getattr(res, "u95_mm", None) is not None:
+        out["u95_mm"] = [f"{v:.6f}" for v in res.u95_mm]
     if getattr(res, "orientation_held", None) is not None:
         out["orientation_held"] = res.orientation_held
     out["status"] = res.status

@@ -385,6 +385,7 @@ class Plan:
     notes: list = field(default_factory=list)
     reveal: dict | None = None
     directions: np.ndarray | None = None
+    predicted_u95_mm: float | None = None
 
     def summary(self) -> dict:
         ident = self.identification
@@ -399,6 +400,12 @@ class Plan:
                 "predicted_rms_note": ("RMS position error over the pool that the fitted parameters' scatter leaves "
                                        "for measurement noise noise_mm (each coordinate), from the identification "
                                        "Jacobian at the nominal robot; it leaves out effects the model lacks"),
+                "predicted_u95_mm": self.predicted_u95_mm,
+                "predicted_u95_note": ("mean over the pool of the 95 % radius (u95_mm, as jointcal predict states it) "
+                                       "of the fitted model's error at a pose: the parameters' scatter and the "
+                                       "measurement noise noise_mm, by the same propagation; a fit of the measured "
+                                       "campaign states its own u95_mm from its cross-validated scatter, which holds "
+                                       "what the model lacks too"),
                 "curve": self.curve,
                 "curve_note": ("predicted_rms_mm (for noise_mm) of the first k poses a greedy D-optimal choice takes "
                                "from this pool; null where k poses are too few for the parameters"),
@@ -460,14 +467,32 @@ def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
     return Z.reshape(data.n, A_model.shape[1], -1)
 
 
-def _prediction_rms(A_pool, M, noise_mm) -> float | None:
+def _prediction_rms(A_pool, M, noise_mm) -> tuple[float | None, float | None]:
+    """The parameters' scatter on the pool and the 95 % radius it promises, by the propagation
+    ``jointcal predict`` states ``u95_mm`` with (:mod:`pipeline.robot.model.uncertainty`).
+
+    Parameters
+    ----------
+    A_pool : ndarray, shape (n, 3, q): the pool's scaled Jacobian blocks
+    M : ndarray, shape (q, q): the information matrix (scaled units); Cov = noise^2 M^-1
+    noise_mm : float, mm, standard deviation of each coordinate
+
+    Returns
+    -------
+    (predicted RMS position error from the parameters' scatter, mm; the mean over the pool of the 95 %
+    radius of that error plus the measurement noise itself, mm), each None when not defined.
+    """
+    from ..robot.model.uncertainty import prediction_covariance, prediction_variance, radius95
+
     try:
         Minv = np.linalg.inv(M)
     except np.linalg.LinAlgError:
-        return None
-    tr = np.einsum("nkp,pq,nkq->n", A_pool, Minv, A_pool)
+        return None, None
+    tr = prediction_variance(A_pool, Minv)
     v = float(noise_mm * np.sqrt(max(np.mean(tr), 0.0)))
-    return v if np.isfinite(v) else None
+    S = noise_mm ** 2 * (prediction_covariance(A_pool, Minv) + np.eye(3))
+    u = float(np.mean(radius95(S)))
+    return (v if np.isfinite(v) else None), (u if np.isfinite(u) else None)
 
 
 def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotData | None = None,
@@ -626,7 +651,8 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     idx = np.array([i for i, nm in enumerate(kept_names) if nm in kept_sel], int)
     if reveal is not None:
         idx = np.intersect1d(idx, sub)        # the spec's model's error (the effect is what is being tested)
-    pred = _prediction_rms(A[:, :3, idx], Msel[np.ix_(idx, idx)], noise_mm) if rows * (m0 + n) >= q else None
+    pred, u95_pred = (_prediction_rms(A[:, :3, idx], Msel[np.ix_(idx, idx)], noise_mm) if rows * (m0 + n) >= q
+                      else (None, None))
     # visiting order
     start = None
     if m0:
@@ -638,4 +664,5 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     plan = Plan(chosen[order], name, value, kept_names,
                 not_on_pool, ident, pred, float(noise_mm), curve,
                 path_cost(qc, order, start), path_cost(qc, np.arange(len(qc)), start), notes)
+    plan.predicted_u95_mm = u95_pred
     return plan

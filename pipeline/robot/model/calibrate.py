@@ -928,6 +928,9 @@ class RobotErrorModel:
         ident["redundant_groups"] = groups
         #: directions of the parameters (internal units, columns) no measurement of the fit can see
         self.unseen_ = d.sizes[:, None] * U
+        #: the fitted directions (x = B z, (p, k)) and the effects' penalty rows (m, p): the fit's
+        #: covariance (pipeline.robot.model.uncertainty) lives in their span
+        self.basis_, self.penalty_ = B, Pen
 
         def full(z):
             return B @ z

@@ -12,12 +12,13 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import _locate
 from .calibrate import angle_arcsec
-from .estimate import cross_validate, fit_effects, fold_description, heldout_fit
+from .estimate import N_FOLDS, cross_validate, fit_effects, fold_description, heldout_fit
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
 from .outliers import describe, find_wild
 from .predict import model_document, outside_calibrated_range, outside_message, outside_range, sampled_range
 from .rigid import chain_document, fit_rigid_chain, has_tables
+from .uncertainty import largest_relative, uncertainty_document
 
 
 def check_spec_joints(spec, robot) -> None:
@@ -131,6 +132,14 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     if getattr(model, "weighting_", None):
         out["weighting"] = model.weighting_
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))
+    # how sure (contract section 14): each parameter's 1-sigma uncertainty, the pairs that trade, and what
+    # predict and correct need for each point's u95_mm
+    stated = uncertainty_document(model, sample, cv.residuals, N_FOLDS)
+    for entry, u in zip(out["parameters"], stated["uncertainty"]):
+        entry["uncertainty"] = u
+    out["correlations"] = stated["correlations"]
+    out["largest_relative_uncertainty"] = largest_relative(out["parameters"], skip=stated["penalised"])
+    out["prediction_uncertainty"] = stated["prediction"]
     # the rigid chain a URDF or a controller's parameters take: the one nearest the whole model
     chain, info = fit_rigid_chain(robot, model, sample)
     out["rigid_chain"] = chain_document(chain, info, out["payloads_kg"])

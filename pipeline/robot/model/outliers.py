@@ -259,7 +259,7 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
         ``keep``).
     """
     ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
-    if sample.measured_mm is None:
+    if sample.measured_mm is None or sample.n == 0:
         return Wild(ws, wt, [], {}, keep)
     if sample.n < max(20, 2 * NEIGHBOURS):
         return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "

@@ -338,3 +338,19 @@ def test_a_targets_quaternion_that_is_not_unit_is_refused(tmp_path):
     with pytest.raises(InputError) as exc:
         read_targets(tmp_path / "t.csv", 6)
     assert exc.value.line == 3 and exc.value.column == "qw"
+
+
+def test_each_predicted_orientation_states_its_u95_arcsec(cell):
+    """How sure, for the orientation too (contract section 14): u95_arcsec per point, and it holds."""
+    tmp, run = cell["tmp"], cell["run"]
+    full = cell["fits"]["full"]
+    assert "unexplained_orientation_mrad2" in full["prediction_uncertainty"]
+    names = [p["name"] for p in full["parameters"]]
+    u = {p["name"]: p["uncertainty"] for p in full["parameters"]}
+    assert u["tool_ex"] is not None and u["tool_ex"] > 0          # seen in the orientation, not the position
+    r = run("predict", "--campaign", tmp / "meas", "--model", tmp / "full.json", "--json", tmp / "u95.json")
+    assert r.exit_code == 0, r.output
+    out = json.loads((tmp / "u95.json").read_text())
+    assert all("u95_arcsec" in p for p in out["points"]) and "tool_ex" in names
+    assert 0.85 <= out["orientation_coverage_95"] <= 1.0, out["orientation_coverage_95"]
+    assert out["u95_arcsec"] <= 2.0 * out["orientation_error_p95_arcsec"]

@@ -103,6 +103,7 @@ class Correction:
     dirs: np.ndarray = None
     orientation_held: np.ndarray = None
     u95_mm: np.ndarray = None
+    u95_arcsec: np.ndarray = None    # (n,) arcsec: the probe frame's 95 % angle (a model fitted on orientations)
 
     def counts(self) -> dict:
         """Rows per status."""
@@ -368,13 +369,15 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         orient[left] = np.nan
         held[left] = ""
     _, xyz = kin.nominal(q)
-    u95_mm = None
+    u95_mm = u95_arcsec = None
     if stated is not None and sampled is not None:
         from ..robot.model.uncertainty import u95
 
-        u95_mm = u95(kin.model, kin.data(q, dirs, payload, temp), stated, sampled)["u95_mm"]
+        u = u95(kin.model, kin.data(q, dirs, payload, temp), stated, sampled)
+        u95_mm = u["u95_mm"]
+        u95_arcsec = u.get("u95_arcsec")
     return Correction(q, dq * 3600.0, xyz, res, orient, iters, status.astype(str), reason.astype(str), dirs,
-                      held.astype(str), u95_mm)
+                      held.astype(str), u95_mm, u95_arcsec)
 
 
 def angle_mismatch(sources, closed) -> str:

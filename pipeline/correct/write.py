@@ -35,6 +35,8 @@ def corrected_csv(point_id, res, dirs=None, payload_kg=None, temperature_c=None)
     out["model_residual_um"] = [f"{v:.6f}" for v in res.residual_um]
     if getattr(res, "u95_mm", None) is not None:
         out["u95_mm"] = [f"{v:.6f}" for v in res.u95_mm]
+    if getattr(res, "u95_arcsec", None) is not None:
+        out["u95_arcsec"] = [f"{v:.3f}" for v in res.u95_arcsec]
     if getattr(res, "orientation_held", None) is not None:
         out["orientation_held"] = res.orientation_held
     out["status"] = res.status

@@ -134,7 +134,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))
     # how sure (contract section 14): each parameter's 1-sigma uncertainty, the pairs that trade, and what
     # predict and correct need for each point's u95_mm
-    stated = uncertainty_document(model, sample, cv.residuals, N_FOLDS)
+    stated = uncertainty_document(model, sample, cv.residuals, N_FOLDS, cv.extra.get("orientation"))
     for entry, u in zip(out["parameters"], stated["uncertainty"]):
         entry["uncertainty"] = u
     out["correlations"] = stated["correlations"]

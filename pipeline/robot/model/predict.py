@@ -326,6 +326,12 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
         u = u95(model, data.subset(ev), stated, sampled)
         for point, v in zip(out["points"], u["u95_mm"]):
             point["u95_mm"] = float(v)
+        if "u95_arcsec" in u and measured_R is not None:
+            for point, v in zip(out["points"], u["u95_arcsec"]):
+                point["u95_arcsec"] = float(v)
+            out["orientation_coverage_95"] = coverage(a, u["u95_arcsec"])
+            out["u95_arcsec"] = float(np.mean(u["u95_arcsec"]))
+            out["orientation_error_p95_arcsec"] = float(np.quantile(a, P95))
         out["coverage_95"] = coverage(e, u["u95_mm"])
         out["u95_mm"] = float(np.mean(u["u95_mm"]))
         out["error_p95_mm"] = float(np.quantile(e, P95))

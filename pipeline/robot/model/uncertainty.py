@@ -63,6 +63,7 @@ CORRELATION_LIMIT = 0.9
 #: (:func:`extrapolation_covariance`); further, it stays there.
 EXTRAPOLATION_WIDTHS = 1.0
 ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
+ARCSEC_PER_MRAD = ARCSEC_PER_RAD / 1000.0
 #: Singular values of the column-scaled fitted Jacobian below this (relative) are left out of the
 #: covariance (directions the fit could not move: none, normally)
 COVARIANCE_RCOND = 1e-12
@@ -96,8 +97,14 @@ def parameter_covariance(model, data) -> dict:
     degrees of freedom), ``n_obs`` (3 n).
     """
     d = model.design(data)
-    P, J = d.predict_and_jacobian(model.coef_)
-    J2 = J.reshape(-1, d.p)
+    if d.oriented:
+        # a 6-DoF fit: its residual rows are the positions and the weighted orientations (variance
+        # components make both of one variance per row), and so is its covariance's
+        r, J2 = d.residual_and_jacobian(model.coef_)
+    else:
+        P, J = d.predict_and_jacobian(model.coef_)
+        J2 = J.reshape(-1, d.p)
+        r = (P - np.asarray(data.measured_mm, float)).ravel()
     B = np.asarray(model.basis_, float)
     Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, d.p))), float)
     A = np.vstack([J2 @ B, Pen @ B])
@@ -108,12 +115,18 @@ def parameter_covariance(model, data) -> dict:
     U, sv, Vt = U[:, live], sv[live], Vt[live]
     n_obs = J2.shape[0]
     dof = float(np.sum(U[:n_obs] ** 2))
-    r = (P - np.asarray(data.measured_mm, float)).ravel()
     s2 = float(r @ r) / max(n_obs - dof, 1.0)
     Hinv = (Vt.T / sv ** 2) @ Vt / np.outer(c, c)
     cov = s2 * (B @ Hinv @ B.T)
     cov = 0.5 * (cov + cov.T)
     return {"covariance": cov, "sigma_mm": float(np.sqrt(s2)), "dof": dof, "n_obs": int(n_obs)}
+
+
+def orientation_jacobian(model, data) -> np.ndarray:
+    """The probe frame's turn (base frame) with respect to the parameters at the solution, shape (n, 3, p),
+    mrad per internal unit (a 6-DoF probe's orientation, contract section 13)."""
+    _, _, J = model.design(data).pose_and_jacobian(model.coef_)
+    return J[:, 3:]
 
 
 def prediction_variance(J, cov) -> np.ndarray:
@@ -185,7 +198,7 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
-def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None) -> np.ndarray:
+def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None) -> np.ndarray:
     """What a pose beyond the sampled joint ranges adds (3 x 3 per pose, mm^2; 0 inside them).
 
     Joint ``j`` beyond its range by ``b_j`` (deg) has an unknown angle error of standard deviation
@@ -205,6 +218,9 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     spread_rad : ndarray, shape (N,), rad, optional
         Standard deviation of the model's angle error of each joint over its sample poses
         (:func:`joint_angle_spread`); default 0.
+    Jturn : ndarray, shape (n, 3, N), optional
+        The probe frame's turn per joint angle (mrad per rad): then the same unknown joint angle errors as
+        the probe's orientation covariance (mrad^2) instead of the position's.
     """
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
@@ -215,7 +231,7 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     lever = np.linalg.norm(Jq, axis=1)                                               # (n, N) mm/rad
     spread = np.zeros(q.shape[1]) if spread_rad is None else np.asarray(spread_rad, float)
     sigma = grow * np.sqrt((scale / np.maximum(lever, 1e-9)) ** 2 + spread ** 2)     # rad
-    cols = Jq * sigma[:, None, :]
+    cols = (Jq if Jturn is None else Jturn) * sigma[:, None, :]
     return np.einsum("nkj,nlj->nkl", cols, cols)
 
 
@@ -227,11 +243,15 @@ def joint_angle_spread(model, data) -> np.ndarray:
     return dq.std(axis=0) if len(dq) > 1 else np.zeros(dq.shape[1])
 
 
-def joint_jacobian(model, data) -> np.ndarray:
-    """Position Jacobian of a fitted model with respect to each joint's angle, shape (n, 3, N), mm/rad."""
-    from ..arm.kinematics import positions_and_jacobians
+def joint_jacobian(model, data, turn: bool = False) -> np.ndarray:
+    """Position Jacobian of a fitted model with respect to each joint's angle, shape (n, 3, N), mm/rad;
+    with ``turn`` the probe frame's turn instead (mrad/rad)."""
+    from ..arm.kinematics import pose_jacobians, positions_and_jacobians
 
     d = model.design(data)
+    if turn:
+        _, _, Jext = pose_jacobians(d.model, d.configurations(model.coef_), "smr")
+        return Jext[:, 3:, d.idx.joints] * 1000.0
     _, Jext = positions_and_jacobians(d.model, d.configurations(model.coef_))
     return Jext[:, :, d.idx.joints]
 
@@ -333,7 +353,7 @@ def describe_relative(rows: list[dict]) -> str:
     return "; ".join(parts)
 
 
-def uncertainty_document(model, sample, cv_residuals, n_folds: int) -> dict:
+def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientation=None) -> dict:
     """What the fit JSON says of its uncertainty, and what ``predict`` and ``correct`` need for ``u95_mm``.
 
     Parameters
@@ -342,6 +362,9 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int) -> dict:
     sample : RobotData (n poses, ``measured_mm`` (n, 3) mm)
     cv_residuals : ndarray, shape (n, 3), mm: the k-fold cross-validation's held-out residuals on ``sample``
     n_folds : int
+    cv_orientation : ndarray, shape (n, 3), mrad, optional
+        A 6-DoF fit's held-out orientation errors: then the same statement for the orientation
+        (``u95_arcsec``): its unexplained covariance (mrad^2) and its own coverage factor.
 
     Returns
     -------
@@ -383,6 +406,18 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int) -> dict:
                        f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an unknown joint angle "
                        "error (docs/uncertainty.md); coverage_factor: the 0.95 quantile of the cross-validated "
                        "residuals over their own Gaussian radius")}
+    if cv_orientation is not None and "tool_ex" in model.names_:
+        Jo = orientation_jacobian(model, sample)
+        at_o = prediction_covariance(Jo, cov) * (n / max(train, 1.0))
+        Uo = unexplained_covariance(cv_orientation, at_o)
+        ro = np.linalg.norm(np.asarray(cv_orientation, float), axis=1)
+        bo = radius95(at_o + Uo)
+        pred["unexplained_orientation_mrad2"] = Uo.tolist()
+        pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD
+        pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
+        pred["method_orientation"] = ("u95_arcsec: the same for the probe frame's orientation (its rows of the "
+                                      "prediction Jacobian, the cross-validation's orientation errors, the joints' "
+                                      "unknown angle errors beyond the sampled ranges turning the frame)")
     groups = [g["parameters"] for g in (model.identifiability_ or {}).get("redundant_groups", [])]
     Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, len(model.names_)))), float)
     penalised = [nm for nm, on in zip(model.names_, np.abs(Pen).sum(axis=0) > 0) if on]
@@ -411,11 +446,17 @@ def load_prediction(doc: dict, model):
         U = np.asarray(block["unexplained_mm2"], float).reshape(3, 3)
         factor = float(block["coverage_factor"])
         spread = np.asarray(block.get("joint_angle_spread_arcsec", np.zeros(0)), float) / ARCSEC_PER_RAD
+        Uo = (np.asarray(block["unexplained_orientation_mrad2"], float).reshape(3, 3)
+              if "unexplained_orientation_mrad2" in block else None)
+        factor_o = float(block.get("orientation_coverage_factor", 1.0))
     except (KeyError, TypeError, ValueError):
         return None
     if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(U)) and np.isfinite(factor) and np.all(np.isfinite(spread))):
         return None
-    return {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None}
+    out = {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None}
+    if Uo is not None and np.all(np.isfinite(Uo)) and np.isfinite(factor_o):
+        out.update(unexplained_orientation=Uo, factor_orientation=factor_o)
+    return out
 
 
 def u95(model, data, stated: dict, sampled: dict) -> dict:
@@ -439,9 +480,16 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
                                   stated.get("spread_rad"))
     S = Sp + stated["unexplained"][None] + Se
     tr = lambda M: np.sqrt(np.clip(np.einsum("nkk->n", M), 0.0, None))  # noqa: E731
-    return {"u95_mm": stated["factor"] * radius95(S), "parameters_mm": tr(Sp),
-            "unexplained_mm": np.full(data.n, float(np.sqrt(max(np.trace(stated["unexplained"]), 0.0)))),
-            "extrapolation_mm": tr(Se)}
+    out = {"u95_mm": stated["factor"] * radius95(S), "parameters_mm": tr(Sp),
+           "unexplained_mm": np.full(data.n, float(np.sqrt(max(np.trace(stated["unexplained"]), 0.0)))),
+           "extrapolation_mm": tr(Se)}
+    if "unexplained_orientation" in stated and "tool_ex" in model.names_:
+        So = prediction_covariance(orientation_jacobian(model, data), stated["covariance"])
+        So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
+            data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"], stated.get("spread_rad"),
+            Jturn=joint_jacobian(model, data, turn=True))
+        out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD
+    return out
 
 
 def coverage(error_mm, u95_mm) -> float:

@@ -145,8 +145,11 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     of the corrected joints in its own tool and base frame; a joint target is corrected. Only
     the numbers of motion targets change, each with its decimals; every other byte stays. Joint
     values in a program are the robot.toml's joint angles (FANUC: no J2/J3 interaction). Left
-    as given and named: targets computed at run time, without a solution on their branch,
-    refused by the model, or whose branch or turn would change. Conventions: docs/programs.md.
+    as given and named: targets computed or streamed at run time, declared nowhere, without a
+    solution on their branch, refused by the model, or whose branch or turn would change; a
+    statement the filter does not need passes through. The payload is the program's own where it
+    states one (tooldata, GripLoad, set_payload, $LOAD / LOAD_DATA), else --payload.
+    Conventions: docs/programs.md; every format and key: docs/formats.md.
       jointcal correct --model fit.json --program weld.src --out filtered/ --json report.json
     """
     doc = read_json(model_path)

@@ -106,6 +106,7 @@ def test_calibration_conf_is_read_exactly(model):
     assert np.abs(deltas["delta_d"]).max() > 100.0           # metres: as real files have them
     robot = parse_robot(robot_from_calibration(deltas, model, SMR_MM).to_toml())
     assert robot.ur_model == model
+    assert max(max(abs(j.d_mm), abs(j.a_mm)) for j in robot.joints) < 1000.0   # every link frame on the arm
     q = np.random.default_rng(1).uniform(-np.pi, np.pi, (40, 6))
     _, P = placements(build_model(robot), q, "flange")
     nom = published_dh(model)
@@ -227,7 +228,7 @@ def test_correct_program_on_a_ur_uses_its_calibration(imported, tmp_path):
     assert (tmp_path / "out/p.script").read_bytes() == (tmp_path / "p.script").read_bytes()
     assert json.loads((tmp_path / "r.json").read_text())["counts"]["ok"] >= 8
     robot = parse_robot(fit["robot_toml"])
-    assert robot.ur_model == "ur10" and max(abs(j.d_mm) for j in robot.joints) > 1e5
+    assert robot.ur_model == "ur10" and max(max(abs(j.d_mm), abs(j.a_mm)) for j in robot.joints) < 1000.0
     played = play(read_program(tmp_path / "p.script"), robot)
     plain = play(read_program(tmp_path / "p.script"), robot_from_calibration({k: np.zeros(6) for k in KEYS}, "ur10",
                                                                             robot.tool_xyz_mm))

@@ -145,8 +145,11 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     of the corrected joints in its own tool and base frame; a joint target is corrected. Only
     the numbers of motion targets change, each with its decimals; every other byte stays. Joint
     values in a program are the robot.toml's joint angles (FANUC: no J2/J3 interaction). Left
-    as given and named: targets computed at run time, without a solution on their branch,
-    refused by the model, or whose branch or turn would change. Conventions: docs/programs.md.
+    as given and named: targets computed or streamed at run time, declared nowhere, without a
+    solution on their branch, refused by the model, or whose branch or turn would change; a
+    statement the filter does not need passes through. The payload is the program's own where it
+    states one (tooldata, GripLoad, set_payload, $LOAD / LOAD_DATA), else --payload.
+    Conventions: docs/programs.md; every format and key: docs/formats.md.
       jointcal correct --model fit.json --program weld.src --out filtered/ --json report.json
     """
     doc = read_json(model_path)
@@ -267,6 +270,9 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     for r in rows:
         if r["status"] not in ("ok", "same_target"):
             click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
+        click.echo(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it states one, "
+                   "the program's", err=True)
     used = {}
     for r in rows:
         used.setdefault((r["payload_kg"], r["payload_source"]), []).append(r)

@@ -11,11 +11,15 @@ import click
 
 @click.command("plan")
 @click.option("--robot", "robot_path", required=True, type=click.Path(dir_okay=False),
-              help="Nominal kinematics: a robot.toml, or a URDF (then --tip), as `jointcal import` takes it.")
+              help="Nominal kinematics: a robot.toml, a URDF (then --tip) or a UR calibration.conf (then --ur-model), "
+                   "as `jointcal import` takes it.")
 @click.option("--tip", default=None, metavar="LINK", help="URDF only: the link whose origin is the SMR (or the flange).")
 @click.option("--base", default=None, metavar="LINK", help="URDF only: the fixed link whose frame is the robot's base.")
 @click.option("--tool-mm", "tool_mm", nargs=3, type=float, default=None, metavar="X Y Z",
               help="SMR position (mm) in the --tip link's frame (URDF) or the flange frame (robot.toml).")
+@click.option("--ur-model", "ur_model", default=None,
+              type=click.Choice(["ur3", "ur5", "ur10", "ur3e", "ur5e", "ur10e", "ur16e", "ur20", "ur30"]),
+              help="--robot is a Universal Robots calibration.conf of this model (as `jointcal import` takes it).")
 @click.option("--spec", "spec_path", required=True, type=click.Path(dir_okay=False),
               help="The model the poses must determine (a robot spec, e.g. specs/robot_kinematic.toml).")
 @click.option("--pool", "pool_path", required=True, type=click.Path(dir_okay=False),
@@ -51,7 +55,7 @@ import click
               help="--probe 6dof: the orientation's noise (arcsec, 1 sigma per axis; a T-Mac repeats to about 20), "
                    "which weighs it against --noise-mm.")
 def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, json_path, campaign, reveal_line,
-             criterion, noise_mm, probe, noise_arcsec):
+             criterion, noise_mm, probe, noise_arcsec, ur_model=None):
     """Choose N poses from a pool that determine SPEC's model best (model-robust D-optimal), or that
     reveal a suspected effect (--reveal, Ds-optimal), from joint values and the nominal robot only.
 
@@ -72,7 +76,7 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     from .common import load_spec
 
     limit_blas_threads(1)
-    robot, _, _ = load_import_robot(robot_path, tip, base, tool_mm)
+    robot, _, _ = load_import_robot(robot_path, tip, base, tool_mm, ur_model)
     spec = load_spec(spec_path)
     spec.require_kind("robot", f"the robot {robot_path}")
     reveal = parse_reveal(reveal_line) if reveal_line is not None else None

@@ -4,11 +4,12 @@ A UR is calibrated at the factory: its controller's kinematics are UR's publishe
 the model plus the deltas of the robot's own ``calibration.conf`` (``[mounting]``: ``delta_theta``,
 ``delta_a``, ``delta_d``, ``delta_alpha``, six values each, rad and m):
 ``T_i = Rz(q_i + theta_i + delta_theta_i) Tz(d_i + delta_d_i) Tx(a_i + delta_a_i) Rx(alpha_i + delta_alpha_i)``.
-That is the contract's link transform with ``beta = 0``, so the robot.toml holds the calibrated DH
-as it is, exactly: on the nearly parallel joints 2-4 ``d`` reaches hundreds of metres (the common
-normal of two axes a few microradians apart lies far away), and so does the origin of those link
-frames; the masses keep their place on the links (each centre of mass is carried from the
-published link frame into the calibrated one), so gravity torques are those of the real arm.
+On the nearly parallel joints 2-4 the file's ``d`` reaches hundreds of metres (the common normal of
+two axes a fraction of a milliradian apart lies far away). The robot.toml keeps the same joint axes
+and flange exactly but writes joints 2 and 3 with ``d = 0`` and the tilt in ``alpha`` and ``beta``
+(the contract's ``Ry(beta)``), so every link frame stays on the arm and a fit on top of it is as
+well conditioned as on UR's table; the masses keep their place on the links (each centre of mass
+is carried from the published link frame into the robot's), so gravity torques are the real arm's.
 
 The published tables (``UR_DH``) are UR's "DH parameters for calculations of kinematics and
 dynamics" (universal-robots.com); masses and centres of mass where that page gives them.
@@ -125,8 +126,67 @@ def _frames(theta, d, a, alpha) -> list:
     return out
 
 
+def _rx(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def _ry(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])
+
+
+def _rz(t):
+    c, s = np.cos(t), np.sin(t)
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def _tr(x, y, z):
+    M = np.eye(4)
+    M[:3, 3] = (x, y, z)
+    return M
+
+
+def _link(theta, d, a, alpha, beta=0.0):
+    """``Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)``, 4 x 4 (m)."""
+    return _rz(theta) @ _tr(0, 0, d) @ _tr(a, 0, 0) @ _rx(alpha) @ _ry(beta)
+
+
+def _parallel_row(A, p, u, theta_near):
+    """A row with ``d = 0`` from frame A (4 x 4) to the joint axis through p along u (base frame): the
+    origin where the axis meets A's x-y plane, the tilt in ``alpha`` and ``beta`` (Hayati's form for
+    nearly parallel axes). Returns (theta, a, alpha, beta)."""
+    Ai = np.linalg.inv(A)
+    pl = Ai[:3, :3] @ p + Ai[:3, 3]
+    ul = Ai[:3, :3] @ u
+    o = pl - (pl[2] / ul[2]) * ul                   # on the axis, z = 0 in A
+    a = float(np.hypot(o[0], o[1]))
+    theta = float(np.arctan2(o[1], o[0]))
+    alt = float(np.arctan2(-o[1], -o[0]))
+    if abs(np.angle(np.exp(1j * (alt - theta_near)))) < abs(np.angle(np.exp(1j * (theta - theta_near)))):
+        theta, a = alt, -a                          # the sign of a that keeps theta near UR's
+    w = _rz(theta)[:3, :3].T @ ul
+    beta = float(np.arcsin(np.clip(w[0], -1.0, 1.0)))
+    alpha = float(np.arctan2(-w[1], w[2]))
+    return theta, a, alpha, beta
+
+
+def _dh_row(A, B):
+    """The classic DH row from frame A to frame B (both 4 x 4), B's x axis on the common normal."""
+    M = np.linalg.solve(A, B)
+    theta = float(np.arctan2(M[1, 0], M[0, 0]))
+    a = float(M[0, 3] * np.cos(theta) + M[1, 3] * np.sin(theta))
+    return theta, float(M[2, 3]), a, float(np.arctan2(M[2, 1], M[2, 2]))
+
+
 def robot_from_calibration(deltas: dict, model: str, tool_mm=(0.0, 0.0, 0.0), path="<calibration.conf>") -> Robot:
     """The robot's own calibrated kinematics as a contract :class:`Robot` (lengths mm, angles deg).
+
+    The joint axes and the flange of UR's calibrated classic DH at q = 0 are kept exactly; joints 2
+    and 3, whose axes are nearly parallel to the one before, are written with ``d = 0`` and the tilt
+    in ``alpha`` and ``beta`` (the contract's link transform allows it), so that no link frame lies
+    hundreds of metres away; joint 4's row follows from them, joints 1, 5, 6 are UR's rows. The
+    flange frame is UR's frame {6}. The forward kinematics equals the calibrated DH's (checked).
 
     Parameters
     ----------
@@ -144,12 +204,34 @@ def robot_from_calibration(deltas: dict, model: str, tool_mm=(0.0, 0.0, 0.0), pa
     masses, coms = UR_MASS.get(model, ((0.0,) * 6, ((0.0, 0.0, 0.0),) * 6))
     F_nom = _frames(nom["theta"], nom["d"], nom["a"], nom["alpha"])
     F_cal = _frames(cal["theta"], cal["d"], cal["a"], cal["alpha"])
-    joints = []
+    rows, frames, A = [], [], np.eye(4)
     for i in range(6):
-        c = np.linalg.solve(F_cal[i], F_nom[i] @ np.r_[np.asarray(coms[i], float), 1.0])[:3]
-        joints.append(Joint(a_mm=float(cal["a"][i] * 1000.0), alpha_deg=float(np.rad2deg(cal["alpha"][i])),
-                            d_mm=float(cal["d"][i] * 1000.0), theta_offset_deg=float(np.rad2deg(cal["theta"][i])),
-                            beta_deg=0.0, lower_deg=-360.0, upper_deg=360.0, mass_kg=float(masses[i]),
+        if i in (1, 2):                             # the next axis nearly parallel to this one
+            theta, a, alpha, beta = _parallel_row(A, F_cal[i][:3, 3], F_cal[i][:3, 2], nom["theta"][i])
+            row = (theta, 0.0, a, alpha, beta)
+        elif i == 3:
+            row = (*_dh_row(A, F_cal[i]), 0.0)
+        else:
+            row = (cal["theta"][i], cal["d"][i], cal["a"][i], cal["alpha"][i], 0.0)
+        A = A @ _link(*row)
+        rows.append(row)
+        frames.append(A)
+    q = np.random.default_rng(0).uniform(-np.pi, np.pi, (8, 6))
+    for qq in q:                                    # the same arm as the file's classic DH, flange included
+        M, N = np.eye(4), np.eye(4)
+        for k in range(6):
+            M = M @ _link(rows[k][0] + qq[k], *rows[k][1:])
+            N = N @ _link(cal["theta"][k] + qq[k], cal["d"][k], cal["a"][k], cal["alpha"][k])
+        if np.abs(M - N).max() > 1e-9:
+            raise InputError(path, "the calibration's kinematics could not be written without its far link frames "
+                             f"(a difference of {np.abs(M - N).max():.3g} m): are these the deltas of a {model.upper()}?",
+                             None, None)
+    joints = []
+    for i, (theta, d, a, alpha, beta) in enumerate(rows):
+        c = np.linalg.solve(frames[i], F_nom[i] @ np.r_[np.asarray(coms[i], float), 1.0])[:3]
+        joints.append(Joint(a_mm=float(a * 1000.0), alpha_deg=float(np.rad2deg(alpha)), d_mm=float(d * 1000.0),
+                            theta_offset_deg=float(np.rad2deg(theta)), beta_deg=float(np.rad2deg(beta)),
+                            lower_deg=-360.0, upper_deg=360.0, mass_kg=float(masses[i]),
                             com_mm=tuple(float(x) for x in c * 1000.0)))
     return Robot(model, tuple(joints), tuple(float(v) for v in tool_mm), str(path), ur_model=model)
 
@@ -161,7 +243,8 @@ def calibration_header(path, sha: str, model: str, deltas: dict) -> str:
         f"# Nominal kinematics derived by `jointcal import` from the UR calibration.conf {path} (sha256 {sha}):",
         f"# UR's published classic DH of the {model.upper()} plus the file's [mounting] deltas, as the robot's",
         "# controller uses them: T_i = Rz(q_i + theta_i + delta_theta_i) Tz(d_i + delta_d_i) Tx(a_i + delta_a_i)",
-        f"# Rx(alpha_i + delta_alpha_i) (beta = 0); the largest |delta_d| is {big:.6g} m (nearly parallel axes).",
+        f"# Rx(alpha_i + delta_alpha_i); the largest |delta_d| is {big:.6g} m (nearly parallel axes): the same axes",
+        "# and flange are written here with d = 0 and beta on joints 2 and 3 (forward kinematics equal to < 1 nm).",
         "# Masses and centres of mass: UR's published ones carried into the calibrated link frames"
         + ("" if model in UR_MASS else " (none published here for this model: 0)") + ".",
         f'# ur_model = "{model}": `jointcal export --format ur` writes deltas against the published table.'])

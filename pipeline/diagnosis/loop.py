@@ -215,7 +215,13 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
                **({"own_with_outliers": _stats(target_all.measured_mm - model.predict(target_all))}
                   if target_all is not None and target_all.n else {}),
                "converged": bool(model.converged_), "plausible": bool(model.plausible_)}
-        result = diagnose(RobotAdapter(robot, repeat=repeat, refit_cache=refits), spec, sample, progress=say)
+        adapter = RobotAdapter(robot, repeat=repeat, refit_cache=refits)
+        result = diagnose(adapter, spec, sample, progress=say)
+        if sample.has_orientation and not getattr(sample, "diagnosis_weight", None):
+            # a 6-DoF campaign: every round's full residual (positions and weighted orientations) is
+            # weighed alike, by the first round's variance-component weight, so that the rounds'
+            # cross-validated RMS compare
+            sample.diagnosis_weight = adapter.weight(sample)
         best = [c for c in result["candidates"] if c["meaningful"]]
         row["cv_rms_mm"] = result["baseline"]["cv_rms"]
         row["cv_rms_region_mm"] = result["baseline"].get("cv_rms_region")

@@ -154,7 +154,8 @@ class RobotAdapter:
             if getattr(self, "_base_effects", None) is None:
                 self._base_effects = list(base_effects)
             self._lin = (key, LinearProblem(self.robot, list(base_effects), data, folds,
-                                            weight=getattr(self, "_weight", None)))
+                                            weight=getattr(data, "diagnosis_weight", None)
+                                            or getattr(self, "_weight", None)))
             if data.has_orientation and getattr(self, "_weight", None) is None:
                 self._weight = self._lin[1].weight
             self._blocks = {}
@@ -211,6 +212,9 @@ class RobotAdapter:
         campaign: its shared baseline's (variance components); None for positions only."""
         if not data.has_orientation:
             return None
+        if getattr(data, "diagnosis_weight", None):
+            # one yardstick for a whole diagnosis loop: the weight its first round found
+            return data.diagnosis_weight
         if getattr(self, "_weight", None) is None:
             self._weight = self.linear(self._base_effects, data).weight if getattr(self, "_base_effects", None) \
                 else start_weight(data)[0]

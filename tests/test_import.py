@@ -71,7 +71,11 @@ def test_series_c_import(invoke, tmp_path):
                                src[["measurement_x", "measurement_y", "measurement_z"]].to_numpy(float), rtol=0, atol=1e-9)
     np.testing.assert_allclose(poses["temperature_c"], src["measurement_temperature"], rtol=0, atol=1e-9)
     assert list(poses["point_id"]) == list(tracker["point_id"]) == [f"{i:04d}" for i in range(1, 2774)]
-    assert "timestamp" not in poses and "sigma_mm" not in tracker
+    assert "timestamp" not in poses
+    # the T-Mac's spreads ([uncertainty]): per pose the RMS of the three axes' 1-sigma (issue 30)
+    std = src[["measurement_std_x", "measurement_std_y", "measurement_std_z"]].to_numpy(float)
+    np.testing.assert_allclose(tracker["sigma_mm"], np.sqrt(np.mean(std ** 2, axis=1)), rtol=0, atol=1e-9)
+    assert {"qw", "qx", "qy", "qz", "sigma_arcsec"} <= set(tracker.columns)
     camp = (out / "campaign.toml").read_text()
     assert re.search(r'^frame = "tracker"$', camp, re.M)
     assert "measurements_random_poses.csv" in camp and "map.toml" in camp and str(tmp_path) not in camp

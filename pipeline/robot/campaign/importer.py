@@ -40,7 +40,7 @@ import numpy as np
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import _UMASK, read_bytes_input, read_text_input
-from .frame import JOINT_UNITS, LENGTH_UNITS, other_units, refit, unit_hypotheses
+from .frame import JOINT_UNITS, LENGTH_UNITS, MAX_RMS_MM, other_units, refit, unit_hypotheses
 from .ingest import ingest_robot
 from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
@@ -1005,7 +1005,8 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     check_limits(camp, imap, robot, source)
     rms = check_units(camp, imap, robot, source)
     oriented = None
-    if imap.orientation:
+    if imap.orientation and rms <= MAX_RMS_MM:
+        # (positions that do not fit the robot are refused below, with their likely cause, first)
         robot, robot_text, oriented = check_orientation(camp, imap, robot, robot_text, source)
         camp.files["robot.toml"] = robot_text
     robot_where = (None, None)

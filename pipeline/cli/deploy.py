@@ -206,9 +206,12 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
         click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
     if ok.any():
         held_all = int((res.orientation_held[ok] == "all").sum())
+        pos_only = int(sum(r.startswith("orientation not held") for r in res.reason[ok]))
         click.echo(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
-                   + ("" if held_all == ok.sum() else " (the rest only about the axes the measurements determine)"),
-                   err=True)
+                   + (f"; {pos_only} corrected in position alone (holding the orientation too needed more than "
+                      f"--max-correction-deg {max_correction_deg:g})" if pos_only else "")
+                   + ("" if held_all + pos_only == ok.sum() else
+                      "; the rest only about the axes the measurements determine"), err=True)
     missing = int((~tg.payload_given).sum())
     click.echo(f"  {assumptions(doc, len(robot.joints))}"
                + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")

@@ -79,7 +79,8 @@ class Correction:
     status : ndarray of str, shape (n,)
         ``ok``, ``outside_sampled_range``, ``correction_too_large`` or ``no_solution``.
     reason : ndarray of str, shape (n,)
-        Why a row was left as given ('' when ok).
+        Why a row was left as given ('' when ok; for an ok row corrected in position alone, why its
+        orientation was not held).
     dirs : ndarray, shape (n, N), int
         Approach directions the correction assumed (given, or from the visiting order).
     orientation_held : ndarray of str, shape (n,)
@@ -255,7 +256,7 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
                      sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
                      tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None,
-                     stated: dict | None = None) -> Correction:
+                     stated: dict | None = None, hold_orientation: bool = True) -> Correction:
     """Commands that make the fitted model reach the points (see the module docstring).
 
     Parameters
@@ -281,6 +282,11 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     stated : dict, optional
         The model's stated uncertainty (:func:`pipeline.robot.model.uncertainty.load_prediction`): then
         each row has its ``u95_mm`` at the commands written (``sampled`` needed).
+    hold_orientation : bool
+        Hold the orientation where the measurements determine it (default). A row whose correction
+        would exceed ``max_correction_deg`` to hold it (near a wrist singularity, turning the frame back
+        takes large opposite motions of two joints) is corrected in position alone when that stays
+        within the limit: ``orientation_held`` says ``none`` there, ``reason`` why.
     """
     from ..robot.arm.kinematics import directions_from_sequence
 
@@ -317,7 +323,10 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     # the correction is small)
     W = np.repeat(np.eye(3)[None], n, axis=0)
     held = np.full(n, "", dtype=object)
-    if active.any():
+    if active.any() and not hold_orientation:
+        W[:] = 0.0
+        held[active] = "none"
+    elif active.any():
         a = np.flatnonzero(active)
         W[a], held[a] = held_orientation(kin.unseen_rotations(q0[a], dirs[a], payload[a], temp[a]))
     res = np.full(n, np.inf)
@@ -359,6 +368,18 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
             status[k] = TOO_LARGE
             reason[k] = (f"joint {j + 1} would need {dq[k, j]:+.3f} deg, beyond --max-correction-deg "
                          f"{max_correction_deg:g}")
+    big = np.flatnonzero((status == TOO_LARGE) & (held != "none"))
+    if hold_orientation and big.size:
+        # the position alone, where holding the orientation too would take more than the limit
+        tr = None if target_R is None else np.asarray(target_R, float)[big]
+        alt = correct_commands(kin, q0[big], target[big], dirs[big], payload[big], temp[big], sampled,
+                               max_correction_deg, tol_um, max_iter, tr, None, hold_orientation=False)
+        good = alt.status == OK
+        k = big[good]
+        q[k], dq[k] = alt.q_deg[good], alt.dq_arcsec[good] / 3600.0
+        res[k], orient[k], iters[k] = alt.residual_um[good], alt.orientation_arcsec[good], alt.iterations[good]
+        status[k], held[k] = OK, "none"
+        reason[k] = [f"orientation not held: {r}" for r in reason[k]]
     left = status != OK
     q[left] = q0[left]
     dq[left] = 0.0

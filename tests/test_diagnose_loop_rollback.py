@@ -17,6 +17,7 @@ B = '[[effect]]\nname = "backlash"\njoints = [5]'
 class _Data:
     n = 3
     measured_mm = np.zeros((3, 3))
+    has_orientation = False  # a position-only campaign
 
 
 class _Model:

@@ -16,6 +16,7 @@ START = ('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n'
 class _Data:
     n = 3
     measured_mm = np.zeros((3, 3))
+    has_orientation = False  # a position-only campaign
     q_deg = np.array([[0.0] * 6, [90.0] * 6, [180.0] * 6])
 
 

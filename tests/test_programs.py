@@ -682,3 +682,34 @@ def test_a_code_page_whose_bytes_look_like_brackets(cells, tmp_path):
         got = (tmp_path / ("o_" + name) / name).read_bytes()
         assert jis in got and _numbers_of(tmp_path / ("o_" + name) / name) == _numbers_of(
             tmp_path / ("p_" + name) / name)
+
+
+def test_urscript_block_header_over_several_lines(tmp_path):
+    """A `while`/`if` whose condition runs over lines opens its block (PolyScope writes such headers;
+    the `end` was refused as "without a block to end"); a block left open is still refused."""
+    from pipeline.core.errors import InputError
+    from pipeline.programs import urscript
+
+    body = ("def demo():\n  n = 0\n  while (n < 3 and\n         n >= 0):\n    n = n + 1\n  end\n"
+            "  if (n == 3 or\n      n == 4):\n    movej([0.1, -1.5, 1.4, -1.4, -1.6, 0.0])\n  end\nend\n")
+    (tmp_path / "a.script").write_text(body)
+    program = urscript.read(tmp_path / "a.script")
+    assert len(program.targets) == 1
+    (tmp_path / "b.script").write_text(body.replace("    n = n + 1\n  end\n", "    n = n + 1\n", 1))
+    with pytest.raises(InputError, match="without its 'end'"):
+        urscript.read(tmp_path / "b.script")
+
+
+def test_krl_fdat_declared_in_the_controller(cells, tmp_path):
+    """`FDAT_ACT = FHOME` whose DECL FDAT lives in the controller's $config.dat (not given) no longer
+    refuses the file: a joint motion after it is read, a Cartesian one needs --tool/--base or is named."""
+    from pipeline.programs import krl
+
+    src = ("DEF home( )\n  BAS (#INITMOV,0 )\n  FDAT_ACT=FHOME\n  BAS (#FRAMES )\n"
+           "  PTP {A1 0,A2 -90,A3 90,A4 0,A5 0,A6 0}\nEND\n")
+    (tmp_path / "home.src").write_text(src)
+    program = krl.read(tmp_path / "home.src")
+    assert [t.kind for t in program.targets] == ["joint"]
+    r, _ = _correct(cells, tmp_path, "kr210_identity.json", tmp_path / "home.src", "same")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "same/home.src").read_bytes() == src.encode()

@@ -267,8 +267,12 @@ def read(path, config=None) -> Program:
         if m:
             d = data.decls.get(m.group(1).upper())
             if d is None or d[0] != "FDAT":
-                raise InputError(src.path, f"FDAT_ACT = {m.group(1)}: no DECL FDAT {m.group(1)} in the .src or .dat",
-                                 lineno, None)
+                # declared elsewhere (the controller's $config.dat, e.g. FHOME): its tool and base are unknown
+                # here, so a Cartesian motion after it takes --tool / --base or is named; a joint motion is not
+                why = f"FDAT_ACT = {m.group(1)}: no DECL FDAT {m.group(1)} in the program or the .dat given"
+                tool = Frame(None, why, f"{m.group(1)}.TOOL_NO")
+                base = Frame(None, why, f"{m.group(1)}.BASE_NO")
+                continue
             items = d[3]
             if "TOOL_NO" in items:
                 tool = _numbered("TOOL", int(float(items["TOOL_NO"][0])), data)

@@ -35,7 +35,7 @@ MOVE_RE = re.compile(r"\b(movej|movel|movep|movec)\s*\(")
 STREAMED_RE = re.compile(r"\b(servoj|servoc|speedj|speedl|movecs|servol)\s*\(")
 PAYLOAD_RE = re.compile(r"\b(set_payload|set_payload_mass|set_target_payload)\s*\(")
 ASSIGN_RE = re.compile(r"^\s*(?:global\s+|local\s+)?([A-Za-z_]\w*)\s*=(?!=)\s*(.*?)\s*$")
-OPEN_RE = re.compile(r"^\s*(def|thread|if|while|for)\b.*:\s*$")
+OPEN_RE = re.compile(r"^\s*(def|thread|if|while|for)\b.*:\s*$", re.S)  # a header may run over lines
 
 
 def _list(expr: str, at: int, path: str, line: int):

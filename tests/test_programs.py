@@ -713,3 +713,20 @@ def test_krl_fdat_declared_in_the_controller(cells, tmp_path):
     r, _ = _correct(cells, tmp_path, "kr210_identity.json", tmp_path / "home.src", "same")
     assert r.exit_code == 0, r.output
     assert (tmp_path / "same/home.src").read_bytes() == src.encode()
+
+
+def test_identity_keeps_a_target_at_gimbal_lock(cells, tmp_path):
+    """A KRL target at B = +-90 (only A - C or A + C defined) keeps its own A and C under an identity
+    model: the filter wrote {A 15.3, B 90, C 15.3}, the same rotation in other bytes. FANUC's W, P, R
+    go through the same conversion."""
+    src = ("DEF g( )\n  $TOOL = $NULLFRAME\n  $BASE = $NULLFRAME\n  PTP {A1 0,A2 -90,A3 100,A4 0,A5 30,A6 0}\n"
+           "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 90.0,C 0.0}\n"
+           "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 20.0,B -90.0,C 5.0}\n"
+           "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 10.0,B 60.0,C 5.0}\nEND\n")
+    (tmp_path / "g.src").write_text(src)
+    r, _ = _correct(cells, tmp_path, "kr210_identity.json", tmp_path / "g.src", "same")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "same/g.src").read_text() == src
+    for wpr in ((0.0, 90.0, 0.0), (-36.0, 90.0, 12.0), (3.0, -90.0, 40.0)):
+        R = cv.fanuc_matrix(*wpr) @ cv.fanuc_matrix(1e-10, 0.0, 0.0)  # a rounding's turn away
+        assert np.allclose(cv.fanuc_wpr(R, near=wpr), wpr, atol=1e-6)

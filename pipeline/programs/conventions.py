@@ -79,9 +79,15 @@ def zyx_angles(R, near=None) -> tuple[float, float, float]:
     (each angle taken within 360 deg of the near one), else the one with ``|b| <= 90``."""
     R = np.asarray(R, float)
     b = math.degrees(math.atan2(-R[2, 0], math.hypot(R[0, 0], R[1, 0])))
-    if math.hypot(R[0, 0], R[1, 0]) < 1e-12:              # gimbal lock: put everything on a
-        a = math.degrees(math.atan2(-R[0, 1], R[1, 1]))
-        c = 0.0
+    if math.hypot(R[0, 0], R[1, 0]) < 1e-9:               # gimbal lock (b within 6e-8 deg of +-90)
+        # only a - c (b = +90) or a + c (b = -90) is defined: keep the near c (a program's own split of
+        # the two, so an unchanged rotation keeps its numbers), else put everything on a
+        d = math.degrees(math.atan2(-R[0, 1], R[1, 1]))
+        if near is not None:
+            c = float(near[2])
+            a = d + c if b > 0 else d - c
+            return tuple(float(_wrap_near(v, float(n))) for v, n in zip((a, b, c), near))
+        a, c = d, 0.0
     else:
         a = math.degrees(math.atan2(R[1, 0], R[0, 0]))
         c = math.degrees(math.atan2(R[2, 1], R[2, 2]))

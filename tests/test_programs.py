@@ -730,3 +730,32 @@ def test_identity_keeps_a_target_at_gimbal_lock(cells, tmp_path):
     for wpr in ((0.0, 90.0, 0.0), (-36.0, 90.0, 12.0), (3.0, -90.0, 40.0)):
         R = cv.fanuc_matrix(*wpr) @ cv.fanuc_matrix(1e-10, 0.0, 0.0)  # a rounding's turn away
         assert np.allclose(cv.fanuc_wpr(R, near=wpr), wpr, atol=1e-6)
+
+
+def test_a_target_the_program_assigns_is_left_as_given(cells, tmp_path):
+    """A KRL or RAPID variable the program sets at run time (g = $POS_ACT; g.X = g.X + 10 / p := CRobT())
+    holds the run time's value, not its declaration's: named run_time and not rewritten by a fitted
+    model (it rewrote the DECL and reported the motion corrected)."""
+    krl_src = ("DEF follow( )\n  $TOOL = $NULLFRAME\n  $BASE = $NULLFRAME\n  goal = $POS_ACT\n  goal.X = goal.X + 10.0\n"
+               "  LIN goal\n  LIN fixed\nEND\n")
+    krl_dat = ("DEFDAT follow\n  DECL E6POS goal={X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 60.0,C 0.0,S 2,T 35}\n"
+               "  DECL E6POS fixed={X 1500.0,Y 100.0,Z 1500.0,A 0.0,B 60.0,C 0.0,S 2,T 35}\nENDDAT\n")
+    rapid_src = ("MODULE Park\n  PERS robtarget pNow:=[[1500,100,1600],[0.5,0,0.866025404,0],[0,0,0,0],"
+                 "[9E9,9E9,9E9,9E9,9E9,9E9]];\n  PROC main()\n    pNow:=CRobT(\\Tool:=tool0);\n"
+                 "    pNow.trans.x:=pNow.trans.x+10;\n    MoveL pNow,v100,fine,tool0;\n  ENDPROC\nENDMODULE\n")
+    (tmp_path / "k").mkdir()
+    (tmp_path / "k/follow.src").write_text(krl_src)
+    (tmp_path / "k/follow.dat").write_text(krl_dat)
+    (tmp_path / "Park.mod").write_text(rapid_src)
+    for program, json_name in ((tmp_path / "k/follow.src", "k.json"), (tmp_path / "Park.mod", "r.json")):
+        r, rows = _correct(cells, tmp_path, "kr210_fit.json", program, "out_" + json_name[0], json_name=json_name)
+        assert r.exit_code == 0, r.output
+        named = {name: t for (name, _), t in rows.items()}
+        moved = "goal" if json_name == "k.json" else "pNow"
+        assert named[moved]["status"] == "run_time", named[moved]
+        if json_name == "k.json":
+            assert named["fixed"]["status"] != "run_time"  # a constant target beside it is still read as one
+            out = (tmp_path / "out_k/follow.dat").read_text()
+            assert "DECL E6POS goal={X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 60.0,C 0.0,S 2,T 35}" in out
+        else:
+            assert (tmp_path / "out_r/Park.mod").read_text() == rapid_src

@@ -127,11 +127,16 @@ def config_of(src: Path) -> Path | None:
     return None
 
 
+#: an assignment statement of the .src: a variable or one of its fields on the left of a single '='
+ASSIGNED_RE = re.compile(r"^\s*([A-Za-z_]\w*)(?:\s*\.\s*\w+)*\s*=(?!=)")
+
+
 class _Data:
     def __init__(self):
         self.decls = {}
         self.numbered = {}             # ("TOOL_DATA", n) -> (items, file index, line)
         self.config = None             # file index of $config.dat, when read
+        self.assigned = {}             # NAME -> first .src line that assigns it (or a field of it)
 
     def scan(self, src, fidx):
         text = src.text
@@ -199,6 +204,11 @@ def read(path, config=None) -> Program:
             raise InputError(sources[-1].path, "DEFDAT without ENDDAT", opened[0], None)
     data.scan(src, 0)
     text = src.text
+    # a variable the program assigns (g = $POS_ACT, g.X = g.X + 10) holds a run-time value, not its DECL's
+    for k, raw in enumerate(text.splitlines(), 1):
+        ma = ASSIGNED_RE.match(strip_comment(raw, ";"))
+        if ma and not re.match(r"^\s*DECL\b", raw, re.IGNORECASE):
+            data.assigned.setdefault(ma.group(1).upper(), k)
     targets = []
     tool = Frame(None, "the program never sets $TOOL (nor BAS(#TOOL, n), nor FDAT_ACT)", "$TOOL (not set)")
     base = Frame(None, "the program never sets $BASE (nor BAS(#BASE, n), nor FDAT_ACT)", "$BASE (not set)")
@@ -409,6 +419,10 @@ def _motion_target(expr, at, text, data, path, line, word) -> Target:
         return Target(path, line, e, CARTESIAN, branch, runtime=f"a target computed at run time ({e})")
     if e.startswith("$"):
         return Target(path, line, e, CARTESIAN, branch, runtime=f"the system variable {e} (the robot's current position)")
+    if e.upper() in data.assigned:
+        return Target(path, line, e, CARTESIAN, branch,
+                      runtime=f"{e} is assigned by the program (line {data.assigned[e.upper()]}): its value is the run "
+                              "time's, not its declaration's")
     d = data.decls.get(e.upper())
     if d is None:
         return Target(path, line, e, CARTESIAN, branch,

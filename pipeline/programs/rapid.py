@@ -261,11 +261,16 @@ def statements(src, masked):
         k = max(j, k + 1)
 
 
+#: an assignment statement: a variable or one of its fields on the left of ':='
+ASSIGNED_RE = re.compile(r"^\s*([A-Za-z_]\w*)(?:\s*\.\s*\w+)*\s*:=")
+
+
 class _Declared:
     """What the modules declare, by upper-case name."""
 
     def __init__(self):
         self.targets, self.procs, self.loads = {}, set(), {}
+        self.assigned = {}               # NAME -> (file, line) of the first statement assigning it (or a field)
         self.tools = {"TOOL0": (Frame(np.eye(4), "", "tool0"), 0.0)}
         self.wobjs = {"WOBJ0": Frame(np.eye(4), "", "wobj0")}
 
@@ -276,6 +281,10 @@ class _Declared:
                           re.IGNORECASE)
             if mp:
                 self.procs.add((mp.group(1) or mp.group(2)).upper())
+                continue
+            ma = ASSIGNED_RE.match(stmt)
+            if ma:                       # jp := CJointT(); p.trans.x := ...: a run-time value, not the DECL's
+                self.assigned.setdefault(ma.group(1).upper(), (src.path, line))
                 continue
             m = DECL_RE.match(stmt)
             if not m:
@@ -475,6 +484,10 @@ def _motion_target(word, kind, branch, expr, at, fidx, decl, path, line) -> Targ
         return Target(path, line, "*", kind, branch, runtime="a point stored in the instruction (*)")
     if not re.fullmatch(r"[A-Za-z_]\w*", e):
         return Target(path, line, e, kind, branch, runtime=f"a target computed at run time ({e})")
+    if e.upper() in decl.assigned:
+        apath, aline = decl.assigned[e.upper()]
+        return Target(path, line, e, kind, branch, runtime=f"{e} is assigned by the program ({apath}:{aline}): its "
+                      "value is the run time's, not its declaration's")
     d = decl.targets.get(e.upper())
     if d is None:
         return Target(path, line, e, kind, branch, runtime=f"{e} is declared in none of the program's modules (a "

@@ -759,3 +759,16 @@ def test_a_target_the_program_assigns_is_left_as_given(cells, tmp_path):
             assert "DECL E6POS goal={X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 60.0,C 0.0,S 2,T 35}" in out
         else:
             assert (tmp_path / "out_r/Park.mod").read_text() == rapid_src
+
+
+def test_identity_keeps_a_twelve_decimal_pose_near_a_half_turn(cells, tmp_path):
+    """An identity model changes no byte of a URScript pose written to 12 decimals with a rotation
+    vector near pi under a set_tcp (the pose's respelling moved its last decimals by 6e-11 m)."""
+    src = ("def tcp12():\n  set_tcp(p[0.0,0.0,0.22,0.0,0.0,0.0])\n"
+           "  movel(p[-.135606889873, -.196202267593, .160257900767, .030794545164, 3.137571550868, -.006587915986])\n"
+           "  movel(p[-.435606889873, -.196202267593, .460257900767, .030794545164, 3.137571550868, -.006587915986])\n"
+           "end\n")
+    (tmp_path / "tcp12.script").write_text(src)
+    r, _ = _correct(cells, tmp_path, "ur10_identity.json", tmp_path / "tcp12.script", "same")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "same/tcp12.script").read_text() == src

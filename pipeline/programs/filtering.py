@@ -34,6 +34,10 @@ OK = "ok"
 PAYLOAD_EFFECTS = ("compliance",)
 
 
+#: a correction below this (arcsec, largest joint; 1e-9 deg) is none: the target is left as written
+UNCHANGED_ARCSEC = 3.6e-6
+
+
 def payloads(program: Program, given: float | None = None, model_kg: float | None = None,
              dependent: tuple = ()) -> tuple[np.ndarray, list]:
     """The payload of each motion (kg) and where it comes from (contract section 11).
@@ -279,6 +283,11 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             continue
         qa, qb = played.q_deg[k], q1[k]
         dq = np.abs(qb - qa).max() * 3600.0
+        if dq < UNCHANGED_ARCSEC:
+            # no correction (an identity model): the target stays as written, whatever rounding its
+            # respelling from the pose would add (a rotation vector near a half-turn, Euler angles at a lock)
+            row["max_correction_arcsec"] = float(dq)
+            continue
         if t.kind == CARTESIAN:
             fa, fb = flags_a[k], flags_b[k]
             if tuple(fa) != tuple(fb) or (t.branch == CONFIG and not fm.turn_ok(fmt, t.turn, qb)):

@@ -772,3 +772,16 @@ def test_identity_keeps_a_twelve_decimal_pose_near_a_half_turn(cells, tmp_path):
     r, _ = _correct(cells, tmp_path, "ur10_identity.json", tmp_path / "tcp12.script", "same")
     assert r.exit_code == 0, r.output
     assert (tmp_path / "same/tcp12.script").read_text() == src
+
+
+def test_a_krl_motion_to_a_system_axis_variable_is_a_joint_motion_left_as_given(tmp_path):
+    """PTP $AXIS_ACT (an E6AXIS the controller holds) is a joint motion named run_time, not a Cartesian
+    one; PTP $POS_ACT stays Cartesian; both are left as given."""
+    from pipeline.programs import krl
+    from pipeline.programs.model import CARTESIAN, JOINT
+    (tmp_path / "ax.src").write_text("DEF ax( )\n  PTP $AXIS_ACT\n  LIN $POS_ACT\n"
+                                     "  PTP {A1 10, A2 -90, A3 90, A4 0, A5 30, A6 0}\nEND\n")
+    targets = krl.read(tmp_path / "ax.src").targets
+    assert [(t.name, t.kind, bool(t.runtime)) for t in targets[:2]] == [("$AXIS_ACT", JOINT, True),
+                                                                      ("$POS_ACT", CARTESIAN, True)]
+    assert targets[2].kind == JOINT and not targets[2].runtime

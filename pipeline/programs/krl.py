@@ -418,6 +418,9 @@ def _motion_target(expr, at, text, data, path, line, word) -> Target:
     if not re.fullmatch(r"[A-Za-z_$][\w$]*", e):
         return Target(path, line, e, CARTESIAN, branch, runtime=f"a target computed at run time ({e})")
     if e.startswith("$"):
+        if e.upper().startswith("$AXIS"):
+            # $AXIS_ACT, $AXIS_HOME, $AXIS_RET...: an E6AXIS, joint angles the controller holds
+            return Target(path, line, e, JOINT, branch, runtime=f"the system variable {e} (joint angles the controller holds)")
         return Target(path, line, e, CARTESIAN, branch, runtime=f"the system variable {e} (the robot's current position)")
     if e.upper() in data.assigned:
         return Target(path, line, e, CARTESIAN, branch,

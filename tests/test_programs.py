@@ -715,6 +715,14 @@ def test_krl_fdat_declared_in_the_controller(cells, tmp_path):
     assert (tmp_path / "same/home.src").read_bytes() == src.encode()
 
 
+def _assert_identity_keeps(cells, tmp_path, model, name, src):
+    """``src`` written as ``name``, corrected by an identity ``model``, comes back byte for byte."""
+    (tmp_path / name).write_text(src)
+    r, _ = _correct(cells, tmp_path, model, tmp_path / name, "same")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "same" / name).read_text() == src
+
+
 def test_identity_keeps_a_target_at_gimbal_lock(cells, tmp_path):
     """A KRL target at B = +-90 (only A - C or A + C defined) keeps its own A and C under an identity
     model: the filter wrote {A 15.3, B 90, C 15.3}, the same rotation in other bytes. FANUC's W, P, R
@@ -723,10 +731,7 @@ def test_identity_keeps_a_target_at_gimbal_lock(cells, tmp_path):
            "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 90.0,C 0.0}\n"
            "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 20.0,B -90.0,C 5.0}\n"
            "  LIN {X 1500.0,Y 100.0,Z 1600.0,A 10.0,B 60.0,C 5.0}\nEND\n")
-    (tmp_path / "g.src").write_text(src)
-    r, _ = _correct(cells, tmp_path, "kr210_identity.json", tmp_path / "g.src", "same")
-    assert r.exit_code == 0, r.output
-    assert (tmp_path / "same/g.src").read_text() == src
+    _assert_identity_keeps(cells, tmp_path, "kr210_identity.json", "g.src", src)
     for wpr in ((0.0, 90.0, 0.0), (-36.0, 90.0, 12.0), (3.0, -90.0, 40.0)):
         R = cv.fanuc_matrix(*wpr) @ cv.fanuc_matrix(1e-10, 0.0, 0.0)  # a rounding's turn away
         assert np.allclose(cv.fanuc_wpr(R, near=wpr), wpr, atol=1e-6)
@@ -768,10 +773,7 @@ def test_identity_keeps_a_twelve_decimal_pose_near_a_half_turn(cells, tmp_path):
            "  movel(p[-.135606889873, -.196202267593, .160257900767, .030794545164, 3.137571550868, -.006587915986])\n"
            "  movel(p[-.435606889873, -.196202267593, .460257900767, .030794545164, 3.137571550868, -.006587915986])\n"
            "end\n")
-    (tmp_path / "tcp12.script").write_text(src)
-    r, _ = _correct(cells, tmp_path, "ur10_identity.json", tmp_path / "tcp12.script", "same")
-    assert r.exit_code == 0, r.output
-    assert (tmp_path / "same/tcp12.script").read_text() == src
+    _assert_identity_keeps(cells, tmp_path, "ur10_identity.json", "tcp12.script", src)
 
 
 def test_a_krl_motion_to_a_system_axis_variable_is_a_joint_motion_left_as_given(tmp_path):

@@ -777,8 +777,8 @@ def test_identity_keeps_a_twelve_decimal_pose_near_a_half_turn(cells, tmp_path):
 
 
 def test_a_krl_motion_to_a_system_axis_variable_is_a_joint_motion_left_as_given(tmp_path):
-    """PTP $AXIS_ACT (an E6AXIS the controller holds) is a joint motion named run_time, not a Cartesian
-    one; PTP $POS_ACT stays Cartesian; both are left as given."""
+    """PTP $AXIS_ACT (an E6AXIS the controller holds) is a joint motion, not a Cartesian one; LIN $POS_ACT
+    stays Cartesian; both are read as computed at run time (left as given), an inline joint target is not."""
     from pipeline.programs import krl
     from pipeline.programs.model import CARTESIAN, JOINT
     (tmp_path / "ax.src").write_text("DEF ax( )\n  PTP $AXIS_ACT\n  LIN $POS_ACT\n"

@@ -112,3 +112,32 @@ def test_overlapping_candidates_one_recommended_and_the_set_verified(tmp_path):
     assert v["cv_rms"] < v["baseline_cv_rms"] and v["cv_rms_region"] < v["baseline_cv_rms_region"]
     text = format_table(result)
     assert "overlaps joint_harmonic joint 3 order 8" in text and "Verified as a set" in text
+
+
+def test_fold_products_are_the_training_rows_own(tmp_path):
+    """Issue 32: a candidate's held-out residuals are computed from its products over every row less the
+    held-out rows' (once per candidate, a sparse joint map's columns as a sparse matrix), not from a copy
+    of the training rows. They equal the direct solve on the training rows (the baseline and the candidate
+    refitted linearly on each fold's training poses) to rounding, for a dense candidate (compliance) and a
+    sparse one (a joint map on a 1 deg grid), by pose and by region."""
+    from pipeline.diagnosis.linear import LinearProblem, region_folds
+    from pipeline.robot.model.estimate import fold_ids
+
+    robot, data = campaign(tmp_path, 11, {"effect": "joint_harmonic", "joint": 2, "order": 6, "arcsec": 30.0,
+                                          "phase_deg": 0.0})
+    folds = {"random": fold_ids(data.n, 5), "region": region_folds(data.q_deg, 5)}
+    lin = LinearProblem(robot, list(SPEC.effects), data, folds)
+    for text in ('name = "compliance"', 'name = "joint_map"\njoints = [2]\nstep_deg = 1.0'):
+        cand = parse_spec(f'[model]\nkind = "robot"\n\n[[effect]]\n{text}\n').effects[0]
+        blk = lin.block(cand)
+        if "joint_map" in text:
+            assert blk.sparse() is not None
+        for name in ("random", "region"):
+            got = lin.cv([blk], name).ravel()
+            want = np.empty_like(got)
+            for f in np.unique(folds[name]):
+                test = np.repeat(folds[name] == f, 3)
+                delta = lin._solve([lin.base, blk], ~test)
+                X = np.hstack([lin.base.J[test], blk.J[test]])
+                want[test] = lin.r[test] - X @ delta
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(lin.r).max())

@@ -130,3 +130,36 @@ def test_batched_kinematics_are_pinocchios():
                 np.testing.assert_allclose(R[k], M.rotation, rtol=0, atol=1e-13)
                 np.testing.assert_allclose(J[k], pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3],
                                            rtol=0, atol=1e-13)
+
+
+def test_batched_frames_are_pinocchios():
+    """Issue 32: every link frame, the SMR and a joint's placement along the chain, computed for every pose
+    in one walk (kinematics.batch_frames, what the frames' plausibility check uses), equal pinocchio's
+    forwardKinematics / updateFramePlacements to rounding, on a 6- and a 7-joint arm; a frame off the
+    chain is not guessed (None: pinocchio's loop)."""
+    import pinocchio as pin
+
+    from pipeline.robot.arm.kinematics import batch_frames, build_error_model, load_robot
+
+    for path in (ROOT / "raw" / "robot" / "kr210" / "robot.toml", ROOT / "raw" / "arms" / "panda.toml"):
+        robot = load_robot(path)
+        model, idx = build_error_model(robot)
+        rng = np.random.default_rng(5)
+        Q = rng.normal(0.0, 2e-3, (30, model.nq))
+        Q[:, idx.joints] = rng.uniform(-3.0, 3.0, (30, idx.joints.size))
+        names = [f"link{i}" for i in range(1, idx.joints.size + 1)] + ["smr"]
+        base_joint = int(idx.base[-1]) + 1
+        got = batch_frames(model, Q, names, (base_joint,))
+        assert got is not None and set(got) == set(names) | {base_joint}
+        data = model.createData()
+        for k, q in enumerate(Q):
+            pin.forwardKinematics(model, data, q)
+            pin.updateFramePlacements(model, data)
+            for nm in names:
+                M = data.oMf[model.getFrameId(nm)]
+                np.testing.assert_allclose(got[nm][0][k], M.rotation, rtol=0, atol=1e-13)
+                np.testing.assert_allclose(got[nm][1][k], M.translation, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(got[base_joint][0][k], data.oMi[base_joint].rotation, rtol=0, atol=1e-13)
+            np.testing.assert_allclose(got[base_joint][1][k], data.oMi[base_joint].translation, rtol=0, atol=1e-13)
+        # the flange hangs off the same joint as the SMR; a frame on another branch would be refused
+        assert batch_frames(model, Q, ["flange"], ()) is not None

@@ -116,6 +116,39 @@ class Block:
     def k(self) -> int:
         return self.J.shape[1]
 
+    def sparse(self):
+        """The columns as a sparse matrix (CSR) when fewer than :data:`SPARSE_DENSITY` of them are nonzero (a
+        joint map's: each pose moves two knots of a joint), else None."""
+        if not hasattr(self, "_sparse"):
+            import scipy.sparse
+
+            nz = np.count_nonzero(self.J)
+            self._sparse = (scipy.sparse.csr_matrix(self.J) if self.J.size and nz < SPARSE_DENSITY * self.J.size
+                            else None)
+        return self._sparse
+
+
+#: A candidate's columns sparser than this (fraction nonzero) are multiplied as a sparse matrix.
+SPARSE_DENSITY = 0.1
+
+
+def _tdot(A, B) -> np.ndarray:
+    """A^T B as a dense array, A and B dense or sparse (rows alike)."""
+    if hasattr(A, "tocsr"):
+        out = A.T @ B
+    elif hasattr(B, "tocsr"):
+        out = (B.T @ A).T
+    else:
+        return A.T @ B
+    return out.toarray() if hasattr(out, "toarray") else np.asarray(out)
+
+
+def _count_nonzero(A) -> np.ndarray:
+    """Nonzero rows of each column (k,), A dense or sparse."""
+    if hasattr(A, "tocsr"):
+        return np.bincount(A.tocsr().indices[A.tocsr().data != 0], minlength=A.shape[1])
+    return np.count_nonzero(A, axis=0)
+
 
 class LinearProblem:
     """The baseline fitted once; models with extra blocks solved linearly, fold by fold.
@@ -187,11 +220,24 @@ class LinearProblem:
 
     def _solve(self, blocks, rows):
         """Least squares of r on the blocks' columns over ``rows`` (+ penalties); coefficients."""
+        if rows.all() and len(blocks) == 2 and blocks[0] is self.base and self.base.k:
+            # every row, the baseline and one candidate: the products computed once (:meth:`_products`)
+            if getattr(self, "_base_all", None) is None:
+                self._base_all = (self.base.J.T @ self.base.J, self.base.J.T @ self.r)
+            Gbb, gb = self._base_all
+            Gbc, Gcc, gc, _ = self._products(blocks[1])
+            G = np.block([[Gbb, Gbc], [Gbc.T, Gcc]])
+            g = np.concatenate([gb, gc])
+            return self._solve_normal(blocks, G, g)
         X = np.hstack([b.J[rows] for b in blocks]) if blocks else np.zeros((int(rows.sum()), 0))
         if X.shape[1] == 0:
             return np.zeros(0)
         G = X.T @ X
         g = X.T @ self.r[rows]
+        return self._solve_normal(blocks, G, g)
+
+    def _solve_normal(self, blocks, G, g):
+        """The penalised, scaled, minimum-norm solution of the normal equations G (k, k), g (k,)."""
         off = 0
         for b in blocks:
             if b.pen is not None:
@@ -222,6 +268,14 @@ class LinearProblem:
             self._gram[key] = (train, Ginv, Jb.T @ self.r[train])
         return self._gram[key]
 
+    def _products(self, c):
+        """A candidate block's products with the baseline's columns, its own and the residual over every row
+        (J_b^T J_c (kb, kc), J_c^T J_c (kc, kc), J_c^T r (kc,)) and its nonzero rows per column (kc,), once."""
+        if getattr(c, "_full", None) is None:
+            Jc = c.sparse() if c.sparse() is not None else c.J
+            c._full = (_tdot(self.base.J, Jc), _tdot(Jc, Jc), _tdot(Jc, self.r), _count_nonzero(Jc))
+        return c._full
+
     def cv(self, blocks, folds: str):
         """Held-out residuals (n, 3) of the model "baseline + blocks" under the fold set ``folds`` ((n, 6) on a
         6-DoF campaign: positions mm, then the orientation's mrad times :attr:`weight`).
@@ -233,24 +287,37 @@ class LinearProblem:
         out = np.empty_like(self.r)
         if len(blocks) == 1 and self.base.k:
             c = blocks[0]
+            Gbc_all, Gcc_all, gc_all, nnz_all = self._products(c)
+            Jc = c.sparse() if c.sparse() is not None else c.J
             for f in np.unique(ids):
                 train, Ginv, gb = self._base_fold(folds, f)
-                test = ~train
-                Jb, Jc = self.base.J[train], c.J[train]
-                Gbc = Jb.T @ Jc
-                S = Jc.T @ Jc - Gbc.T @ Ginv @ Gbc
+                test = np.flatnonzero(~train)
+                # the training rows' products are all rows' (computed once per candidate, for both fold
+                # sets) less the held-out rows' (a fifth): no copy of the training rows (issue 32)
+                Jbt, Jct, rt = self.base.J[test], Jc[test], self.r[test]
+                Gbc = Gbc_all - _tdot(Jbt, Jct)
+                Gcc = Gcc_all - _tdot(Jct, Jct)
+                gcr = gc_all - _tdot(Jct, rt)
+                # a column the training rows never reach is exactly zero there (not rounding noise)
+                unseen = nnz_all == _count_nonzero(Jct)
+                if unseen.any():
+                    Gbc[:, unseen] = 0.0
+                    Gcc[unseen, :] = 0.0
+                    Gcc[:, unseen] = 0.0
+                    gcr[unseen] = 0.0
+                S = Gcc - Gbc.T @ Ginv @ Gbc
                 if c.pen is not None:
                     S += c.pen.T @ c.pen
-                rhs = Jc.T @ self.r[train] - Gbc.T @ (Ginv @ gb)
+                rhs = gcr - Gbc.T @ (Ginv @ gb)
                 # scaled by the candidate's own column norms: a direction of it that the baseline
                 # nearly explains (outside fraction below sqrt(EIG_TOL)) is left out, as in a full fit
-                own = np.sum(Jc ** 2, axis=0) + (np.sum(c.pen ** 2, axis=0) if c.pen is not None else 0.0)
+                own = np.maximum(np.diag(Gcc), 0.0) + (np.sum(c.pen ** 2, axis=0) if c.pen is not None else 0.0)
                 sc = np.sqrt(np.maximum(own, 1e-300))
                 w, V = np.linalg.eigh(S / sc[:, None] / sc[None, :])
                 keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
                 dc = (V[:, keep] @ ((V[:, keep].T @ (rhs / sc)) / w[keep])) / sc
                 db = Ginv @ (gb - Gbc @ dc)
-                out[test] = self.r[test] - self.base.J[test] @ db - c.J[test] @ dc
+                out[test] = rt - Jbt @ db - Jct @ dc
             return out.reshape(-1, self.dim)
         blocks = [self.base, *blocks]
         for f in np.unique(ids):

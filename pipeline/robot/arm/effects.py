@@ -843,8 +843,9 @@ class JointMap(RobotEffect):
     def basis(self, robot, idx, data):
         out = []
         for j in self.joints(robot):
-            B = joint_map_basis(data.q_deg[:, j - 1], self.knots(j))
-            out += [[(idx.joints[j - 1], 1e-3 * B[:, k])] for k in range(B.shape[1])]
+            # each knot's values contiguous (a column of the (n, K) basis is strided)
+            BT = 1e-3 * np.ascontiguousarray(joint_map_basis(data.q_deg[:, j - 1], self.knots(j)).T)
+            out += [[(idx.joints[j - 1], BT[k])] for k in range(BT.shape[0])]
         return out
 
     def penalty(self, robot, n_poses):

@@ -435,6 +435,76 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
     return Rw, pw.T, Jt.transpose(2, 1, 0)
 
 
+def batch_frames(model: pin.Model, Q: np.ndarray, frames: list, joints: tuple = (), last: str = "smr"):
+    """The placements of several frames (and joints) on the chain from the root to ``last``, for every
+    configuration at once: one walk of :func:`batch_placements`' numpy kinematics instead of pinocchio's
+    loop over the poses (issue 32: the frames' deviations cost 0.3 s a fit on 12,000 poses, 5.5 s a
+    diagnosis). None when the chain is not all 1-dof axis joints or a frame is not on it.
+
+    Parameters
+    ----------
+    Q : ndarray, shape (n, nq), rad (and m for prismatic joints)
+    frames : list of str
+        Frames on the chain to ``last``.
+    joints : tuple of int
+        Pinocchio joint ids on that chain whose placements (``data.oMi``) are wanted too.
+
+    Returns
+    -------
+    dict name-or-joint-id -> (R (n, 3, 3), p (n, 3) m), or None
+    """
+    chain = _chain(model, last)
+    if chain is None:
+        return None
+    steps = chain[0]
+    on = {j for j, *_ in steps}
+    want = {}
+    for name in frames:
+        fr = model.frames[model.getFrameId(name)]
+        parent = int(fr.parentJoint if hasattr(fr, "parentJoint") else fr.parent)
+        if parent not in on:
+            return None
+        want.setdefault(parent, []).append((name, np.array(fr.placement.rotation), np.array(fr.placement.translation)))
+    if any(int(j) not in on for j in joints):
+        return None
+    Q = np.asarray(Q, float)
+    n = len(Q)
+    cols = [np.repeat(np.eye(3)[:, k:k + 1], n, axis=1) for k in range(3)]
+    p = np.zeros((3, n))
+
+    def moved(p, cols, v):
+        for k in range(3):
+            if v[k] != 0.0:
+                p = p + cols[k] * v[k]
+        return p
+
+    def turned(cols, M):
+        return [sum(cols[i] * M[i, k] for i in range(3) if M[i, k] != 0.0) for k in range(3)]
+
+    def placed(cols, p):
+        return np.stack(cols, axis=0).transpose(2, 1, 0), p.T.copy()
+
+    out = {}
+    for j, revolute, a, Rj, pj, iq, iv in steps:
+        if pj is not None:
+            p = moved(p, cols, pj)
+        if Rj is not None:
+            cols = turned(cols, Rj)
+        q = Q[:, iq]
+        if revolute:
+            b, c = (a + 1) % 3, (a + 2) % 3
+            if np.any(q):
+                cq, sq = np.cos(q), np.sin(q)
+                cols[b], cols[c] = cq * cols[b] + sq * cols[c], cq * cols[c] - sq * cols[b]
+        elif np.any(q):
+            p = p + cols[a] * q
+        if j in joints:
+            out[j] = placed(cols, p)
+        for name, Rf, pf in want.get(j, ()):
+            out[name] = placed(turned(cols, Rf), moved(p, cols, pf))
+    return out
+
+
 def positions(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> np.ndarray:
     """Position of ``frame`` for every configuration.
 

@@ -646,15 +646,17 @@ def directions_from_sequence(q_deg, start_deg=None, start_dir=None):
     start_deg : ndarray, shape (N,), optional
         Where the robot was before the first pose (first pose gets +1 when absent).
     """
-    q = np.atleast_2d(q_deg)
-    d = np.empty(q.shape, int)
-    prev_q = None if start_deg is None else np.asarray(start_deg, float)
-    prev_d = np.ones(q.shape[1], int) if start_dir is None else np.asarray(start_dir, int)
-    for k in range(len(q)):
-        if prev_q is None:
-            d[k] = prev_d
-        else:
-            diff = q[k] - prev_q
-            d[k] = np.where(diff > 0, 1, np.where(diff < 0, -1, prev_d))
-        prev_q, prev_d = q[k], d[k]
-    return d
+    q = np.atleast_2d(np.asarray(q_deg, float))
+    n, N = q.shape
+    prev_d = np.ones(N, int) if start_dir is None else np.broadcast_to(np.asarray(start_dir, int), (N,))
+    if n == 0:
+        return np.empty(q.shape, int)
+    # each pose's move from the one before (the first from start_deg; none without it), +1 / -1 / 0 (no
+    # move, or not a number), and a 0 carries the last sign before it (start_dir before the first): one
+    # pass for every pose at once (the loop over poses took 0.14 s on 12,000)
+    before = np.vstack([q[:1] if start_deg is None else np.asarray(start_deg, float)[None], q[:-1]])
+    diff = q - before
+    step = (diff > 0).astype(int) - (diff < 0).astype(int)
+    at = np.where(step != 0, np.arange(n)[:, None], -1)
+    last = np.maximum.accumulate(at, axis=0)
+    return np.where(last >= 0, np.take_along_axis(step, np.maximum(last, 0), axis=0), prev_d[None, :])

@@ -787,3 +787,31 @@ def test_a_krl_motion_to_a_system_axis_variable_is_a_joint_motion_left_as_given(
     assert [(t.name, t.kind, bool(t.runtime)) for t in targets[:2]] == [("$AXIS_ACT", JOINT, True),
                                                                       ("$POS_ACT", CARTESIAN, True)]
     assert targets[2].kind == JOINT and not targets[2].runtime
+
+
+def test_an_encrypted_rapid_module_in_a_folder_is_copied_as_given(cells, tmp_path):
+    """A folder's module that is not RAPID text (an encrypted module: binary bytes, or an encoded blob
+    without MODULE) is named on stderr and copied byte for byte; the other modules are filtered as
+    without it. Given alone, the binary module is still refused with file:line:col. Module attributes
+    (SYSMODULE, NOSTEPIN, VIEWONLY) read."""
+    prog = _rapid_modules(tmp_path / "cell")
+    sys_text = (prog / "CellData.sys").read_text()
+    (prog / "CellData.sys").write_text(re.sub(r"(?m)^MODULE (\w+)", r"MODULE \1(SYSMODULE, NOSTEPIN, VIEWONLY)",
+                                              sys_text, count=1))
+    assert "(SYSMODULE, NOSTEPIN, VIEWONLY)" in (prog / "CellData.sys").read_text()
+    binary = bytes(range(256)) * 3 + b"\x00\x01tail"
+    blob = b"ENC1:" + b"QUJCREVGR0hJSktMTU5PUFFSU1RVVldYWVo=" * 4 + b"\n"
+    (prog / "Secret.mod").write_bytes(binary)
+    (prog / "Blob.sys").write_bytes(blob)
+    r, rows = _correct(cells, tmp_path, "kr210_fit.json", prog, "out", "--max-correction-deg", "2", json_name="r.json")
+    assert r.exit_code == 0, r.output
+    for name in ("Secret.mod", "Blob.sys"):
+        lines = [ln for ln in r.output.splitlines() if name in ln and "not readable RAPID text" in ln]
+        assert len(lines) == 1 and "copied as given" in lines[0], r.output
+    assert (tmp_path / "out/Secret.mod").read_bytes() == binary
+    assert (tmp_path / "out/Blob.sys").read_bytes() == blob
+    status = {name: t["status"] for (name, _), t in rows.items()}
+    assert all(status[n] == "ok" for n in ("j0", "p1", "p2", "p3", "j4")), rows
+    alone = _correct(cells, tmp_path, "kr210_fit.json", prog / "Secret.mod", "alone")[0]
+    assert alone.exit_code == 2 and "Traceback" not in alone.output, alone.output
+    assert re.search(r"Secret\.mod:\d+:\d+", alone.output), alone.output

@@ -27,7 +27,8 @@ MIRROR = Path(os.environ.get("JOINTCAL_MIRROR", "/work/.mirror"))
 OUT = ROOT / "results" / "programs_corpus.md"
 REPOS = [
     "ros-industrial/kuka_experimental", "ros-industrial/abb_driver", "UniversalRobots/Universal_Robots_ROS_Driver",
-    "ros-industrial/fanuc", "robotics/open_abb", "o2ac/o2ac-ur",
+    "ros-industrial/fanuc", "robotics/open_abb", "o2ac/o2ac-ur", "SintefManufacturing/python-urx", "ros-industrial/abb_libegm",
+    "ros-industrial/abb_robot_driver",
 ]
 VENDOR = {".src": "KRL", ".dat": "KRL", ".mod": "RAPID", ".modx": "RAPID", ".prg": "RAPID", ".sys": "RAPID",
           ".ls": "FANUC", ".script": "URScript", ".urscript": "URScript"}

@@ -787,3 +787,62 @@ def test_a_krl_motion_to_a_system_axis_variable_is_a_joint_motion_left_as_given(
     assert [(t.name, t.kind, bool(t.runtime)) for t in targets[:2]] == [("$AXIS_ACT", JOINT, True),
                                                                       ("$POS_ACT", CARTESIAN, True)]
     assert targets[2].kind == JOINT and not targets[2].runtime
+
+
+def test_an_encrypted_rapid_module_in_a_folder_is_copied_as_given(cells, tmp_path):
+    """A folder's module that is not RAPID text (an encrypted module: binary bytes, or an encoded blob
+    without MODULE) is named on stderr and copied byte for byte; the other modules are filtered as
+    without it. Given alone, the binary module is still refused with file:line:col. Module attributes
+    (SYSMODULE, NOSTEPIN, VIEWONLY) read."""
+    prog = _rapid_modules(tmp_path / "cell")
+    sys_text = (prog / "CellData.sys").read_text()
+    (prog / "CellData.sys").write_text(re.sub(r"(?m)^MODULE (\w+)", r"MODULE \1(SYSMODULE, NOSTEPIN, VIEWONLY)",
+                                              sys_text, count=1))
+    assert "(SYSMODULE, NOSTEPIN, VIEWONLY)" in (prog / "CellData.sys").read_text()
+    binary = bytes(range(256)) * 3 + b"\x00\x01tail"
+    blob = b"ENC1:" + b"QUJCREVGR0hJSktMTU5PUFFSU1RVVldYWVo=" * 4 + b"\n"
+    (prog / "Secret.mod").write_bytes(binary)
+    (prog / "Blob.sys").write_bytes(blob)
+    r, rows = _correct(cells, tmp_path, "kr210_fit.json", prog, "out", "--max-correction-deg", "2", json_name="r.json")
+    assert r.exit_code == 0, r.output
+    for name in ("Secret.mod", "Blob.sys"):
+        lines = [ln for ln in r.output.splitlines() if name in ln and "not readable RAPID text" in ln]
+        assert len(lines) == 1 and "copied as given" in lines[0], r.output
+    assert (tmp_path / "out/Secret.mod").read_bytes() == binary
+    assert (tmp_path / "out/Blob.sys").read_bytes() == blob
+    status = {name: t["status"] for (name, _), t in rows.items()}
+    assert all(status[n] == "ok" for n in ("j0", "p1", "p2", "p3", "j4")), rows
+    alone = _correct(cells, tmp_path, "kr210_fit.json", prog / "Secret.mod", "alone")[0]
+    assert alone.exit_code == 2 and "Traceback" not in alone.output, alone.output
+    assert re.search(r"Secret\.mod:\d+:\d+", alone.output), alone.output
+
+
+@pytest.mark.parametrize("cell", ["kr210_identity.json", "kr210_fit.json"])
+def test_krl_global_points_of_a_public_dat_without_src(cells, tmp_path, cell):
+    """A folder: main.src moves to DECL GLOBAL points of shared.dat (DEFDAT shared PUBLIC, no shared.src).
+    The points are corrected in shared.dat (the same numbers as the sample with its own .dat), every
+    file of the folder is in the output, and an identity model changes no byte of any file."""
+    prog = tmp_path / "krc"
+    prog.mkdir()
+    s = (DATA / "sample.src").read_bytes().decode("latin-1").replace("DEF sample(", "DEF main(")
+    (prog / "main.src").write_bytes(s.encode("latin-1"))
+    d = (DATA / "sample.dat").read_bytes().decode("latin-1")
+    d = d.replace("DEFDAT  SAMPLE", "DEFDAT  SHARED PUBLIC").replace("DECL E6", "DECL GLOBAL E6")
+    (prog / "shared.dat").write_bytes(d.encode("latin-1"))
+    (prog / "main.dat").write_bytes(b"DEFDAT  MAIN\r\nDECL INT COUNT=0\r\nENDDAT\r\n")
+    (prog / "unused.dat").write_bytes(b"DEFDAT  UNUSED PUBLIC\r\nDECL GLOBAL E6POS XQ={X 1.0,Y 2.0,Z 3.0,A 0.0,B 0.0,C 0.0,S 2,T 10}\r\nENDDAT\r\n")
+    r, rows = _correct(cells, tmp_path, cell, prog, "out", "--max-correction-deg", "2", json_name="r.json")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "out"
+    assert sorted(f.name for f in out.iterdir()) == ["main.dat", "main.src", "shared.dat", "unused.dat"]
+    assert (out / "unused.dat").read_bytes() == (prog / "unused.dat").read_bytes()
+    assert (out / "main.dat").read_bytes() == (prog / "main.dat").read_bytes()
+    assert sum(t["status"] == "ok" for t in rows.values()) >= 6
+    if cell == "kr210_identity.json":
+        for f in prog.iterdir():
+            assert (out / f.name).read_bytes() == f.read_bytes(), f.name
+        return
+    r, _ = _correct(cells, tmp_path, cell, DATA / "sample.src", "ref", "--max-correction-deg", "2")
+    assert r.exit_code == 0, r.output
+    assert _numbers_of(out / "shared.dat") == _numbers_of(tmp_path / "ref/sample.dat")
+    assert _numbers_of(out / "shared.dat") != _numbers_of(prog / "shared.dat")

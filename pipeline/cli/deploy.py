@@ -273,6 +273,8 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     for r in rows:
         if r["status"] not in ("ok", "same_target"):
             click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    for note in program.notes:
+        click.echo(f"  {note}", err=True)
     if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
         click.echo(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it states one, "
                    "the program's", err=True)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..core.errors import InputError
 from .model import Program
+from .text import read_source
 
 #: extensions read, and the format each names
 EXTENSIONS = {".src": "krl", ".mod": "rapid", ".prg": "rapid", ".sys": "rapid", ".modx": "rapid", ".ls": "fanuc",
@@ -67,7 +68,13 @@ def read_program(path) -> Program:
         program = reader.read_modules(files)
     elif fmt == "krl" and Path(path).is_dir():
         configs = sorted(f for f in Path(path).rglob("*") if f.name.lower() == reader.CONFIG_DAT and f.is_file())
-        program = merge(fmt, [reader.read(f, configs[0] if configs else None) for f in files])
+        dats = sorted((f for f in Path(path).rglob("*") if f.is_file() and f.suffix.lower() == ".dat"
+                       and f.name.lower() != reader.CONFIG_DAT), key=lambda f: f.relative_to(path).as_posix())
+        shared = [f for f in dats if reader.is_public(f)]
+        progs = [reader.read(f, configs[0] if configs else None, shared) for f in files]
+        # every .dat of the folder is part of the program: one no .src uses is written as given
+        progs.append(Program(fmt, [read_source(f) for f in dats], [], []))
+        program = merge(fmt, progs)
     else:
         program = merge(fmt, [reader.read(f) for f in files])
     if Path(path).is_dir():

@@ -138,11 +138,14 @@ class _Data:
         self.config = None             # file index of $config.dat, when read
         self.assigned = {}             # NAME -> first .src line that assigns it (or a field of it)
 
-    def scan(self, src, fidx):
+    def scan(self, src, fidx, only_global=False):
         text = src.text
         pos = 0
         for line, raw in enumerate(text.splitlines(keepends=True), 1):
             code = strip_comment(raw, ";") if ";" in raw else raw
+            if only_global and not re.match(r"^\s*(?:DECL\s+)?GLOBAL\b", code, re.IGNORECASE):
+                pos += len(raw)
+                continue
             mn = NUMBERED_RE.match(code)
             if mn and code.find("{", mn.end()) >= 0 and balanced(code):
                 _, items, _ = _aggregate(text, pos + code.find("{", mn.end()), src.path, line)
@@ -183,9 +186,24 @@ def _target_of(items, prefix, fidx, decl_type=""):
     return CARTESIAN, nums, flags, T
 
 
-def read(path, config=None) -> Program:
+def is_public(dat: Path) -> bool:
+    """A data list declared ``DEFDAT name PUBLIC``: its ``DECL GLOBAL`` data are seen by every ``.src``."""
+    try:
+        text = read_source(dat).text
+    except InputError:
+        return False
+    for raw in text.splitlines():
+        code = strip_comment(raw, ";").strip()
+        if re.match(r"^DEFDAT\b", code, re.IGNORECASE):
+            return bool(re.search(r"\bPUBLIC\s*$", code, re.IGNORECASE))
+    return False
+
+
+def read(path, config=None, shared=()) -> Program:
     """Read a KRL program (``.src``, its ``.dat``, and ``config`` or the ``$config.dat`` beside it);
-    InputError (file:line) on broken syntax."""
+    ``shared``: the other ``DEFDAT ... PUBLIC`` data lists of the folder, whose ``DECL GLOBAL`` data
+    the ``.src`` may use (corrected in the file that declares them). InputError (file:line) on broken
+    syntax."""
     src = read_source(path)
     sources = [src]
     dat = dat_of(Path(path))
@@ -195,6 +213,11 @@ def read(path, config=None) -> Program:
         sources.append(read_source(config, writable=False))
         data.config = len(sources) - 1
         data.scan(sources[-1], data.config)
+    for other in shared:
+        if dat is not None and Path(other).resolve() == dat.resolve():
+            continue
+        sources.append(read_source(other))
+        data.scan(sources[-1], len(sources) - 1, only_global=True)
     if dat is not None:
         sources.append(read_source(dat))
         data.scan(sources[-1], len(sources) - 1)

@@ -41,9 +41,10 @@ import re
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.files import read_bytes_input
 from . import conventions as cv
 from .model import CARTESIAN, CONFIG, JOINT, PREVIOUS, Frame, Program, Target
-from .text import NUMBER, Number, balanced, read_source, split_top
+from .text import NUMBER, Number, Source, balanced, decode_program, read_source, split_top
 
 DECL_RE = re.compile(r"(?:(?:LOCAL|TASK)\s+)*(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|wobjdata|loaddata)\s+"
                      r"([A-Za-z_]\w*)\s*(\{[^}]*\})?\s*(?::=\s*(.*))?$", re.IGNORECASE | re.DOTALL)
@@ -322,12 +323,34 @@ def read(path) -> Program:
     return read_modules([path])
 
 
+def _opaque(path) -> Source | None:
+    """A module of a folder that is not RAPID text (an encrypted module: binary bytes, or an encoded blob
+    without ``MODULE``): its bytes as a :class:`Source` the readers skip, copied as given; else None."""
+    data = read_bytes_input(path, "program file", "a program file, not a folder")
+    try:
+        src = decode_program(data, str(path))
+    except InputError:
+        return Source(str(path), data.decode("latin-1"))
+    return None if re.search(r"(?im)^\s*(?:(?:LOCAL|SYSMODULE)\s+)*MODULE\b", _mask(src.text)) else src
+
+
 def read_modules(paths) -> Program:
-    """Read a RAPID program's modules together; InputError (file:line) on broken syntax."""
-    sources = [read_source(p) for p in paths]
+    """Read a RAPID program's modules together; InputError (file:line) on broken syntax.
+
+    Of several modules (a folder), one that is not RAPID text (:func:`_opaque`: an encrypted module the
+    controller decodes) is named in ``Program.notes`` and copied byte for byte; its data is not read.
+    One module alone is read as text (a binary file: InputError).
+    """
+    opaque = [_opaque(p) for p in paths] if len(paths) > 1 else [None] * len(paths)
+    sources = [o if o is not None else read_source(p) for p, o in zip(paths, opaque)]
+    notes = [f"{o.path}: not readable RAPID text (an encrypted module?), copied as given" for o in opaque if o]
     masks, all_stmts = [], []
     decl = _Declared()
     for fidx, src in enumerate(sources):
+        if opaque[fidx] is not None:
+            masks.append("")
+            all_stmts.append([])
+            continue
         masked = _mask_header(src.text, _mask(src.text))
         mo = re.search(r"(?im)^\s*MODULE\b", masked)
         if mo and not re.search(r"(?im)^\s*ENDMODULE\b", masked):
@@ -348,7 +371,7 @@ def read_modules(paths) -> Program:
             targets.append(Target(dpath, dline, name, JOINT if typ == "jointtarget" else CARTESIAN, PREVIOUS,
                                   runtime="declared, but no motion the filter reads goes to it (an argument of a "
                                   "call, Offs or RelTool, or a motion not read): left as given"))
-    return Program("rapid", sources, targets)
+    return Program("rapid", sources, targets, notes)
 
 
 def _motions(src, fidx, stmts, decl, masked) -> list:

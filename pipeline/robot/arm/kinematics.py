@@ -367,6 +367,48 @@ def _chain(model: pin.Model, frame: str):
     return result
 
 
+def _moved(p, cols, v):
+    """The origin p (3, n) moved by v (3,) in the frame of the columns ``cols`` (three (3, n))."""
+    for k in range(3):
+        if v[k] != 0.0:
+            p = p + cols[k] * v[k]
+    return p
+
+
+def _turned(cols, M):
+    """The columns (three (3, n)) of the frame turned by M (3, 3)."""
+    return [sum(cols[i] * M[i, k] for i in range(3) if M[i, k] != 0.0) for k in range(3)]
+
+
+def _origin(n):
+    """The root frame for n configurations: the rotation as its three columns and the origin, each (3, n)
+    (x, y, z rows); the numpy kinematics are a few axpys a joint on them."""
+    return [np.repeat(np.eye(3)[:, k:k + 1], n, axis=1) for k in range(3)], np.zeros((3, n))
+
+
+def _walk(steps, Q):
+    """The numpy kinematics of a :func:`_chain`'s joints for every configuration Q (n, nq): after each joint,
+    (joint id, revolute, axis, v index, the frame's three columns (3, n), its origin (3, n) m)."""
+    Q = np.asarray(Q, float)
+    n = len(Q)
+    cols, p = _origin(n)
+    for j, revolute, a, Rj, pj, iq, iv in steps:
+        if pj is not None:
+            p = _moved(p, cols, pj)
+        if Rj is not None:
+            cols = _turned(cols, Rj)
+        q = Q[:, iq]
+        if revolute:
+            b, c = (a + 1) % 3, (a + 2) % 3
+            if np.any(q):
+                cq, sq = np.cos(q), np.sin(q)
+                cols = list(cols)
+                cols[b], cols[c] = cq * cols[b] + sq * cols[c], cq * cols[c] - sq * cols[b]
+        elif np.any(q):
+            p = p + cols[a] * q
+        yield j, revolute, a, iv, cols, p
+
+
 def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobian: bool = False):
     """``frame``'s placement for every configuration at once (numpy, no loop over the poses), and with
     ``jacobian`` its positional frame Jacobian (world-aligned), for models whose joints from the root to
@@ -389,37 +431,13 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
     joints, Rf, pf = chain
     Q = np.asarray(Q, float)
     n = len(Q)
-    # the rotation as its three columns and the origin, each (3, n) (x, y, z rows): a few axpys a joint
-    cols = [np.repeat(np.eye(3)[:, k:k + 1], n, axis=1) for k in range(3)]
-    p = np.zeros((3, n))
-
-    def moved(p, v):
-        for k in range(3):
-            if v[k] != 0.0:
-                p = p + cols[k] * v[k]
-        return p
-
-    def turned(M):
-        return [sum(cols[i] * M[i, k] for i in range(3) if M[i, k] != 0.0) for k in range(3)]
-
+    cols, p = _origin(n)
     axes = []
-    for j, revolute, a, Rj, pj, iq, iv in joints:
-        if pj is not None:
-            p = moved(p, pj)
-        if Rj is not None:
-            cols = turned(Rj)
-        q = Q[:, iq]
-        if revolute:
-            b, c = (a + 1) % 3, (a + 2) % 3
-            if np.any(q):
-                cq, sq = np.cos(q), np.sin(q)
-                cols[b], cols[c] = cq * cols[b] + sq * cols[c], cq * cols[c] - sq * cols[b]
-        elif np.any(q):
-            p = p + cols[a] * q
+    for j, revolute, a, iv, cols, p in _walk(joints, Q):
         if jacobian:
             axes.append((iv, revolute, cols[a], p))
-    pw = moved(p, pf)
-    cols = turned(Rf)
+    pw = _moved(p, cols, pf)
+    cols = _turned(cols, Rf)
     Rw = np.stack(cols, axis=0).transpose(2, 1, 0)          # (n, 3, 3): [pose, row, column]
     if not jacobian:
         return Rw, pw.T, None
@@ -467,41 +485,16 @@ def batch_frames(model: pin.Model, Q: np.ndarray, frames: list, joints: tuple = 
         want.setdefault(parent, []).append((name, np.array(fr.placement.rotation), np.array(fr.placement.translation)))
     if any(int(j) not in on for j in joints):
         return None
-    Q = np.asarray(Q, float)
-    n = len(Q)
-    cols = [np.repeat(np.eye(3)[:, k:k + 1], n, axis=1) for k in range(3)]
-    p = np.zeros((3, n))
-
-    def moved(p, cols, v):
-        for k in range(3):
-            if v[k] != 0.0:
-                p = p + cols[k] * v[k]
-        return p
-
-    def turned(cols, M):
-        return [sum(cols[i] * M[i, k] for i in range(3) if M[i, k] != 0.0) for k in range(3)]
 
     def placed(cols, p):
         return np.stack(cols, axis=0).transpose(2, 1, 0), p.T.copy()
 
     out = {}
-    for j, revolute, a, Rj, pj, iq, iv in steps:
-        if pj is not None:
-            p = moved(p, cols, pj)
-        if Rj is not None:
-            cols = turned(cols, Rj)
-        q = Q[:, iq]
-        if revolute:
-            b, c = (a + 1) % 3, (a + 2) % 3
-            if np.any(q):
-                cq, sq = np.cos(q), np.sin(q)
-                cols[b], cols[c] = cq * cols[b] + sq * cols[c], cq * cols[c] - sq * cols[b]
-        elif np.any(q):
-            p = p + cols[a] * q
+    for j, revolute, a, iv, cols, p in _walk(steps, Q):
         if j in joints:
             out[j] = placed(cols, p)
         for name, Rf, pf in want.get(j, ()):
-            out[name] = placed(turned(cols, Rf), moved(p, cols, pf))
+            out[name] = placed(_turned(cols, Rf), _moved(p, cols, pf))
     return out
 
 

@@ -111,6 +111,7 @@ class Block:
         self.J = J
         self.pen = pen if pen is not None and pen.size else None
         self.names, self.units = list(names), list(units)
+        self._sparse, self._sparse_known, self._full = None, False, None
 
     @property
     def k(self) -> int:
@@ -119,13 +120,18 @@ class Block:
     def sparse(self):
         """The columns as a sparse matrix (CSR) when fewer than :data:`SPARSE_DENSITY` of them are nonzero (a
         joint map's: each pose moves two knots of a joint), else None."""
-        if not hasattr(self, "_sparse"):
-            import scipy.sparse
+        if not self._sparse_known:
+            self._sparse_known = True
+            if self.J.size and np.count_nonzero(self.J) < SPARSE_DENSITY * self.J.size:
+                import scipy.sparse
 
-            nz = np.count_nonzero(self.J)
-            self._sparse = (scipy.sparse.csr_matrix(self.J) if self.J.size and nz < SPARSE_DENSITY * self.J.size
-                            else None)
+                self._sparse = scipy.sparse.csr_matrix(self.J)
         return self._sparse
+
+    def columns(self):
+        """The columns to multiply with: :meth:`sparse` when they are sparse, else the dense J."""
+        sp = self.sparse()
+        return self.J if sp is None else sp
 
 
 #: A candidate's columns sparser than this (fraction nonzero) are multiplied as a sparse matrix.
@@ -146,7 +152,8 @@ def _tdot(A, B) -> np.ndarray:
 def _count_nonzero(A) -> np.ndarray:
     """Nonzero rows of each column (k,), A dense or sparse."""
     if hasattr(A, "tocsr"):
-        return np.bincount(A.tocsr().indices[A.tocsr().data != 0], minlength=A.shape[1])
+        A = A.tocsr()
+        return np.bincount(A.indices[A.data != 0], minlength=A.shape[1])
     return np.count_nonzero(A, axis=0)
 
 
@@ -205,6 +212,8 @@ class LinearProblem:
         self.r = r.ravel()
         self.Jext = channel_jacobian(self.base_design, self.coef)
         self._gram = {}
+        #: the baseline's J^T J and J^T r over every row (:meth:`_solve`), once
+        self._base_all = None
 
     # ------------------------------------------------------------------ columns
     def block(self, effect) -> Block:
@@ -222,7 +231,7 @@ class LinearProblem:
         """Least squares of r on the blocks' columns over ``rows`` (+ penalties); coefficients."""
         if rows.all() and len(blocks) == 2 and blocks[0] is self.base and self.base.k:
             # every row, the baseline and one candidate: the products computed once (:meth:`_products`)
-            if getattr(self, "_base_all", None) is None:
+            if self._base_all is None:
                 self._base_all = (self.base.J.T @ self.base.J, self.base.J.T @ self.r)
             Gbb, gb = self._base_all
             Gbc, Gcc, gc, _ = self._products(blocks[1])
@@ -271,8 +280,8 @@ class LinearProblem:
     def _products(self, c):
         """A candidate block's products with the baseline's columns, its own and the residual over every row
         (J_b^T J_c (kb, kc), J_c^T J_c (kc, kc), J_c^T r (kc,)) and its nonzero rows per column (kc,), once."""
-        if getattr(c, "_full", None) is None:
-            Jc = c.sparse() if c.sparse() is not None else c.J
+        if c._full is None:
+            Jc = c.columns()
             c._full = (_tdot(self.base.J, Jc), _tdot(Jc, Jc), _tdot(Jc, self.r), _count_nonzero(Jc))
         return c._full
 
@@ -288,7 +297,7 @@ class LinearProblem:
         if len(blocks) == 1 and self.base.k:
             c = blocks[0]
             Gbc_all, Gcc_all, gc_all, nnz_all = self._products(c)
-            Jc = c.sparse() if c.sparse() is not None else c.J
+            Jc = c.columns()
             for f in np.unique(ids):
                 train, Ginv, gb = self._base_fold(folds, f)
                 test = np.flatnonzero(~train)

@@ -286,21 +286,27 @@ class Design:
 
 
 
+def _by_column(keys, cols, p):
+    """Entries (``keys``, ``cols``) sorted by column, keys increasing within a column: the order, where each
+    run of one (key, column) starts, the sorted keys and columns (issue 32: a stable sort, radix on small
+    column numbers, when the keys already increase in entry order)."""
+    keys, cols = np.asarray(keys, np.int64), np.asarray(cols, np.int64)
+    order = np.argsort(cols.astype(np.int16) if p < 2 ** 15 else cols, kind="stable")
+    k, c = keys[order], cols[order]
+    if np.any((k[1:] < k[:-1]) & (c[1:] == c[:-1])):
+        order = np.lexsort((keys, cols))
+        k, c = keys[order], cols[order]
+    new = np.ones(k.size, bool)
+    new[1:] = (k[1:] != k[:-1]) | (c[1:] != c[:-1])
+    return order, np.flatnonzero(new), k, c
+
+
 def _csc_structure(rows, cols, m, p):
     """The CSC layout of a sparse matrix (m, p) whose entries (``rows``, ``cols``) keep their places from call
     to call (a design's Jacobian): the order taking the entries to it, where each stored value starts
-    (duplicates summed), its row indices and column pointers (issue 32: built once, not by a COO
-    conversion each iteration)."""
-    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
-    # by column, rows in their order within a column (a stable sort: radix on small column numbers)
-    order = np.argsort(cols.astype(np.int16) if p < 2 ** 15 else cols, kind="stable")
-    r, c = rows[order], cols[order]
-    if np.any((r[1:] < r[:-1]) & (c[1:] == c[:-1])):
-        order = np.lexsort((rows, cols))
-        r, c = rows[order], cols[order]
-    new = np.ones(r.size, bool)
-    new[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-    start = np.flatnonzero(new)
+    (None: no duplicates; duplicates are summed), its row indices and column pointers (built once, not by
+    a COO conversion each iteration)."""
+    order, start, r, c = _by_column(rows, cols, p)
     indptr = np.searchsorted(c[start], np.arange(p + 1)).astype(np.int64)
     return order, (start if start.size < r.size else None), r[start].astype(np.int32), indptr, (m, p)
 
@@ -310,15 +316,7 @@ def _pose_csc_structure(ii, cols, n, p):
     pose-major) each fill the rows 3 ii + 0, 1, 2: the order taking the nonzeros to it (by column, poses
     increasing), where each run of nonzeros of one (pose, column) starts (None: no run longer than one),
     row indices and column pointers. Sorted as nonzeros, not as rows (a third of the work)."""
-    ii, cols = np.asarray(ii, np.int64), np.asarray(cols, np.int64)
-    order = np.argsort(cols.astype(np.int16) if p < 2 ** 15 else cols, kind="stable")
-    i, c = ii[order], cols[order]
-    if np.any((i[1:] < i[:-1]) & (c[1:] == c[:-1])):
-        order = np.lexsort((ii, cols))
-        i, c = ii[order], cols[order]
-    new = np.ones(i.size, bool)
-    new[1:] = (i[1:] != i[:-1]) | (c[1:] != c[:-1])
-    first = np.flatnonzero(new)
+    order, first, i, c = _by_column(ii, cols, p)
     rows = (3 * i[first][:, None] + np.arange(3)).ravel().astype(np.int32)
     indptr = 3 * np.searchsorted(c[first], np.arange(p + 1)).astype(np.int64)
     return order, (first if first.size < i.size else None), rows, indptr, (3 * n, p)
@@ -526,11 +524,10 @@ def frame_deviations(model, idx, Q, Q0) -> list[dict]:
     import pinocchio as pin
 
     N = idx.joints.size
-    fids = [model.getFrameId(nm) for nm in [f"link{i}" for i in range(1, N + 1)] + ["smr"]]
+    names = [f"link{i}" for i in range(1, N + 1)] + ["smr"]
+    fids = [model.getFrameId(nm) for nm in names]
     base_joint = int(idx.base[-1]) + 1                      # the last base error joint (pinocchio joint id)
     data = model.createData()
-
-    names = [f"link{i}" for i in range(1, N + 1)] + ["smr"]
 
     def frames(Qs):
         """Rotations (n, N + 2, 3, 3) and positions (n, N + 2, 3) m: base, link frames 1..N, SMR."""

@@ -25,11 +25,46 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MIRROR = Path(os.environ.get("JOINTCAL_MIRROR", "/work/.mirror"))
 OUT = ROOT / "results" / "programs_corpus.md"
-REPOS = [
-    "ros-industrial/kuka_experimental", "ros-industrial/abb_driver", "UniversalRobots/Universal_Robots_ROS_Driver",
-    "ros-industrial/fanuc", "robotics/open_abb", "o2ac/o2ac-ur", "SintefManufacturing/python-urx", "ros-industrial/abb_libegm",
-    "ros-industrial/abb_robot_driver",
-]
+#: repositories read, and the licence of each (checked in its LICENSE, or its package.xml where it has none; a
+#: repository whose licence allows no use is not listed; its programs are never copied into the project)
+LICENCES = {
+    # KUKA KRL
+    "ros-industrial/kuka_experimental": "Apache-2.0",
+    "fzi-forschungszentrum-informatik/kuka_rsi_driver": "BSD-3-Clause",
+    "tingelst/kuka_eki": "Apache-2.0",
+    "wingljj/Kuka-RSI-real-time-control": "MIT",
+    "cjlh/kuka-rsi-ros-interface": "GPL-3.0",
+    "kroshu/kuka-external-control-sdk": "Apache-2.0",
+    # ABB RAPID
+    "ros-industrial/abb_driver": "BSD-3-Clause (package.xml, README)",
+    "ros-industrial/abb_libegm": "BSD-3-Clause",
+    "ros-industrial/abb_robot_driver": "BSD-3-Clause",
+    "rparak/ABB-RobotStudio-SortingProductionLine": "MIT",
+    "rparak/ABB-RobotStudio-YUMI": "MIT",
+    "rparak/ABB-RobotStudio-YUMI-Tower-of_Hanoi": "MIT",
+    "rparak/ABB_EGM_Python": "MIT",
+    "rparak/OpenTube_Version_ABB": "MIT",
+    "rparak/VInRoS_ABB_RS": "MIT",
+    "rpiRobotics/abb_motion_program_exec": "Apache-2.0",
+    # FANUC TP
+    "ros-industrial/fanuc": "BSD-3-Clause",
+    "rpiRobotics/fanuc_motion_program_exec": "Apache-2.0",
+    "djfacio/fanuc-ai-tp": "MIT",
+    "kobbled/tp_plus": "Apache-2.0",
+    "onerobotics/go-fanuc": "MIT",
+    "airo-ugent/airo-fanuc": "Apache-2.0",
+    # Universal Robots URScript
+    "UniversalRobots/Universal_Robots_ROS_Driver": "Apache-2.0",
+    "UniversalRobots/Universal_Robots_Client_Library": "Apache-2.0",
+    "UniversalRobots/URScript_Examples": "BSD-3-Clause",
+    "rparak/URScript_Examples": "MIT",
+    "Hirebotics/urscript-tools": "MIT",
+    "o2ac/o2ac-ur": "MIT",
+    "SintefManufacturing/python-urx": "LGPL-3.0",
+}
+REPOS = list(LICENCES)
+#: files with a program extension that are not programs of any robot (a Go module file is no RAPID module)
+NOT_PROGRAMS = {"go.mod"}
 VENDOR = {".src": "KRL", ".dat": "KRL", ".mod": "RAPID", ".modx": "RAPID", ".prg": "RAPID", ".sys": "RAPID",
           ".ls": "FANUC", ".script": "URScript", ".urscript": "URScript"}
 
@@ -44,7 +79,7 @@ def programs_of(gd: Path) -> list[tuple[str, str, list[str]]]:
     by_dir = defaultdict(list)
     for f in files:
         ext = Path(f).suffix.lower()
-        if ext in VENDOR:
+        if ext in VENDOR and Path(f).name.lower() not in NOT_PROGRAMS:
             by_dir[(VENDOR[ext], str(Path(f).parent))].append(f)
     out = []
     for (vendor, d), fs in sorted(by_dir.items()):
@@ -131,9 +166,9 @@ def main(repos=REPOS) -> Path:
     try:
         models = identity_models(tmp)
         for repo in repos:
-            gd = MIRROR / repo.replace("/", "+") / "repo"
-            if not gd.exists():
-                gd = MIRROR / repo.replace("/", "+")
+            here = MIRROR / repo.replace("/", "+")
+            # a bare git dir, or a clone's .git (some snapshots are clones with a work tree)
+            gd = next((g for g in (here / "repo", here / "repo" / ".git", here) if (g / "HEAD").exists()), here)
             if not (gd / "HEAD").exists():
                 print(f"programs_corpus: {repo} not fetched under {MIRROR}; skipped", file=sys.stderr)
                 missing.append(repo)
@@ -145,11 +180,18 @@ def main(repos=REPOS) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)
     summary = Counter((r["vendor"], r["outcome"]) for r in rows)
     lines = ["# Identity `jointcal correct --program` over public robot programs", "",
-             "`python -m bench.programs_corpus` (bench/programs_corpus.py). Bytes changed must be 0.", "",
-             "| vendor | filtered | passed through | refused | bytes changed (sum) |", "|---|---|---|---|---|"]
+             "`python -m bench.programs_corpus` (bench/programs_corpus.py). Bytes changed must be 0. A program is a file "
+             "(FANUC, URScript) or a folder (KRL `.src` files with their `.dat`, RAPID modules).", "",
+             "| vendor | programs | files | filtered | passed through | refused | bytes changed (sum) |",
+             "|---|---|---|---|---|---|---|"]
     for v in sorted({r["vendor"] for r in rows}):
-        lines.append(f"| {v} | {summary[(v, 'filtered')]} | {summary[(v, 'passed through')]} | {summary[(v, 'refused')]} | "
-                     f"{sum(r['changed'] or 0 for r in rows if r['vendor'] == v)} |")
+        mine = [r for r in rows if r["vendor"] == v]
+        lines.append(f"| {v} | {len(mine)} | {sum(r['files'] for r in mine)} | {summary[(v, 'filtered')]} | "
+                     f"{summary[(v, 'passed through')]} | {summary[(v, 'refused')]} | "
+                     f"{sum(r['changed'] or 0 for r in mine)} |")
+    lines += ["", "| repository | licence | programs |", "|---|---|---|"]
+    lines += [f"| {repo} | {LICENCES.get(repo, '?')} | {sum(r['repo'] == repo for r in rows)} |" for repo in repos
+              if repo not in missing]
     if missing:
         lines += ["", "Not fetched (skipped): " + ", ".join(missing)]
     lines += ["", "| repo | path | vendor | outcome | bytes changed | reason / counts |", "|---|---|---|---|---|---|"]

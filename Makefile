@@ -10,6 +10,18 @@ STAMP := $(VENV)/.installed
 export SOURCE_DATE_EPOCH := 1577836800
 export MPLBACKEND := Agg
 export OPENBLAS_NUM_THREADS := 1
+# OpenBLAS picks its kernels by the CPU it finds, and kernels differ in their last bits: on an AVX-512
+# machine (SkylakeX kernels) 35 of make all's files came out other bytes than on an AVX2 one (Haswell/Zen
+# kernels, which wrote tests/data/make-all.sha256). Every x86-64 CPU with AVX2 and FMA runs the Haswell
+# kernels, so make uses those there and the same inputs give the same bytes on either (measured: the
+# robot fit's JSON is the reference's with Haswell or Zen, other bytes with SkylakeX or Cooperlake).
+# numpy, too, runs its element-wise functions (sin, exp, ...) on AVX-512 where the CPU has it: with the
+# Haswell kernels alone, reports/real.pdf still came out other bytes; with AVX-512 off in numpy as well,
+# the reference's (measured on an AMD EPYC with AVX-512).
+ifneq ($(shell grep -qw avx2 /proc/cpuinfo 2>/dev/null && grep -qw fma /proc/cpuinfo && echo yes),)
+export OPENBLAS_CORETYPE := Haswell
+export NPY_DISABLE_CPU_FEATURES := X86_V4 AVX512_ICL AVX512_SPR
+endif
 # glibc's malloc gives freed blocks over its (moving) threshold back to the system and trims its heap;
 # the robot fits free and allocate large arrays over and over, so page faults (system time) come and
 # go with what the process ran before: one robot diagnosis took 6 s with these fixed thresholds and

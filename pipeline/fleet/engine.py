@@ -30,6 +30,7 @@ from __future__ import annotations
 import glob
 import logging
 import os
+import sys
 import time
 
 import numpy as np
@@ -181,8 +182,8 @@ def _robot_unit(campaign, spec, diagnose):
 
 # ---------------------------------------------------------------------------- execution
 #: chunks of units a Dask worker gets over a fleet: enough that the workers end together (at the end
-#: one worker can wait up to a chunk for the other: 62-unit chunks of 7 s each lost 2-3 s of 64 on the
-#: 1,000-module bench), few enough that the scheduler's few milliseconds a task stay small against a chunk
+#: one worker can wait up to a chunk's time for the other: with 8 a worker, 1,000 modules made chunks of 7 s),
+#: few enough that the scheduler's few milliseconds a task stay small against a chunk
 CHUNKS_PER_WORKER = 32
 
 
@@ -246,7 +247,8 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
     if scheduler:
         client = Client(scheduler, timeout="15s")
     else:
-        # the worker processes are forked from this one where the system can (Linux): they start with the
+        # the worker processes are forked from this one on Linux (macOS's system libraries are not safe to
+        # fork; there, and elsewhere, Dask's spawn): they start with the
         # pipeline already imported, instead of a new interpreter importing it again (spawn, Dask's default:
         # 1-2 s of each worker's start, before its first unit)
         import dask
@@ -254,7 +256,8 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
 
         # and without Dask's statistical profiler, which samples the running unit's stack every 10 ms: 2.6 s
         # of a 20.4 s run of 300 modules on 2 workers (measured; it is for Dask's dashboard, not started here)
-        method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+        method = "fork" if sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods() \
+            else "spawn"
         with dask.config.set({"distributed.worker.multiprocessing-method": method,
                               "distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,

@@ -846,3 +846,28 @@ def test_krl_global_points_of_a_public_dat_without_src(cells, tmp_path, cell):
     assert r.exit_code == 0, r.output
     assert _numbers_of(out / "shared.dat") == _numbers_of(tmp_path / "ref/sample.dat")
     assert _numbers_of(out / "shared.dat") != _numbers_of(prog / "shared.dat")
+
+
+def test_a_declared_target_used_under_two_tools_is_named(cells, tmp_path):
+    """One CONST robtarget moved to under two tools (or two payloads): its one set of numbers is filtered
+    for the first use; the second is named with both lines in the report and on the console, not
+    silently corrected for the wrong frame. Used again under the same tool it is a plain same_target."""
+    src = ("MODULE Two\n"
+           "  PERS tooldata tA:=[TRUE,[[0,0,200],[1,0,0,0]],[5,[0,0,50],[1,0,0,0],0,0,0]];\n"
+           "  PERS tooldata tB:=[TRUE,[[0,80,250],[1,0,0,0]],[5,[0,0,50],[1,0,0,0],0,0,0]];\n"
+           "  PERS tooldata tC:=[TRUE,[[0,0,200],[1,0,0,0]],[60,[0,0,50],[1,0,0,0],0,0,0]];\n"
+           "  CONST robtarget p1:=[[1500,100,1500],[0.5,0,0.866025404,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];\n"
+           "  PROC main()\n    MoveJ p1,v100,fine,tA;\n    MoveL p1,v100,fine,tA;\n    MoveL p1,v100,fine,tB;\n"
+           "    MoveL p1,v100,fine,tC;\n  ENDPROC\nENDMODULE\n")
+    (tmp_path / "Two.mod").write_text(src)
+    r, rows = _correct(cells, tmp_path, "kr210_fit.json", tmp_path / "Two.mod", "out", "--payload", "5",
+                       json_name="r.json")
+    assert r.exit_code == 0, r.output
+    by_line = {line: t for (_, line), t in rows.items()}
+    assert by_line[7]["status"] != "same_target"                     # filtered or not, at its first use
+    assert [by_line[n]["status"] for n in (8, 9, 10)] == ["same_target"] * 3
+    assert "under another" not in by_line[8]["reason"]
+    assert "tool frame" in by_line[9]["reason"] and "line 7" in by_line[9]["reason"]
+    assert "payload" in by_line[10]["reason"] and "tool frame" not in by_line[10]["reason"]
+    named = [x for x in r.output.splitlines() if "used again" in x]
+    assert len(named) == 2 and all("Two.mod:9:" in x or "Two.mod:10:" in x for x in named), r.output

@@ -273,6 +273,8 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     for r in rows:
         if r["status"] not in ("ok", "same_target"):
             click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
+    for r in res.conflicts:
+        click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}", err=True)
     for note in program.notes:
         click.echo(f"  {note}", err=True)
     if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):

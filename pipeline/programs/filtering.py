@@ -208,6 +208,7 @@ class Filtered:
     changes: dict                   # (file index, start, end) -> new text
     rows: list                      # dicts: file, line, name, kind, status, reason, max_correction_arcsec, move_mm
     texts: list = field(default_factory=list)
+    conflicts: list = field(default_factory=list)   # rows of a declared target used again under another frame or load
 
 
 def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg=None,
@@ -253,6 +254,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             q1[k] = res.q_deg[r]
     changes = {}
     seen = {}
+    conflicts = []
     done = sorted(q1)
     if done:
         both = np.concatenate([played.q_deg[done], np.array([q1[k] for k in done])])
@@ -270,13 +272,21 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             row["payload_kg"] = float(np.broadcast_to(np.asarray(payload_kg, float), (n,))[k])
             row["payload_source"] = payload_source[k] if payload_source else ""
         rows.append(row)
+        use = (played.tool[k], played.base[k], row.get("payload_kg"))
         if t.decl and t.decl in seen:
-            first = seen[t.decl]
+            first, used = seen[t.decl]
             row["status"] = "same_target"
             row["reason"] = f"the declaration {t.name} was filtered at its first use, line {first}"
+            differ = _uses_differ(used, use)
+            if differ:
+                # one set of numbers cannot serve two frames or loads: it is filtered for the first
+                # use, and this use is named (the report and the console) so the user can split it
+                row["reason"] += (f", under another {' and '.join(differ)} than here: its numbers serve line "
+                                  f"{first} only (give this motion its own target)")
+                conflicts.append(row)
             continue
         if t.decl and not t.runtime:
-            seen[t.decl] = t.line
+            seen[t.decl] = (t.line, use)
         if k in status:
             row["status"] = _status_word(status[k], t)
             row["reason"] = status[k]
@@ -308,7 +318,20 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
                 changes[(num.file, num.start, num.end)] = s
         row["max_correction_arcsec"] = float(dq)
         row["move_mm"] = move
-    return Filtered(changes, rows)
+    return Filtered(changes, rows, conflicts=conflicts)
+
+
+def _uses_differ(a, b) -> list:
+    """What differs between two uses ``(tool 4 x 4 or None, base 4 x 4 or None, payload kg or None)``
+    of one declared target: ``tool frame`` / ``base frame`` (an entry of the 4 x 4 apart by more than
+    1e-6: mm, or rotation), ``payload``."""
+    out = []
+    for word, fa, fb in (("tool", a[0], b[0]), ("base", a[1], b[1])):
+        if fa is not None and fb is not None and not np.allclose(fa, fb, rtol=0.0, atol=1e-6):
+            out.append(f"{word} frame")
+    if a[2] is not None and b[2] is not None and abs(a[2] - b[2]) > 1e-9:
+        out.append(f"payload ({a[2]:g} kg there, {b[2]:g} kg here)")
+    return out
 
 
 def _status_word(reason: str, t) -> str:

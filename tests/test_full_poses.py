@@ -122,6 +122,72 @@ def test_the_weight_does_not_hinge_on_where_it_starts(cell):
     assert np.abs(Pa - Pb).max() < 2e-3
 
 
+def test_the_variance_components_secant_ends_where_the_plain_iteration_does():
+    """A ratio that closes a fixed fraction of the gap a step (as the real series' do, 0.2 on Series A):
+    the secant steps end at the same weight as the plain ones, in fewer fits; a secant pointing against
+    the plain step is not taken."""
+    from pipeline.robot.model.calibrate import VCE_RTOL, vce_next
+
+    w_star, c = 0.2958, 0.2
+
+    def ratio(w):                      # the weight the fit at w gives: closes 80 % of the gap in log w
+        return w_star * (w / w_star) ** c
+
+    def run(secant):
+        w, before, fits = 1.0, None, 0
+        while True:
+            fits += 1
+            h = float(np.log(ratio(w) / w))
+            if abs(h) < VCE_RTOL:
+                return w, fits
+            nxt = vce_next(np.log(w), h, before if secant else None)
+            before = (float(np.log(w)), h)
+            w = nxt
+
+    (w_plain, n_plain), (w_sec, n_sec) = run(False), run(True)
+    assert n_sec < n_plain, (n_sec, n_plain)
+    for w in (w_plain, w_sec):
+        assert abs(np.log(w / w_star)) < VCE_RTOL / (1 - c), w
+    # the plain step at h = -0.1 from log w = 0; a secant (through log w = 1, h = -0.3) that would go uphill
+    assert vce_next(0.0, -0.1, (1.0, -0.3)) == pytest.approx(np.exp(-0.1), rel=1e-12)
+    # the secant through log w = -1, h = +0.3: the root of h at log w = -0.25
+    assert vce_next(0.0, -0.1, (-1.0, 0.3)) == pytest.approx(np.exp(-0.25), rel=1e-12)
+
+
+def test_a_refit_on_nearly_the_same_poses_starts_from_the_weight_before(cell):
+    """The wild-point search refits without a few poses: started from the weight the fit before ended
+    with, its variance components end at once, where a fit from the usual start ends."""
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.calibrate import RobotErrorModel, VCE_RTOL
+    from pipeline.core.spec import parse_spec
+
+    robot, (sample, _) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
+    effects = list(parse_spec(KINEMATIC.read_text(), KINEMATIC).effects)
+    a = RobotErrorModel(robot, effects).fit(sample)
+    keep = np.ones(sample.n, bool)
+    keep[[3, 17, 40]] = False
+    fewer = sample.subset(keep)
+    fresh = RobotErrorModel(robot, effects).fit(fewer)
+    warm = RobotErrorModel(robot, effects, weight_start=a.weighting_["orientation_weight_mm_per_mrad"]).fit(fewer)
+    assert warm.weighting_["started_from"].startswith("the weight of a fit of the same model")
+    assert warm.weighting_["iterations"] <= min(2, fresh.weighting_["iterations"])
+    ww, wf = (m.weighting_["orientation_weight_mm_per_mrad"] for m in (warm, fresh))
+    assert abs(np.log(ww / wf)) < 3 * VCE_RTOL, (ww, wf)
+
+
+def test_folds_in_forked_processes_give_the_same_cross_validation(cell):
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import cross_validate
+    from pipeline.core.spec import parse_spec
+
+    robot, (sample, _) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
+    effects = list(parse_spec(KINEMATIC.read_text(), KINEMATIC).effects)
+    one = cross_validate(robot, effects, sample, orientation_weight=0.4)
+    two = cross_validate(robot, effects, sample, orientation_weight=0.4, jobs=2)
+    assert np.array_equal(one.residuals, two.residuals)
+    assert np.array_equal(one.extra["orientation"], two.extra["orientation"])
+
+
 def test_predict_gives_orientation_and_a_tool_point(cell):
     tmp, run = cell["tmp"], cell["run"]
     r = run("predict", "--campaign", tmp / "meas", "--model", tmp / "full.json", "--json", tmp / "self.json",

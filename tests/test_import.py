@@ -586,3 +586,54 @@ def test_unreadable_urdf_is_one_located_line(invoke, tmp_path):
     broken.write_text(URDF.read_text().replace('<child link="shoulder_link"/>', '<child link="shoulder_link">'))
     _fails(invoke("import", "--source", _small_source(tmp_path), "--map", MAP, "--robot", broken, "--tip", "tool0",
                   "--out", out), out, "broken.urdf")
+
+
+def _stamped(lines, bad_row=None):
+    """The source's lines with the (spreadsheet-damaged) Timestamp replaced by a logger's compact
+    YYYYMMDDhhmmss, one pose every 20 s from 2020-07-14 16:39:04; ``bad_row``'s is 31 July's 25 o'clock."""
+    import datetime as dt
+
+    t0 = dt.datetime(2020, 7, 14, 16, 39, 4)
+    for k in range(1, len(lines)):
+        if lines[k]:
+            stamp = (t0 + dt.timedelta(seconds=20 * (k - 1))).strftime("%Y%m%d%H%M%S")
+            lines = _cell(lines, k, 0, "20200731250000" if k == bad_row else stamp)
+    return lines
+
+
+def _timestamp_map(tmp_path, fmt):
+    extra = f'timestamp_format = "{fmt}"\n' if fmt else ""
+    return _map(tmp_path, lambda t: t.replace('decimal = ","\n', 'decimal = ","\n' + extra)
+                .replace('temperature_c = "measurement_temperature"',
+                         'temperature_c = "measurement_temperature"\ntimestamp = "Timestamp"'))
+
+
+def test_a_loggers_compact_timestamp_is_read_by_the_maps_format(invoke, tmp_path):
+    src = _small_source(tmp_path, n=60, edit=_stamped)
+    out = tmp_path / "stamped"
+    r = invoke("import", "--source", src, "--map", _timestamp_map(tmp_path, "%Y%m%d%H%M%S"), "--robot", ROBOT,
+               "--out", out)
+    assert r.exit_code == 0, r.output
+    poses = pd.read_csv(out / "poses.csv", dtype={"point_id": str, "timestamp": str})
+    expected = pd.Timestamp("2020-07-14T16:39:04") + pd.to_timedelta(20 * np.arange(60), unit="s")
+    assert list(pd.to_datetime(poses["timestamp"], format="ISO8601")) == list(expected)
+    # the imported campaign is one a fit reads (its timestamps pass the campaign's own ISO-8601 check)
+    fit = invoke("fit", "--campaign", out, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out",
+                 tmp_path / "fit.json")
+    assert fit.exit_code == 0, fit.output
+
+
+def test_a_timestamp_that_is_not_iso_or_not_the_maps_format_is_named_in_the_source(invoke, tmp_path):
+    src = _small_source(tmp_path, n=40, edit=lambda ls: _stamped(ls, bad_row=7))
+    for fmt, line, text in ((None, 2, "timestamp_format"), ("%Y%m%d%H%M%S", 8, "'20200731250000' does not match")):
+        out = tmp_path / f"out{line}"
+        r = invoke("import", "--source", src, "--map", _timestamp_map(tmp_path, fmt), "--robot", ROBOT, "--out", out)
+        m = _fails(r, out)
+        assert (m["file"], m["line"], m["col"]) == (str(src), str(line), "Timestamp"), r.stderr
+        assert text in r.stderr, r.stderr
+    # the shipped series' own timestamps are damaged ("2,02011E+13"): named, not read as some time
+    out = tmp_path / "damaged"
+    r = invoke("import", "--source", _small_source(tmp_path, n=40), "--map", _timestamp_map(tmp_path, "%Y%m%d%H%M%S"),
+               "--robot", ROBOT, "--out", out)
+    m = _fails(r, out)
+    assert (m["line"], m["col"]) == ("2", "Timestamp"), r.stderr

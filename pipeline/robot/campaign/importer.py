@@ -3,6 +3,8 @@
 Contract section 6. The map (``map.toml``) says how to read the export::
 
     [source]    delimiter = ";"  decimal = ","            (defaults "," and ".")
+                timestamp_format = "%Y%m%d%H%M%S"        (optional: how [columns] timestamp is written,
+                                                          strptime's directives; default ISO-8601)
     [joints]    columns = [N source columns, one per joint]  unit = "rad" | "deg"
     [position]  columns = [3 source columns]  unit = "mm" | "m"  frame = "tracker" | "base"
     [columns]   contract column = source column          (optional: point_id, temperature_c,
@@ -46,7 +48,7 @@ from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "orientation", "uncertainty", "columns", "split")
-KEYS = {"source": ("delimiter", "decimal"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
+KEYS = {"source": ("delimiter", "decimal", "timestamp_format"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
         "split": ("sample_fraction", "seed", "column"), "orientation": ("columns", "kind", "sequence", "unit"),
         "uncertainty": ("position_columns", "orientation_columns")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
@@ -120,6 +122,8 @@ class ImportMap:
     orientation: dict | None = None
     #: ``{"position_columns", "orientation_columns"}`` (each a list or None), or None
     uncertainty: dict | None = None
+    #: strptime format of the source's timestamp column, or None (ISO-8601)
+    timestamp_format: str | None = None
 
     def locate_column(self, name: str):
         """Line and column in the map where the source column ``name`` is named."""
@@ -216,6 +220,14 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
     if decimal == delimiter:
         _fail(path, where, "source", "decimal",
               f"[source] decimal and delimiter are both {delimiter!r}; a decimal comma needs another delimiter (\";\")")
+    tformat = src.get("timestamp_format")
+    if tformat is not None:
+        if not isinstance(tformat, str) or "%" not in tformat:
+            _fail(path, where, "source", "timestamp_format",
+                  f"[source] timestamp_format = {tformat!r} must be a strptime format such as \"%Y%m%d%H%M%S\"")
+        if "timestamp" not in doc.get("columns", {}):
+            _fail(path, where, "source", "timestamp_format",
+                  "[source] timestamp_format without a [columns] timestamp to read with it")
     joints = _string_list(path, where, doc, "joints", "columns", range(MIN_JOINTS, MAX_JOINTS + 1),
                           "joint angles q1..qN in order from the base, one per joint of the robot")
     junit = _choice(path, where, doc, "joints", "unit", tuple(JOINT_UNITS))
@@ -270,7 +282,7 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
             _fail(path, where, "uncertainty", "position_columns",
                   "[uncertainty] position_columns and [columns] sigma_mm both give the position's uncertainty: keep one")
     return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
-                     int(seed or 0), column, where, orientation, uncertainty)
+                     int(seed or 0), column, where, orientation, uncertainty, tformat)
 
 
 def _orientation_section(path, where, doc):
@@ -410,6 +422,43 @@ def numbers(source: Source, imap: ImportMap, name: str, required: bool = True) -
 def strings(source: Source, name: str) -> list:
     k = source.header.index(name)
     return [rec[k].strip() for rec in source.rows]
+
+
+def iso_times(source: Source, imap: ImportMap, name: str) -> list:
+    """The source column ``name`` as ISO-8601 text (blank stays blank).
+
+    With ``[source] timestamp_format`` every value is read by ``datetime.strptime`` and written
+    ``YYYY-MM-DDTHH:MM:SS[.ffffff][+HH:MM]``; without it the values must already be ISO-8601 and
+    are passed through as given. A value that does not parse names its line and column.
+    """
+    import datetime as _dt
+
+    import pandas as pd
+
+    text = strings(source, name)
+    fmt = imap.timestamp_format
+    if fmt is None:
+        given = pd.Series(text, dtype=object)
+        blank = given == ""
+        parsed = pd.to_datetime(given.where(~blank), errors="coerce", utc=True, format="ISO8601")
+        bad = (parsed.isna() & ~blank).to_numpy()
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise InputError(source.path, f"'{text[i]}' is not an ISO-8601 time (mapped to timestamp); say how it is "
+                             "written with [source] timestamp_format, e.g. \"%Y%m%d%H%M%S\"", source.lines[i], name)
+        return text
+    out = []
+    for i, t in enumerate(text):
+        if not t:
+            out.append("")
+            continue
+        try:
+            stamp = _dt.datetime.strptime(t, fmt)
+        except ValueError:
+            raise InputError(source.path, f"'{t}' does not match [source] timestamp_format {fmt!r}",
+                             source.lines[i], name) from None
+        out.append(stamp.isoformat())
+    return out
 
 
 # ------------------------------------------------------------------------ the campaign
@@ -567,7 +616,7 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
     for c in extra_pose + (["sigma_mm"] if "sigma_mm" in imap.columns else []):
         src = imap.columns[c]
         if c == "timestamp":
-            values[c] = strings(source, src)
+            values[c] = iso_times(source, imap, src)
             continue
         v = numbers(source, imap, src, required=False)
         if c == "sigma_mm":

@@ -91,6 +91,22 @@ def angle_arcsec(e_mrad) -> np.ndarray:
     return np.linalg.norm(np.asarray(e_mrad, float), axis=-1) * ARCSEC_PER_MRAD
 
 
+def vce_next(log_w: float, h: float, before) -> float:
+    """The next weight of the variance components' iteration (mm per mrad).
+
+    The plain step takes the ratio the fit at ``w`` gave: ``w exp(h)``, with ``h = log(w_new / w)``.
+    It converges linearly (each step a fixed fraction of the one before), so from the second step on the
+    root of ``h`` is sought by the secant through this iteration and ``before`` (its ``(log w, h)``):
+    taken when it lies on the plain step's side and at most four times as far, else the plain step.
+    Where it ends is decided by the same test (:data:`VCE_RTOL` on ``h``), not by the step."""
+    plain = log_w + h
+    if before is not None and h != before[1]:
+        step = -h * (log_w - before[0]) / (h - before[1])
+        if step * h > 0 and abs(step) <= 4.0 * abs(h):
+            return float(np.exp(log_w + step))
+    return float(np.exp(plain))
+
+
 def start_weight(data) -> tuple[float, str]:
     """The first orientation weight (mm per mrad) of a 6-DoF fit and where it came from."""
     sp, so = getattr(data, "sigma_mm", None), getattr(data, "sigma_arcsec", None)
@@ -769,6 +785,10 @@ class RobotErrorModel:
     orientation_weight : float or None
         Weight of the orientation rows, mm per mrad; None: estimated by variance components
         (:data:`VCE_RTOL`), stated in ``weighting_``.
+    weight_start : float or None
+        Where the variance components start (mm per mrad) when ``orientation_weight`` is None: the
+        weight a fit of the same model on nearly the same poses ended with; default: the stated
+        uncertainties, else :data:`START_WEIGHT_MM_PER_MRAD` (:func:`start_weight`).
     reduction : {"fix", "svd"}
         What to do with the directions that are not identifiable: ``"fix"`` fixes the
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``
@@ -799,12 +819,14 @@ class RobotErrorModel:
     def __init__(self, robot: Robot, effects, solver: str = "gauss-newton", identifiability: bool = True,
                  lm_options: dict | None = None, max_iter: int = 100, rank_tol: float = RANK_TOL,
                  reduction: str = "fix", weak_tol: float | None = WEAK_TOL, start: dict | None = None,
-                 checks: bool = True, orientation: bool = True, orientation_weight: float | None = None):
+                 checks: bool = True, orientation: bool = True, orientation_weight: float | None = None,
+                 weight_start: float | None = None):
         self.robot = robot
         self.checks = checks
         self.start = start
         self.orientation = orientation
         self.orientation_weight = orientation_weight
+        self.weight_start = weight_start
         self.effects = effects
         self.solver = solver
         self.identifiability = identifiability
@@ -829,8 +851,15 @@ class RobotErrorModel:
         return sorted(range(len(names)), key=key)
 
     def design(self, data: RobotData) -> Design:
-        d = Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
-                   getattr(self, "_model_and_index", None))
+        memo = getattr(self, "_designs", None)
+        if memo is not None and id(data) in memo and memo[id(data)][0] is data:
+            # within one variance-components fit: the same poses, the same effects, another weight
+            d = memo[id(data)][1]
+        else:
+            d = Design(self.robot, list(getattr(self, "effects_", self.effects)), data,
+                       getattr(self, "_model_and_index", None))
+            if memo is not None:
+                memo[id(data)] = (data, d)
         if self.orientation and getattr(data, "measured_R", None) is not None:
             d.weight = getattr(self, "_weight", None) or self.orientation_weight or start_weight(data)[0]
         return d
@@ -908,23 +937,36 @@ class RobotErrorModel:
                                        "probe frames, every other parameter as the positions put it"}
             self.seconds_ = time.perf_counter() - t0
             return self
-        w, source = ((float(self.orientation_weight), "stated (orientation_weight)") if self.orientation_weight
-                     else start_weight(data))
+        if self.orientation_weight:
+            w, source = float(self.orientation_weight), "stated (orientation_weight)"
+        elif getattr(self, "weight_start", None):
+            w, source = float(self.weight_start), "the weight of a fit of the same model on nearly the same poses"
+        else:
+            w, source = start_weight(data)
         history = []
-        for it in range(1, VCE_MAX_ITER + 1):
-            self._weight = w
-            self._fit_once(data, t0)
-            d = self.design(data)
-            R, P = d.predict_pose(self.coef_)
-            sp = float(np.sqrt(np.mean((P - data.measured_mm) ** 2)))
-            so = float(np.sqrt(np.mean(orientation_errors(R, data.measured_R) ** 2)))
-            history.append(w)
-            if self.orientation_weight or so <= 0 or sp <= 0:
-                break
-            w_new = sp / so
-            if abs(np.log(w_new / w)) < VCE_RTOL:
-                break
-            w = w_new
+        before = None          # (log w, log(w_new / w)) of the iteration before
+        # every iteration fits the same poses with the same effects at another weight: one design serves them
+        # all (its sparse layouts are built once; the weight is applied where the residual is evaluated)
+        self._designs = {}
+        try:
+            for it in range(1, VCE_MAX_ITER + 1):
+                self._weight = w
+                self._fit_once(data, t0)
+                d = self.design(data)
+                R, P = d.predict_pose(self.coef_)
+                sp = float(np.sqrt(np.mean((P - data.measured_mm) ** 2)))
+                so = float(np.sqrt(np.mean(orientation_errors(R, data.measured_R) ** 2)))
+                history.append(w)
+                if self.orientation_weight or so <= 0 or sp <= 0:
+                    break
+                w_new = sp / so
+                h = float(np.log(w_new / w))
+                if abs(h) < VCE_RTOL:
+                    break
+                w = vce_next(np.log(w), h, before)
+                before = (float(np.log(history[-1])), h)
+        finally:
+            self._designs = None
         self.weighting_ = {
             "method": "stated" if self.orientation_weight else "variance components",
             "rule": ("the orientation rows (mrad) weigh orientation_weight_mm_per_mrad mm each: the ratio of the "

@@ -17,20 +17,21 @@ def error_stats(err_mm) -> dict:
 
 
 def effects_estimator(robot, effects, start=None, checks: bool = True, orientation: bool = True,
-                      orientation_weight: float | None = None) -> RobotErrorModel:
+                      orientation_weight: float | None = None, weight_start: float | None = None) -> RobotErrorModel:
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
     start the solver from (a nested model's solution). ``checks``: judge the fitted model's plausibility
     (:class:`~pipeline.robot.model.calibrate.RobotErrorModel`); off for a fit used only to predict.
     ``orientation``: fit a 6-DoF campaign's orientations too (False: its positions alone);
-    ``orientation_weight`` (mm per mrad): their weight, None to estimate it (variance components)."""
+    ``orientation_weight`` (mm per mrad): their weight, None to estimate it (variance components), starting
+    from ``weight_start`` when given (the weight a fit of the same model on nearly the same poses ended with)."""
     if any(e.name == "chebyshev" for e in effects):
         est = chebyshev_estimator(robot, effects, "gauss-newton")
         est.start, est.checks = start, checks
-        est.orientation, est.orientation_weight = orientation, orientation_weight
+        est.orientation, est.orientation_weight, est.weight_start = orientation, orientation_weight, weight_start
         return est
     return RobotErrorModel(robot, effects, solver="gauss-newton", start=start, checks=checks, orientation=orientation,
-                           orientation_weight=orientation_weight)
+                           orientation_weight=orientation_weight, weight_start=weight_start)
 
 
 def orientation_stats(err_mrad) -> dict:
@@ -81,7 +82,7 @@ def nested_models(effects, robot=None) -> list[list]:
 
 
 def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool = True, start=None,
-                orientation: bool = True, orientation_weight: float | None = None):
+                orientation: bool = True, orientation_weight: float | None = None, weight_start: float | None = None):
     """Fit a robot error model (a list of effects) on ``data``: the estimator diagnosis uses.
 
     Gauss-Newton with step halving; a model with Chebyshev terms is solved in the span of the
@@ -92,10 +93,12 @@ def fit_effects(robot, effects, data, check_nested: bool = False, checks: bool =
     refitted from that model's solution; when still worse, ``conflict_`` says which effects conflict
     (else it is ''). ``nested_`` lists each nested model's sample RMS (mm). Without ``checks`` the fit
     is not judged for plausibility (a fit used only for its predictions). ``start``: parameter name ->
-    value (internal units) to start the solver from (a fit of the same model on nearly the same poses).
+    value (internal units) to start the solver from (a fit of the same model on nearly the same poses);
+    ``weight_start``: the orientation weight (mm per mrad) such a fit ended with, where a 6-DoF fit's
+    variance components start.
     """
     model = effects_estimator(robot, effects, start=start, checks=checks, orientation=orientation,
-                              orientation_weight=orientation_weight).fit(data)
+                              orientation_weight=orientation_weight, weight_start=weight_start).fit(data)
     if not check_nested:
         return model
     model.conflict_, model.nested_ = "", []
@@ -187,31 +190,79 @@ def fold_description(data, n_folds: int = N_FOLDS) -> str:
     return f"{n_folds}-fold by pose over {data.n} sample poses"
 
 
+#: sample poses from which ``jointcal fit`` cross-validates its folds in forked processes (fewer: one process;
+#: a fork costs about 0.1 s, a fold's fit of 1,000 6-DoF poses about as much)
+PARALLEL_CV_MIN_POSES = 2000
+_CV_SHARED = None
+
+
+def cpu_count() -> int:
+    """The CPUs this process may run on (at least 1)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
 def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True,
-                   orientation_weight: float | None = None) -> CVResult:
+                   orientation_weight: float | None = None, jobs: int = 1) -> CVResult:
     """Held-out residuals (mm, shape (n, 3)) of ``effects`` fitted by :func:`fit_effects`, k-fold by pose.
 
     Each fold of poses (:func:`fold_ids`) is predicted by the model fitted on the others; without
     effects, by the nominal kinematics. Poses are the independent blocks. On a 6-DoF campaign
     ``extra["orientation"]`` holds the held-out orientation errors (n, 3) mrad (predicted - measured);
     ``orientation_weight`` (the whole sample's, from its own fit) weighs every fold's fit alike.
+    ``jobs`` > 1 fits the folds in up to that many forked processes (Linux, not from inside a worker
+    process): each fold's fit is the same computation as in one process, so the result is the same.
     """
+    global _CV_SHARED
+    import multiprocessing as mp
+    import sys
+
     folds = fold_ids(data.n, n_folds)
     res = np.empty((data.n, 3))
     ori = np.empty((data.n, 3)) if data.has_orientation else None
-    for f in range(n_folds):
+    args = (robot, effects, data, folds, orientation, orientation_weight)
+    jobs = min(int(jobs), n_folds)
+    if (jobs > 1 and effects and sys.platform.startswith("linux") and not mp.current_process().daemon
+            and "fork" in mp.get_all_start_methods()):
+        _CV_SHARED = args
+        try:
+            with mp.get_context("fork").Pool(jobs) as pool:
+                parts = pool.map(_cv_shared_fold, range(n_folds), chunksize=1)
+        finally:
+            _CV_SHARED = None
+    else:
+        parts = [_cv_fold(*args, f) for f in range(n_folds)]
+    for f, (r, o) in enumerate(parts):
         test = folds == f
-        train, held = data.subset(~test), data.subset(test)
-        m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, checks=False,
-                                                                    orientation=orientation,
-                                                                    orientation_weight=orientation_weight)
+        res[test] = r
         if ori is not None:
-            R, pred = m.predict_pose(np.zeros(0)) if not effects else m.predict_pose(held)
-            ori[test] = orientation_errors(R, held.measured_R)
-        else:
-            pred = m.predict(np.zeros(0)) if not effects else m.predict(held)
-        res[test] = data.measured_mm[test] - pred
+            ori[test] = o
     out = CVResult(res, np.arange(data.n))
     if ori is not None:
         out.extra["orientation"] = ori
     return out
+
+
+def _cv_fold(robot, effects, data, folds, orientation, orientation_weight, f):
+    """Fold ``f`` of :func:`cross_validate`: its poses' held-out residuals (n_f, 3) mm and orientation
+    errors (n_f, 3) mrad (None without orientations)."""
+    test = folds == f
+    train, held = data.subset(~test), data.subset(test)
+    m = Design(robot, [], held) if not effects else fit_effects(robot, effects, train, checks=False,
+                                                                orientation=orientation,
+                                                                orientation_weight=orientation_weight)
+    o = None
+    if data.has_orientation:
+        R, pred = m.predict_pose(np.zeros(0)) if not effects else m.predict_pose(held)
+        o = orientation_errors(R, held.measured_R)
+    else:
+        pred = m.predict(np.zeros(0)) if not effects else m.predict(held)
+    return data.measured_mm[test] - pred, o
+
+
+def _cv_shared_fold(f):
+    return _cv_fold(*_CV_SHARED, f)

@@ -12,7 +12,7 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import _locate
 from .calibrate import angle_arcsec
-from .estimate import N_FOLDS, cross_validate, fit_effects, fold_description, heldout_fit
+from .estimate import N_FOLDS, PARALLEL_CV_MIN_POSES, cpu_count, cross_validate, fit_effects, fold_description, heldout_fit
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
 from .outliers import describe, find_wild
@@ -124,7 +124,8 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
     cv = cross_validate(robot, effects, sample, orientation=orientation,
-                        orientation_weight=getattr(model, "_weight", None) if orientation else None)
+                        orientation_weight=getattr(model, "_weight", None) if orientation else None,
+                        jobs=cpu_count() if sample.n >= PARALLEL_CV_MIN_POSES else 1)
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))

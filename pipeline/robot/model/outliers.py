@@ -307,16 +307,17 @@ def _search(robot, effects, flex, sample, target) -> dict:
     span = np.maximum(np.ptp(sample.q_deg, axis=0), 1e-9)
     qs = _scaled(sample.q_deg, lo, span)
     rs = rt = None
-    start = None
+    start = weight = None
     for _ in range(MAX_REFITS):
         fitted = sample.subset(~ws) if ws.any() else sample
         try:
             # a refit without the poses named starts from the fit before (the same model on all but a few
             # of the same poses: one or two Gauss-Newton steps, not a fit from nominal)
-            model = fit_effects(robot, flex, fitted, checks=False, start=start)
+            model = fit_effects(robot, flex, fitted, checks=False, start=start, weight_start=weight)
         except np.linalg.LinAlgError:
             model = fit_effects(robot, list(effects), fitted, checks=False)
         start = dict(zip(model.names_, model.coef_))
+        weight = (getattr(model, "weighting_", None) or {}).get("orientation_weight_mm_per_mrad")
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
         n_res = rs.shape[1] * fitted.n

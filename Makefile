@@ -58,7 +58,7 @@ mk/deps.mk: mk/deps.py $(PIPELINE_PY) $(sort $(dir $(PIPELINE_PY)))
 -include mk/deps.mk
 -include $(filter-out mk/deps.mk,$(wildcard mk/*.mk))
 
-.PHONY: all help encoder diagnosis test bench fixtures reference clean distclean
+.PHONY: all help encoder diagnosis test bench bench-series fixtures reference clean distclean
 
 all: $(ALL_TARGETS) results/summary.json ## set up .venv and run the whole pipeline on raw/
 
@@ -120,6 +120,11 @@ test: $(STAMP) ## check the import contracts (lint-imports, .importlinter), then
 
 bench: $(STAMP) ## speed, scale, FIGAROH side by side (own venv in .bench/), 1,000-module fleet: about 7 min -> results/bench.json
 	$(BIN)/python -m bench.run --out results/bench.json
+
+# a user's own series, timed as a user runs it (import, fit cold and cached, predict, diagnose-loop; bench/user_series.py)
+bench-series: $(STAMP) ## time your series: make bench-series SERIES=export.csv SERIES_MAP=map.toml SERIES_ROBOT=robot.toml [SERIES_OTHER=campaign] -> results/bench-series.json
+	@test -n "$(SERIES)" -a -n "$(SERIES_MAP)" -a -n "$(SERIES_ROBOT)" || { echo "make bench-series needs SERIES=, SERIES_MAP= and SERIES_ROBOT= (SERIES_OTHER= optional)" >&2; exit 2; }
+	$(BIN)/python -m bench.user_series --source $(SERIES) --map $(SERIES_MAP) --robot $(SERIES_ROBOT) $(if $(SERIES_OTHER),--other $(SERIES_OTHER)) --out results/bench-series.json
 
 # the reproducibility test compares one `make all` with tests/data/make-all.sha256 (mk/reference.py): a change
 # meant to change what `make all` writes (or a merge of one) rewrites it here, and its commit says which files

@@ -88,3 +88,23 @@ def test_swap_options_replace_one_joint_in_place():
     lines = opts[3]["lines"]
     assert lines[1] == '[[effect]]\nname = "chebyshev"\njoints = [2]' and 'joints = [1]' in lines[2]
     assert lines[0].endswith('"geometry"') and lines[-1].endswith('"tool"')
+
+
+def test_swaps_are_screened_in_forked_processes_in_order(monkeypatch):
+    """The screening runs in forked workers on Linux, each result in its option's place, the same numbers
+    as in one process (issue 32: round 2 on 11,911 real poses screened 14 swaps, a minute each)."""
+    import os
+    import sys
+
+    import pytest
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("forked screening is Linux only")
+    parent = os.getpid()
+    monkeypatch.setattr(loop_mod, "model_cv",
+                        lambda robot, effects, data: (float(len(effects)), float(os.getpid() != parent)))
+    trials = [START + '\n[[effect]]\nname = "base"\n' * k for k in range(5)]
+    one = loop_mod._screen(None, trials, _Data(), jobs=1)
+    two = loop_mod._screen(None, trials, _Data(), jobs=2)
+    assert [a for a, _ in one] == [a for a, _ in two] == [2.0, 3.0, 4.0, 5.0, 6.0]
+    assert {b for _, b in one} == {0.0} and {b for _, b in two} == {1.0}

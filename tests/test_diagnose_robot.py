@@ -141,3 +141,30 @@ def test_fold_products_are_the_training_rows_own(tmp_path):
                 X = np.hstack([lin.base.J[test], blk.J[test]])
                 want[test] = lin.r[test] - X @ delta
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(lin.r).max())
+
+
+def test_several_blocks_fold_products_are_the_training_rows_own(tmp_path):
+    """Issue 32: with several blocks beyond the baseline (a re-test given the effects accepted so far, the
+    loop's swaps), each block pair's products over every row less the held-out rows' give the held-out
+    residuals of the direct solve on each fold's training rows, to rounding; a second call with one block
+    more reuses the pairs it has (the same numbers as a fresh problem)."""
+    from pipeline.diagnosis.linear import LinearProblem, region_folds
+    from pipeline.robot.model.estimate import fold_ids
+
+    robot, data = campaign(tmp_path, 12, {"effect": "compliance", "joint": 2, "arcsec_per_knm": 40.0})
+    folds = {"random": fold_ids(data.n, 5), "region": region_folds(data.q_deg, 5)}
+    texts = ('name = "compliance"', 'name = "joint_map"\njoints = [2]\nstep_deg = 1.0',
+             'name = "backlash"\njoints = [3]')
+    lin = LinearProblem(robot, list(SPEC.effects), data, folds)
+    blks = [lin.block(parse_spec(f'[model]\nkind = "robot"\n\n[[effect]]\n{t}\n').effects[0]) for t in texts]
+    for use in (blks[:2], blks):
+        for name in ("random", "region"):
+            got = lin.cv(use, name).ravel()
+            want = np.empty_like(got)
+            for f in np.unique(folds[name]):
+                test = np.repeat(folds[name] == f, 3)
+                delta = lin._solve([lin.base, *use], ~test)
+                X = np.hstack([b.J[test] for b in (lin.base, *use)])
+                want[test] = lin.r[test] - X @ delta
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(lin.r).max())
+            assert np.abs(got - lin.r).max() > 1e-3 * np.abs(lin.r).max()   # the blocks did fit something

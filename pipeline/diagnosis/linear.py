@@ -328,13 +328,61 @@ class LinearProblem:
                 db = Ginv @ (gb - Gbc @ dc)
                 out[test] = rt - Jbt @ db - Jct @ dc
             return out.reshape(-1, self.dim)
-        blocks = [self.base, *blocks]
+        blocks = [b for b in (self.base, *blocks) if b.k]
+        if not blocks:
+            return self.r.reshape(-1, self.dim).copy()
+        G_all, g_all, nnz_all = self._gram_of(blocks, None)
         for f in np.unique(ids):
-            test = self._rows(ids == f)
-            delta = self._solve(blocks, ~test)
-            X = np.hstack([b.J[test] for b in blocks])
-            out[test] = self.r[test] - (X @ delta if X.shape[1] else 0.0)
+            test = np.flatnonzero(self._rows(ids == f))
+            # the training rows' normal equations are every row's (each pair of blocks multiplied once, for
+            # every model and fold set that has the pair) less the held-out rows' (each pair once per fold):
+            # a re-test given the effects accepted so far multiplies only the new block's pairs
+            G_t, g_t, nnz_t = self._gram_of(blocks, (folds, int(f), test))
+            G, g = G_all - G_t, g_all - g_t
+            # a column the training rows never reach is exactly zero there (not rounding noise)
+            unseen = nnz_all == nnz_t
+            if unseen.any():
+                G[unseen, :] = 0.0
+                G[:, unseen] = 0.0
+                g[unseen] = 0.0
+            delta = self._solve_normal(blocks, G, g)
+            pred, off = np.zeros(test.size), 0
+            for b in blocks:
+                pred += _rows_of(b, test, self._sub, (folds, int(f))) @ delta[off:off + b.k]
+                off += b.k
+            out[test] = self.r[test] - pred
         return out.reshape(-1, self.dim)
+
+    def _gram_of(self, blocks, fold):
+        """J^T J (k, k), J^T r (k,) and each column's nonzero rows (k,) of the blocks' columns side by side,
+        over every row (``fold`` None) or over a fold's held-out rows (``fold`` = (fold set, fold, rows)); each
+        block pair's product kept (under the blocks' ids: the adapter keeps its blocks for the problem's life)."""
+        if not hasattr(self, "_pairs"):
+            self._pairs, self._sub, self._keep = {}, {}, {}
+        tag = None if fold is None else fold[:2]
+        rows = None if fold is None else fold[2]
+        for b in blocks:
+            self._keep[id(b)] = b
+        cols = [b.columns() if rows is None else _rows_of(b, rows, self._sub, tag) for b in blocks]
+        r = self.r if rows is None else self.r[rows]
+        sizes = [b.k for b in blocks]
+        off = np.concatenate([[0], np.cumsum(sizes)])
+        G = np.empty((off[-1], off[-1]))
+        g = np.empty(off[-1])
+        nnz = np.empty(off[-1], dtype=np.int64)
+        for i, (a, A) in enumerate(zip(blocks, cols)):
+            key = (tag, id(a))
+            if key not in self._pairs:
+                self._pairs[key] = (_tdot(A, r), _count_nonzero(A))
+            g[off[i]:off[i + 1]], nnz[off[i]:off[i + 1]] = self._pairs[key]
+            for j in range(i, len(blocks)):
+                key = (tag, id(a), id(blocks[j]))
+                if key not in self._pairs:
+                    self._pairs[key] = _tdot(A, cols[j])
+                G[off[i]:off[i + 1], off[j]:off[j + 1]] = self._pairs[key]
+                if j != i:
+                    G[off[j]:off[j + 1], off[i]:off[i + 1]] = self._pairs[key].T
+        return G, g, nnz
 
     def fit_all(self, blocks):
         """Coefficients of every block (base first) fitted on all sample poses, and the change
@@ -348,6 +396,17 @@ class LinearProblem:
             off += b.k
         contrib = [(b.J @ p).reshape(-1, self.dim)[:, :3] for b, p in zip(blocks, parts)]
         return parts, contrib
+
+
+def _rows_of(block, rows, cache, tag=None):
+    """A block's columns (as :meth:`Block.columns`) on ``rows`` (indices), kept in ``cache`` under ``tag``."""
+    key = (tag, id(block))
+    if tag is None or key not in cache:
+        sub = block.columns()[rows]
+        if tag is None:
+            return sub
+        cache[key] = sub
+    return cache[key]
 
 
 def _penalty(robot, effects, n_poses, p):

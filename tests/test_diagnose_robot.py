@@ -146,8 +146,8 @@ def test_fold_products_are_the_training_rows_own(tmp_path):
 def test_several_blocks_fold_products_are_the_training_rows_own(tmp_path):
     """Issue 32: with several blocks beyond the baseline (a re-test given the effects accepted so far, the
     loop's swaps), each block pair's products over every row less the held-out rows' give the held-out
-    residuals of the direct solve on each fold's training rows, to rounding; a second call with one block
-    more reuses the pairs it has (the same numbers as a fresh problem)."""
+    residuals of the direct solve on each fold's training rows, to rounding; so does a second call with one
+    block more, made from the pairs the first call kept and the new block's."""
     from pipeline.diagnosis.linear import LinearProblem, region_folds
     from pipeline.robot.model.estimate import fold_ids
 

@@ -214,6 +214,9 @@ class LinearProblem:
         self._gram = {}
         #: the baseline's J^T J and J^T r over every row (:meth:`_solve`), once
         self._base_all = None
+        #: block pairs' products over every row and over each fold's held-out rows (:meth:`_gram_of`), under
+        #: the blocks' ids; the blocks themselves, so that an id is never reused while its products are kept
+        self._pairs, self._keep = {}, {}
 
     # ------------------------------------------------------------------ columns
     def block(self, effect) -> Block:
@@ -358,8 +361,6 @@ class LinearProblem:
         over every row (``fold`` None) or over a fold's held-out rows (``fold`` = (fold set, fold, rows)), and the
         blocks' columns on those rows. Each block pair's product is kept (under the blocks' ids, the blocks kept
         with them); the held-out rows' columns are not (a 6-DoF baseline's are a fifth of 43,000 x 800)."""
-        if not hasattr(self, "_pairs"):
-            self._pairs, self._keep = {}, {}
         tag = None if fold is None else fold[:2]
         rows = None if fold is None else fold[2]
         for b in blocks:

@@ -168,3 +168,30 @@ def test_several_blocks_fold_products_are_the_training_rows_own(tmp_path):
                 want[test] = lin.r[test] - X @ delta
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(lin.r).max())
             assert np.abs(got - lin.r).max() > 1e-3 * np.abs(lin.r).max()   # the blocks did fit something
+
+
+def test_span_weights_project_as_an_orthonormal_basis_would():
+    """span_weights keeps no (m, r) basis, yet gives each column's part inside the span as the SVD's
+    orthonormal basis does: a rank-deficient J with columns of very different scales, a candidate mostly
+    inside it (the redundancy test's 2 %) and one outside."""
+    from pipeline.diagnosis.robot import span_weights
+
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(2000, 30))
+    J[:, 4] = 2.0 * J[:, 2] - J[:, 3]      # a redundant column: rank 29
+    J[:, 7] *= 1e4
+    X = np.hstack([J[:, :3] @ rng.normal(size=(3, 2)) + 1e-3 * rng.normal(size=(2000, 2)),
+                   rng.normal(size=(2000, 1))])
+    Jn = J / np.linalg.norm(J, axis=0)
+    U, sv, _ = np.linalg.svd(Jn, full_matrices=False)
+    U = U[:, sv > 1e-9 * sv[0]]
+    W = span_weights(J)
+    assert W.shape == (30, U.shape[1]) == (30, 29)
+    # the coordinates agree with U's up to a turn within the span: compare the projections' norms
+    np.testing.assert_allclose(np.linalg.norm(W.T @ (J.T @ X), axis=0), np.linalg.norm(U.T @ X, axis=0),
+                               rtol=1e-9)
+    outside = np.sqrt(1.0 - np.sum((W.T @ (J.T @ X)) ** 2, axis=0) / np.sum(X ** 2, axis=0))
+    direct = np.linalg.norm(X - U @ (U.T @ X), axis=0) / np.linalg.norm(X, axis=0)
+    np.testing.assert_allclose(outside, direct, rtol=1e-5)
+    assert np.all(outside[:2] < 0.02) and outside[2] > 0.9
+    assert span_weights(np.zeros((5, 0))).shape == (0, 0)

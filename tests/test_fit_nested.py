@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from conftest import ROOT
 
 REAL = ROOT / "raw" / "real" / "ur10-ipa"
@@ -36,3 +38,30 @@ def test_fit_refuses_a_model_worse_than_the_one_nested_in_it(invoke, tmp_path):
     assert r.exit_code == 0, r.output
     fit = json.loads(out.read_text())
     assert fit["plausible"] and "conflict" not in fit
+
+
+def test_a_chebyshev_fit_too_big_for_dense_svds_fits_alike(invoke, tmp_path, monkeypatch):
+    """A fit in the leading singular directions (a Chebyshev model's) beyond DENSE_SVD_MAX is iterated on
+    its normal equations, its directions from the SVD of a QR's triangular factor (issue 32): on real
+    poses it keeps the same directions and predicts what the dense SVDs' fit predicts."""
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model import calibrate
+    from pipeline.robot.model.estimate import fit_effects
+
+    lines = SERIES_B.read_bytes().decode().split("\r\n")[:301]
+    src = tmp_path / "src.csv"
+    src.write_text("\r\n".join(lines) + "\r\n", newline="")
+    r = invoke("import", "--source", src, "--map", REAL / "map.toml", "--robot", REAL / "robot.toml",
+               "--out", tmp_path / "B")
+    assert r.exit_code == 0, r.output
+    robot, (sample,) = robot_data_sets(tmp_path / "B", ("sample",))
+    effects = list(parse_spec(HEAD + '\n[[effect]]\nname = "joint_map"\njoints = [1, 2]\n' + CHEB4, "t").effects)
+    dense = fit_effects(robot, effects, sample, checks=False)
+    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 0)
+    big = fit_effects(robot, list(parse_spec(HEAD + '\n[[effect]]\nname = "joint_map"\njoints = [1, 2]\n' + CHEB4,
+                                             "t").effects), sample, checks=False)
+    assert big.basis_.shape == dense.basis_.shape and big.converged_ == dense.converged_
+    gap = np.abs(big.predict(sample) - dense.predict(sample)).max()
+    moved = np.abs(dense.predict(sample) - sample.measured_mm).max()
+    assert gap < 1e-6 * max(moved, 1.0), (gap, moved)

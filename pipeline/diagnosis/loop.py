@@ -17,6 +17,7 @@ Without it the first pick of a pair would be permanent.
 
 from __future__ import annotations
 
+import gc
 import re
 
 import numpy as np
@@ -148,6 +149,7 @@ def _screen(robot, trials: list[str], sample, jobs: int | None = None) -> list[t
     if (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
             and "fork" in mp.get_all_start_methods()):
         _SCREEN = (robot, trials, sample)
+        gc.collect()   # what the parent no longer holds is not inherited by every worker
         try:
             with mp.get_context("fork").Pool(jobs) as pool:
                 return pool.map(_screen_one, range(len(trials)), chunksize=1)
@@ -290,6 +292,8 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
             prev = {**prev, "recommended": []}
             continue
         row["kept"] = True
+        # the round's shared fit is done with: not held (nor inherited by the swaps' forked screens) beside theirs
+        adapter = None
         prev = {"round": k, "cv": row["cv_rms_mm"], "cv_region": row["cv_rms_region_mm"], "text": text,
                 "recommended": row["recommended"]}
         swap = try_swap(robot, text, sample, refits, say) if (k <= SWAP_ROUNDS and k < max_rounds) else None

@@ -26,6 +26,29 @@ from .engine import paired_test
 REDUNDANT = 0.02
 
 
+def span_weights(J) -> np.ndarray:
+    """The column span of J (m, k) without its orthonormal basis (m, r): W (k, r) such that the coordinates
+    of any X (m, c) in an orthonormal basis of the span are ``W.T @ (J.T @ X)``.
+
+    The span is that of J's columns scaled to unit norm, with singular values above 1e-9 of the largest
+    (an SVD of the triangular factor of a QR done in place: a 6-DoF baseline's J is 43,000 x 800, and its U
+    would be another 275 MB kept, issue 32)."""
+    from scipy.linalg.lapack import dgeqrf
+
+    m, k = J.shape
+    if k == 0 or m == 0:
+        return np.zeros((k, 0))
+    norms = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    A = np.empty(J.shape, order="F")
+    np.divide(J, norms, out=A)
+    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * k), overwrite_a=1)   # blocked (3x faster)
+    R = np.triu(qr[:min(m, k)])
+    del A, qr
+    _, sv, Vt = np.linalg.svd(R, full_matrices=False)
+    keep = sv > 1e-9 * sv[0]
+    return (Vt[keep].T / sv[keep]) / norms[:, None]
+
+
 _EVAL = None
 
 
@@ -94,41 +117,42 @@ class RobotAdapter:
                     "angle errors never reach the residuals (and the closed loop removes them)")
         if base_effects:
             lin = self.linear(base_effects, data)
-            Xc = self.block(cand, data, base_effects).J
-            if Xc.shape[1] == 0:
+            blk = self.block(cand, data, base_effects)
+            if blk.k == 0:
                 return "it has no parameter these poses move"
-            U = self._base_span(lin)
-            outside = Xc - U @ (U.T @ Xc)
-            frac = np.linalg.norm(outside, axis=0) / np.maximum(np.linalg.norm(Xc, axis=0), 1e-300)
+            # the candidate's columns' products with the baseline's and its own (shared with its cross-validation)
+            Gbc, Gcc = lin._products(blk)[:2]
+            own = np.maximum(np.diag(Gcc), 1e-300)
+            inside = np.sum((self._base_span(lin).T @ Gbc) ** 2, axis=0)
+            frac = np.sqrt(np.clip(1.0 - inside / own, 0.0, 1.0))
             if np.all(frac < REDUNDANT):
-                who = self._closest(lin, Xc, base_effects)
+                who = self._closest(lin, Gbc, own, base_effects)
                 return (f"on these poses its signature is that of {who} already "
                         f"(at most {100 * frac.max():.1f} % of it lies outside): it cannot be told apart")
         return ""
 
     def _base_span(self, lin):
-        if getattr(lin, "_U", None) is None:
-            Jb = lin.base.J
-            if Jb.shape[1] == 0:
-                lin._U = np.zeros((Jb.shape[0], 0))
-            else:
-                U, sv, _ = np.linalg.svd(Jb / np.maximum(np.linalg.norm(Jb, axis=0), 1e-300), full_matrices=False)
-                lin._U = U[:, sv > 1e-9 * sv[0]]
-        return lin._U
+        """The baseline's column span as :func:`span_weights` (kept with the problem)."""
+        if getattr(lin, "_W", None) is None:
+            lin._W = span_weights(lin.base.J)
+        return lin._W
 
-    def _closest(self, lin, Xc, base_effects) -> str:
-        """The baseline effect(s) whose columns explain most of the candidate's signature (for the reason)."""
+    def _closest(self, lin, Gbc, own, base_effects) -> str:
+        """The baseline effect(s) whose columns explain most of the candidate's signature (for the reason).
+
+        ``Gbc`` (kb, kc) is J_base^T J_cand, ``own`` (kc,) the candidate's squared column norms."""
         names = lin.base.names
         if getattr(lin, "_Q", None) is None:
             lin._Q = []
             for e in lin.model.effects_ if lin.model is not None else []:
-                own = set(e.parameter_names(self.robot))
-                cols = [k for k, n in enumerate(names) if n in own]
+                own_names = set(e.parameter_names(self.robot))
+                cols = [k for k, n in enumerate(names) if n in own_names]
                 if cols:
-                    lin._Q.append((_effect_label(e), np.linalg.qr(lin.base.J[:, cols])[0]))
+                    lin._Q.append((_effect_label(e), cols, span_weights(lin.base.J[:, cols])))
         best, score = [], []
-        for lab, Q in lin._Q:
-            score.append(np.linalg.norm(Q.T @ Xc) / max(np.linalg.norm(Xc), 1e-300))
+        total = np.sqrt(np.sum(own))
+        for lab, cols, W in lin._Q:
+            score.append(np.linalg.norm(W.T @ Gbc[cols]) / max(total, 1e-300))
             best.append(lab)
         if not best:
             return " + ".join(e.name for e in base_effects)
@@ -153,6 +177,8 @@ class RobotAdapter:
             folds = {"random": fold_ids(data.n, self.n_folds), "region": region_folds(data.q_deg, self.n_folds)}
             if getattr(self, "_base_effects", None) is None:
                 self._base_effects = list(base_effects)
+            # the problem it replaces goes first: two 6-DoF baselines at once were the loop's peak (issue 32)
+            self._lin, self._blocks = None, {}
             self._lin = (key, LinearProblem(self.robot, list(base_effects), data, folds,
                                             weight=getattr(data, "diagnosis_weight", None)
                                             or getattr(self, "_weight", None)))

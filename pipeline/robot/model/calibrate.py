@@ -375,6 +375,26 @@ def _groups(index) -> list[tuple[int, np.ndarray]]:
 #: iteration cost 45 of predict's 47 s on 11,911 poses (issue 32). Smaller fits (geometry, base, tool,
 #: compliance, backlash: at most a few dozen directions) keep the dense SVD.
 GRAM_MIN_K = 64
+#: A fit in the leading singular directions (``reduction="svd"``) whose Jacobian has more entries than this
+#: (64 MB) is iterated on its normal equations too: a Chebyshev swap on 7,144 6-DoF poses took 37 s and 2 GB
+#: in dense SVDs (issue 32). Smaller ones (the paper's KR210 stage) keep the dense SVD.
+DENSE_SVD_MAX = 8_000_000
+
+
+def _scaled_svd(J, norms, zero) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values (k,) and right singular vectors Vt (k, p) of J (m, p; dense or sparse) with its columns
+    divided by ``norms`` (p,) and the ``zero`` (p,) ones set to 0: the SVD of R of a QR done in place."""
+    from scipy.linalg.lapack import dgeqrf
+
+    A = J.toarray(order="F") if hasattr(J, "toarray") else np.array(J, order="F")
+    A /= norms
+    A[:, zero] = 0.0
+    m, p = A.shape
+    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * p), overwrite_a=1)   # blocked (3x faster)
+    R = np.triu(qr[:min(m, p)])
+    del A, qr
+    _, sv, Vt = np.linalg.svd(R, full_matrices=False)
+    return sv, Vt
 
 
 def gram(J, r=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -914,6 +934,15 @@ class RobotErrorModel:
         return (sum(len(e.parameter_names(self.robot)) for e in effects) > GRAM_MIN_K
                 and any(e.penalty(self.robot, 1) is not None for e in effects))
 
+    def _big_svd(self, data: RobotData) -> bool:
+        """A fit in the leading singular directions (``reduction="svd"``, a Chebyshev model's) too big for a
+        dense SVD each iteration (:data:`DENSE_SVD_MAX`): solved on its normal equations as a large fit."""
+        if not (self.identifiability and self.reduction == "svd" and self.solver == "gauss-newton"):
+            return False
+        effects = [e.prepared(self.robot, data) for e in self.effects]
+        p = sum(len(e.parameter_names(self.robot)) for e in effects)
+        return (6 if data.has_orientation else 3) * data.n * p > DENSE_SVD_MAX
+
     def fit(self, data: RobotData) -> "RobotErrorModel":
         """Fit on ``data``'s measured positions (and orientations, a 6-DoF campaign); returns self.
 
@@ -1006,7 +1035,8 @@ class RobotErrorModel:
                                                              ** 2)))
 
     def _fit_once(self, data: RobotData, t0) -> "RobotErrorModel":
-        large = self._large(data)
+        big_svd = self._big_svd(data)
+        large = self._large(data) or big_svd
         d, P, J2, Pen, penalised, ident = self.identification(data, sparse=large)
         meas = np.asarray(data.measured_mm, float)
         F0 = d.residual(np.zeros(d.p)) if d.oriented else (P - meas).ravel()
@@ -1017,9 +1047,14 @@ class RobotErrorModel:
             norms = np.linalg.norm(J2, axis=0)
         norms = np.where(norms > 0, norms, 1.0)
         if self.identifiability and self.reduction == "svd":
-            Js2 = J2 / norms
-            Js2[:, ident["zero"]] = 0.0          # parameters that barely move the point stay at 0
-            _, sv2, Vt = np.linalg.svd(Js2, full_matrices=False)
+            if big_svd:
+                # the SVD of the triangular factor of a QR done in place: the same sv and V as the dense
+                # SVD's, without its U (a 6-DoF campaign's J is 43,000 x 800: 275 MB each)
+                sv2, Vt = _scaled_svd(J2, norms, ident["zero"])
+            else:
+                Js2 = J2 / norms
+                Js2[:, ident["zero"]] = 0.0          # parameters that barely move the point stay at 0
+                _, sv2, Vt = np.linalg.svd(Js2, full_matrices=False)
             r = min(ident["rank"], int(np.sum(sv2 > self.rank_tol * sv2[0])) if sv2.size else 0)
             B = Vt[:r].T / norms[:, None]          # (p, r): x = B z
             ident["not_identifiable"] = [n for n, z in zip(d.names, ident["zero"]) if z]

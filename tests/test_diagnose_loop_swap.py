@@ -108,3 +108,41 @@ def test_swaps_are_screened_in_forked_processes_in_order(monkeypatch):
     two = loop_mod._screen(None, trials, _Data(), jobs=2)
     assert [a for a, _ in one] == [a for a, _ in two] == [2.0, 3.0, 4.0, 5.0, 6.0]
     assert {b for _, b in one} == {0.0} and {b for _, b in two} == {1.0}
+
+
+def test_the_rounds_baseline_is_the_swaps_yardstick_not_measured_again(monkeypatch):
+    """The round's diagnosis measured the model (positions alone: the same yardstick): its numbers are the
+    swaps' baseline, and model_cv is asked only for the swaps (issue 32: a 6-DoF baseline's set-up is 10 s)."""
+    asked = []
+    screen = {"joint_harmonic": (1.0, 1.0), "joint_map": (1.2, 1.3), "chebyshev": (1.1, 1.1)}
+
+    def fake_model_cv(robot, effects, data):
+        asked.append(_kind(effects))
+        return screen[_kind(effects)]
+
+    monkeypatch.setattr(loop_mod, "diagnose", lambda adapter, spec, data, progress=None: {
+        "baseline": {"cv_rms": 1.0, "cv_rms_region": 1.0, "unit": "mm"}, "candidates": []})
+    monkeypatch.setattr(loop_mod, "fit_effects", lambda robot, effects, data: _Model())
+    monkeypatch.setattr(loop_mod, "model_cv", fake_model_cv)
+    monkeypatch.setattr(loop_mod, "_screen", lambda robot, trials, data, jobs=None: [
+        fake_model_cv(robot, list(loop_mod.parse_spec(t, "t").effects), data) for t in trials])
+    out = loop_mod.diagnosis_loop(None, START, _Data(), _Data())
+    assert sorted(asked) == ["chebyshev", "joint_map"]
+    assert out["rounds"][0]["swap"]["baseline_cv_rms_mm"] == 1.0
+
+
+def test_diagnosis_measures_its_baseline_as_model_cv_does():
+    """What lets the loop reuse the round's numbers: on real poses the diagnosis of a model gives its
+    cross-validated RMS by pose and by region to the bit as model_cv does."""
+    from conftest import ROOT
+    from pipeline.diagnosis.engine import diagnose
+    from pipeline.diagnosis.robot import RobotAdapter
+    from pipeline.robot.campaign.ingest import robot_data_sets
+
+    robot, (sample,) = robot_data_sets(ROOT / "raw" / "robot" / "kr210", ("sample",))
+    text = ('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n'
+            '[[effect]]\nname = "joint_map"\njoints = [2]\n')
+    spec = loop_mod.parse_spec(text, "t")
+    res = diagnose(RobotAdapter(robot), spec, sample)
+    assert (res["baseline"]["cv_rms"], res["baseline"]["cv_rms_region"]) == \
+        loop_mod.model_cv(robot, list(loop_mod.parse_spec(text, "t").effects), sample)

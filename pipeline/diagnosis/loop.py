@@ -158,20 +158,22 @@ def _screen(robot, trials: list[str], sample, jobs: int | None = None) -> list[t
     return [model_cv(robot, list(parse_spec(x, "<loop spec>").effects), sample) for x in trials]
 
 
-def try_swap(robot, text: str, sample, cache=None, say=None, min_gain: float = MIN_GAIN) -> dict | None:
+def try_swap(robot, text: str, sample, cache=None, say=None, min_gain: float = MIN_GAIN,
+             base: tuple[float, float] | None = None) -> dict | None:
     """The best swap of the model ``text`` if one verifies better (see the module docstring); None
     when the model has nothing to swap.
 
     Each swap is screened as diagnosis screens a candidate (:func:`model_cv`: one shared fit,
     corrected linearly fold by fold); the best one below the model by pose and by region is verified
-    with every fold refitted (:func:`refit_cv`). Returns ``made``, ``from``, ``to``, the numbers and
+    with every fold refitted (:func:`refit_cv`). ``base``: the model's own :func:`model_cv` when already
+    known (the round's diagnosis measured it). Returns ``made``, ``from``, ``to``, the numbers and
     ``text`` (the swapped spec, when made)."""
     say = say or (lambda s: None)
     effects = list(parse_spec(text, "<loop spec>").effects)
     options = swap_options(robot, effects, sample)
     if not options:
         return None
-    base = model_cv(robot, effects, sample)
+    base = base if base is not None else model_cv(robot, effects, sample)
     trials = [_with_effects(text, o["lines"]) for o in options]
     screened = []
     for o, trial, (cv, cv_r) in zip(options, trials, _screen(robot, trials, sample)):
@@ -247,6 +249,9 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
                **({"own_with_outliers": _stats(target_all.measured_mm - model.predict(target_all))}
                   if target_all is not None and target_all.n else {}),
                "converged": bool(model.converged_), "plausible": bool(model.plausible_)}
+        # the round's baseline is measured as model_cv measures it once the loop's weight is fixed (a 6-DoF
+        # campaign's first round finds it) or with positions alone: the swaps' yardstick, not measured again
+        same_yardstick = not sample.has_orientation or bool(getattr(sample, "diagnosis_weight", None))
         adapter = RobotAdapter(robot, repeat=repeat, refit_cache=refits)
         result = diagnose(adapter, spec, sample, progress=say)
         if sample.has_orientation and not getattr(sample, "diagnosis_weight", None):
@@ -296,7 +301,10 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         adapter = None
         prev = {"round": k, "cv": row["cv_rms_mm"], "cv_region": row["cv_rms_region_mm"], "text": text,
                 "recommended": row["recommended"]}
-        swap = try_swap(robot, text, sample, refits, say) if (k <= SWAP_ROUNDS and k < max_rounds) else None
+        known = ((row["cv_rms_mm"], row["cv_rms_region_mm"])
+                 if same_yardstick and row["cv_rms_region_mm"] is not None else None)
+        swap = (try_swap(robot, text, sample, refits, say, base=known) if (k <= SWAP_ROUNDS and k < max_rounds)
+                else None)
         if swap is not None:
             row["swap"] = {x: v for x, v in swap.items() if x != "text"}
         if not best and not (swap and swap["made"]):

@@ -18,13 +18,18 @@ MAPS = '\n[[effect]]\nname = "joint_map"\njoints = [1, 2, 3, 4, 5]\n'
 CHEB4 = '\n[[effect]]\nname = "chebyshev"\norder = 3\njoints = [4]\n'
 
 
-def test_fit_refuses_a_model_worse_than_the_one_nested_in_it(invoke, tmp_path):
-    lines = SERIES_B.read_bytes().decode().split("\r\n")[:401]
+def _import_b(invoke, tmp_path, n: int) -> None:
+    """The first ``n`` poses of real Series B, imported to ``tmp_path / "B"``."""
+    lines = SERIES_B.read_bytes().decode().split("\r\n")[:n + 1]
     src = tmp_path / "src.csv"
     src.write_text("\r\n".join(lines) + "\r\n", newline="")
     r = invoke("import", "--source", src, "--map", REAL / "map.toml", "--robot", REAL / "robot.toml",
                "--out", tmp_path / "B")
     assert r.exit_code == 0, r.output
+
+
+def test_fit_refuses_a_model_worse_than_the_one_nested_in_it(invoke, tmp_path):
+    _import_b(invoke, tmp_path, 400)
     bad, good = tmp_path / "bad.toml", tmp_path / "good.toml"
     bad.write_text(HEAD + MAPS + CHEB4)
     good.write_text(HEAD + MAPS)
@@ -49,12 +54,7 @@ def test_a_chebyshev_fit_too_big_for_dense_svds_fits_alike(invoke, tmp_path, mon
     from pipeline.robot.model import calibrate
     from pipeline.robot.model.estimate import fit_effects
 
-    lines = SERIES_B.read_bytes().decode().split("\r\n")[:301]
-    src = tmp_path / "src.csv"
-    src.write_text("\r\n".join(lines) + "\r\n", newline="")
-    r = invoke("import", "--source", src, "--map", REAL / "map.toml", "--robot", REAL / "robot.toml",
-               "--out", tmp_path / "B")
-    assert r.exit_code == 0, r.output
+    _import_b(invoke, tmp_path, 300)
     robot, (sample,) = robot_data_sets(tmp_path / "B", ("sample",))
     effects = list(parse_spec(HEAD + '\n[[effect]]\nname = "joint_map"\njoints = [1, 2]\n' + CHEB4, "t").effects)
     dense = fit_effects(robot, effects, sample, checks=False)

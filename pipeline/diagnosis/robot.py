@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
-from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, start_weight
+from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, scaled_svd, start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.arm.kinematics import gravity_torques
@@ -31,20 +31,13 @@ def span_weights(J) -> np.ndarray:
     of any X (m, c) in an orthonormal basis of the span are ``W.T @ (J.T @ X)``.
 
     The span is that of J's columns scaled to unit norm, with singular values above 1e-9 of the largest
-    (an SVD of the triangular factor of a QR done in place: a 6-DoF baseline's J is 43,000 x 800, and its U
-    would be another 275 MB kept, issue 32)."""
-    from scipy.linalg.lapack import dgeqrf
-
+    (:func:`pipeline.robot.model.calibrate.scaled_svd`: a 6-DoF baseline's J is 43,000 x 800, and its U would
+    be another 275 MB kept, issue 32)."""
     m, k = J.shape
     if k == 0 or m == 0:
         return np.zeros((k, 0))
     norms = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
-    A = np.empty(J.shape, order="F")
-    np.divide(J, norms, out=A)
-    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * k), overwrite_a=1)   # blocked (3x faster)
-    R = np.triu(qr[:min(m, k)])
-    del A, qr
-    _, sv, Vt = np.linalg.svd(R, full_matrices=False)
+    sv, Vt = scaled_svd(J, norms)
     keep = sv > 1e-9 * sv[0]
     return (Vt[keep].T / sv[keep]) / norms[:, None]
 
@@ -142,16 +135,16 @@ class RobotAdapter:
 
         ``Gbc`` (kb, kc) is J_base^T J_cand, ``own`` (kc,) the candidate's squared column norms."""
         names = lin.base.names
-        if getattr(lin, "_Q", None) is None:
-            lin._Q = []
+        if getattr(lin, "_W_effects", None) is None:
+            lin._W_effects = []
             for e in lin.model.effects_ if lin.model is not None else []:
                 own_names = set(e.parameter_names(self.robot))
                 cols = [k for k, n in enumerate(names) if n in own_names]
                 if cols:
-                    lin._Q.append((_effect_label(e), cols, span_weights(lin.base.J[:, cols])))
+                    lin._W_effects.append((_effect_label(e), cols, span_weights(lin.base.J[:, cols])))
         best, score = [], []
         total = np.sqrt(np.sum(own))
-        for lab, cols, W in lin._Q:
+        for lab, cols, W in lin._W_effects:
             score.append(np.linalg.norm(W.T @ Gbc[cols]) / max(total, 1e-300))
             best.append(lab)
         if not best:

@@ -381,16 +381,19 @@ GRAM_MIN_K = 64
 DENSE_SVD_MAX = 8_000_000
 
 
-def _scaled_svd(J, norms, zero) -> tuple[np.ndarray, np.ndarray]:
+def scaled_svd(J, norms, zero=None) -> tuple[np.ndarray, np.ndarray]:
     """Singular values (k,) and right singular vectors Vt (k, p) of J (m, p; dense or sparse) with its columns
-    divided by ``norms`` (p,) and the ``zero`` (p,) ones set to 0: the SVD of R of a QR done in place."""
+    divided by ``norms`` (p,) and the ``zero`` (p,) ones set to 0, without the left ones (m, k): the SVD of the
+    triangular factor of a QR done in place (blocked LAPACK; a 6-DoF campaign's J is 43,000 x 800, 275 MB
+    for each copy or U, issue 32)."""
     from scipy.linalg.lapack import dgeqrf
 
     A = J.toarray(order="F") if hasattr(J, "toarray") else np.array(J, order="F")
     A /= norms
-    A[:, zero] = 0.0
+    if zero is not None:
+        A[:, zero] = 0.0
     m, p = A.shape
-    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * p), overwrite_a=1)   # blocked (3x faster)
+    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * p), overwrite_a=1)   # with a work size: blocked (3x faster)
     R = np.triu(qr[:min(m, p)])
     del A, qr
     _, sv, Vt = np.linalg.svd(R, full_matrices=False)
@@ -926,22 +929,17 @@ class RobotErrorModel:
         return d, P, J2, Pen, penalised, ident
 
     def _large(self, data: RobotData) -> bool:
-        """Solved on normal equations (:data:`GRAM_MIN_K`): more parameters than GRAM_MIN_K, kept or
-        fixed by name (the default reduction), and some of them penalised (a joint map's grid values)."""
-        if not (self.identifiability and self.reduction == "fix" and self.solver == "gauss-newton"):
-            return False
-        effects = [e.prepared(self.robot, data) for e in self.effects]
-        return (sum(len(e.parameter_names(self.robot)) for e in effects) > GRAM_MIN_K
-                and any(e.penalty(self.robot, 1) is not None for e in effects))
-
-    def _big_svd(self, data: RobotData) -> bool:
-        """A fit in the leading singular directions (``reduction="svd"``, a Chebyshev model's) too big for a
-        dense SVD each iteration (:data:`DENSE_SVD_MAX`): solved on its normal equations as a large fit."""
-        if not (self.identifiability and self.reduction == "svd" and self.solver == "gauss-newton"):
+        """Solved on normal equations: with the default reduction (parameters kept or fixed by name), more
+        parameters than :data:`GRAM_MIN_K` and some of them penalised (a joint map's grid values); in the leading
+        singular directions (``reduction="svd"``, a Chebyshev model's), a Jacobian of more entries than
+        :data:`DENSE_SVD_MAX`."""
+        if not (self.identifiability and self.solver == "gauss-newton"):
             return False
         effects = [e.prepared(self.robot, data) for e in self.effects]
         p = sum(len(e.parameter_names(self.robot)) for e in effects)
-        return (6 if data.has_orientation else 3) * data.n * p > DENSE_SVD_MAX
+        if self.reduction == "fix":
+            return p > GRAM_MIN_K and any(e.penalty(self.robot, 1) is not None for e in effects)
+        return self.reduction == "svd" and (6 if data.has_orientation else 3) * data.n * p > DENSE_SVD_MAX
 
     def fit(self, data: RobotData) -> "RobotErrorModel":
         """Fit on ``data``'s measured positions (and orientations, a 6-DoF campaign); returns self.
@@ -1035,8 +1033,7 @@ class RobotErrorModel:
                                                              ** 2)))
 
     def _fit_once(self, data: RobotData, t0) -> "RobotErrorModel":
-        big_svd = self._big_svd(data)
-        large = self._large(data) or big_svd
+        large = self._large(data)
         d, P, J2, Pen, penalised, ident = self.identification(data, sparse=large)
         meas = np.asarray(data.measured_mm, float)
         F0 = d.residual(np.zeros(d.p)) if d.oriented else (P - meas).ravel()
@@ -1047,10 +1044,9 @@ class RobotErrorModel:
             norms = np.linalg.norm(J2, axis=0)
         norms = np.where(norms > 0, norms, 1.0)
         if self.identifiability and self.reduction == "svd":
-            if big_svd:
-                # the SVD of the triangular factor of a QR done in place: the same sv and V as the dense
-                # SVD's, without its U (a 6-DoF campaign's J is 43,000 x 800: 275 MB each)
-                sv2, Vt = _scaled_svd(J2, norms, ident["zero"])
+            if large:
+                # the same sv and V as the dense SVD's, without its U
+                sv2, Vt = scaled_svd(J2, norms, ident["zero"])
             else:
                 Js2 = J2 / norms
                 Js2[:, ident["zero"]] = 0.0          # parameters that barely move the point stay at 0

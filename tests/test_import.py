@@ -275,7 +275,7 @@ def _metres(lines):
 BAD_MAPS = {
     # name: (map edit, expected file name, expected line or None, text in the message)
     "no joints section": (lambda t: re.sub(r"\[joints\].*?unit = \"rad\"\n", "", t, flags=re.S), "bad_map.toml", 1,
-                          "[joints]"),
+                          "[joints] section; it needs columns = [4 to 7 source columns]"),
     "no position columns": (lambda t: t.replace('columns = ["measurement_x", "measurement_y", "measurement_z"]\n', ""),
                             "bad_map.toml", None, "columns"),
     "misspelled column": (lambda t: t.replace('"measurement_y"', '"measurment_y"'), "bad_map.toml", 18,

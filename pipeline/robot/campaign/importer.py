@@ -166,17 +166,17 @@ def _unknown(path, where, found, known, section=None):
 
 
 def _string_list(path, where, doc, section, key, n, what):
+    count = f"{n.start} to {n.stop - 1}" if isinstance(n, range) else n
     if section not in doc:
-        raise InputError(path, f"the map has no [{section}] section; it needs {key} = [{n} source columns] ({what})",
+        raise InputError(path, f"the map has no [{section}] section; it needs {key} = [{count} source columns] ({what})",
                          1, 1)
     if key not in doc[section]:
         line, col = where.section(section)
-        raise InputError(path, f"[{section}] needs {key} = [{n} source column names] ({what})", line, col)
+        raise InputError(path, f"[{section}] needs {key} = [{count} source column names] ({what})", line, col)
     v = doc[section][key]
     ok = (lambda m: m in n) if isinstance(n, range) else (lambda m: m == n)
     if not isinstance(v, list) or not ok(len(v)) or not all(isinstance(s, str) and s.strip() for s in v):
         got = f"{len(v)} entries" if isinstance(v, list) else repr(v)
-        count = f"{n.start} to {n.stop - 1}" if isinstance(n, range) else n
         _fail(path, where, section, key, f"[{section}] {key} must list {count} source column names ({what}); got {got}")
     return [s.strip() for s in v]
 

@@ -170,6 +170,21 @@ def test_several_blocks_fold_products_are_the_training_rows_own(tmp_path):
             assert np.abs(got - lin.r).max() > 1e-3 * np.abs(lin.r).max()   # the blocks did fit something
 
 
+@pytest.mark.parametrize("rows, drop", [(10_000, [0]), (10_000, [5, 6, 39]), (3, [39]), (4097, list(range(0, 40, 2)))])
+def test_fixed_columns_squeezed_out_in_place_are_the_copy(rows, drop):
+    """The baseline's fixed columns are removed inside J's own buffer: the result equals J[:, keep] to
+    the bit, across block edges (4,096 rows a block), whichever columns are dropped, first or last."""
+    from pipeline.diagnosis.linear import _keep_columns
+
+    A = np.random.default_rng(rows).normal(size=(rows, 40))
+    keep = np.ones(40, bool)
+    keep[drop] = False
+    want = A[:, keep].copy()
+    got = _keep_columns(A, keep)
+    assert got.shape == want.shape and np.array_equal(got, want)
+    assert np.shares_memory(got, A)      # no second buffer
+
+
 def test_span_weights_project_as_an_orthonormal_basis_would():
     """span_weights keeps no (m, r) basis, yet gives each column's part inside the span as the SVD's
     orthonormal basis does: a rank-deficient J with columns of very different scales, a candidate mostly

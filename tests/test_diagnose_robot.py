@@ -185,6 +185,33 @@ def test_fixed_columns_squeezed_out_in_place_are_the_copy(rows, drop):
     assert np.shares_memory(got, A)      # no second buffer
 
 
+@pytest.mark.parametrize("sparse", [False, True])
+def test_scaled_svd_in_row_blocks_is_the_dense_svd(monkeypatch, sparse):
+    """R built block by block (a tall-skinny QR: 7 blocks of 300 rows here) gives the singular values and
+    right vectors of the whole scaled J, zeroed columns and a redundant column included."""
+    import scipy.sparse
+
+    from pipeline.robot.model import calibrate
+
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(2000, 30)) * rng.uniform(0.01, 100.0, size=30)
+    J[rng.random(J.shape) < 0.3] = 0.0
+    J[:, 4] = 2.0 * J[:, 2] - J[:, 3]
+    norms = np.linalg.norm(J, axis=0)
+    zero = np.zeros(30, bool)
+    zero[[7, 29]] = True
+    A = J / norms
+    A[:, zero] = 0.0
+    _, want_sv, want_Vt = np.linalg.svd(A, full_matrices=False)
+    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 300 * 30)
+    sv, Vt = calibrate.scaled_svd(scipy.sparse.csc_matrix(J) if sparse else J, norms, zero)
+    np.testing.assert_allclose(sv, want_sv, rtol=1e-12, atol=1e-12 * want_sv[0])
+    r = int(np.sum(want_sv > 1e-9 * want_sv[0]))
+    assert r == 27
+    # the same right singular subspace (vectors up to sign: the singular values are distinct)
+    np.testing.assert_allclose(np.abs(np.sum(Vt[:r] * want_Vt[:r], axis=1)), 1.0, atol=1e-9)
+
+
 def test_span_weights_project_as_an_orthonormal_basis_would():
     """span_weights keeps no (m, r) basis, yet gives each column's part inside the span as the SVD's
     orthonormal basis does: a rank-deficient J with columns of very different scales, a candidate mostly

@@ -384,18 +384,30 @@ DENSE_SVD_MAX = 8_000_000
 def scaled_svd(J, norms, zero=None) -> tuple[np.ndarray, np.ndarray]:
     """Singular values (k,) and right singular vectors Vt (k, p) of J (m, p; dense or sparse) with its columns
     divided by ``norms`` (p,) and the ``zero`` (p,) ones set to 0, without the left ones (m, k): the SVD of the
-    triangular factor of a QR done in place (blocked LAPACK; a 6-DoF campaign's J is 43,000 x 800, 275 MB
-    for each copy or U, issue 32)."""
+    triangular factor R of a QR (blocked LAPACK), the U of a 6-DoF campaign's 43,000 x 800 J being another
+    275 MB (issue 32).
+
+    R is built from row blocks of at most :data:`DENSE_SVD_MAX` entries: each block's rows below the R so
+    far are factored together (a tall-skinny QR), so no copy of the whole J is made. A J of one block (every
+    fixture) is factored in one QR, as before."""
     from scipy.linalg.lapack import dgeqrf
 
-    A = J.toarray(order="F") if hasattr(J, "toarray") else np.array(J, order="F")
-    A /= norms
-    if zero is not None:
-        A[:, zero] = 0.0
-    m, p = A.shape
-    qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * p), overwrite_a=1)   # with a work size: blocked (3x faster)
-    R = np.triu(qr[:min(m, p)])
-    del A, qr
+    m, p = J.shape
+    rows = max(p, DENSE_SVD_MAX // max(p, 1))
+    if hasattr(J, "tocsr"):
+        J = J.tocsr()
+    R = np.zeros((0, p))
+    for a in range(0, max(m, 1), rows):
+        blk = J[a:a + rows]
+        blk = blk.toarray() if hasattr(blk, "toarray") else np.asarray(blk, float)
+        A = np.empty((R.shape[0] + blk.shape[0], p), order="F")
+        A[:R.shape[0]] = R
+        np.divide(blk, norms, out=A[R.shape[0]:])
+        if zero is not None:
+            A[:, zero] = 0.0
+        qr, _, _, _ = dgeqrf(A, lwork=max(1, 64 * p), overwrite_a=1)   # with a work size: blocked (3x faster)
+        R = np.triu(qr[:min(A.shape[0], p)])
+        del A, qr, blk
     _, sv, Vt = np.linalg.svd(R, full_matrices=False)
     return sv, Vt
 

@@ -212,6 +212,25 @@ def test_scaled_svd_in_row_blocks_is_the_dense_svd(monkeypatch, sparse):
     np.testing.assert_allclose(np.abs(np.sum(Vt[:r] * want_Vt[:r], axis=1)), 1.0, atol=1e-9)
 
 
+def test_training_rows_products_in_blocks_are_the_whole_product(monkeypatch):
+    """A large baseline's training-row products, summed over row blocks (no copy of four fifths of J), equal
+    the one product over the training rows; a small J takes the one product itself."""
+    from pipeline.diagnosis import linear
+    from pipeline.robot.model import calibrate
+
+    rng = np.random.default_rng(11)
+    J, r = rng.normal(size=(5003, 17)), rng.normal(size=5003)
+    train = rng.random(5003) < 0.8
+    Jt = J[train]
+    want_G, want_g = Jt.T @ Jt, Jt.T @ r[train]
+    G, g = linear._train_products(J, r, train)
+    assert np.array_equal(G, want_G) and np.array_equal(g, want_g)
+    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 17 * 400)        # 13 blocks of 400 rows
+    G, g = linear._train_products(J, r, train)
+    np.testing.assert_allclose(G, want_G, rtol=1e-12, atol=1e-10)
+    np.testing.assert_allclose(g, want_g, rtol=1e-12, atol=1e-10)
+
+
 def test_span_weights_project_as_an_orthonormal_basis_would():
     """span_weights keeps no (m, r) basis, yet gives each column's part inside the span as the SVD's
     orthonormal basis does: a rank-deficient J with columns of very different scales, a candidate mostly

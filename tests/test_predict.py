@@ -147,3 +147,15 @@ def test_predict_on_mutated_campaigns_fails_cleanly(fitted, tmp_path_factory, fi
         assert not out.exists()
     else:
         assert out.exists()
+
+
+def test_a_hair_beyond_the_sampled_range_is_not_printed_as_zero():
+    """Series D of the IPA UR10: one target 0.004 deg past the sample poses' range of joint 6 was warned as
+    "up to 0.00 deg beyond"; the warning gives the size it has."""
+    from pipeline.robot.model.predict import outside_calibrated_range, outside_message
+
+    sample = np.array([[0.0, -90.0], [10.0, 0.0]])
+    target = np.array([[10.0041, -45.0], [5.0, 2.5]])
+    text = outside_message(outside_calibrated_range(sample, target, ["T1", "T2"]), worst=True)
+    assert "joint 1: 1 target(s), up to 0.0041 deg beyond" in text and "0.00 deg" not in text
+    assert "joint 2: 1 target(s), up to 2.5 deg beyond" in text

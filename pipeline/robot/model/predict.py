@@ -103,7 +103,7 @@ def outside_message(outside, worst: bool = False) -> str:
     """The warning about :func:`outside_calibrated_range`'s targets (with the worst target of each
     joint named when ``worst``)."""
     return ("targets outside the joint range the sample poses covered (the model extrapolates there): "
-            + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.2f} deg beyond "
+            + "; ".join(f"joint {o['joint']}: {o['count']} target(s), up to {o['beyond_deg']:.3g} deg beyond "
                         f"[{o['low_deg']:.2f}, {o['high_deg']:.2f}]" + (f" (worst {o['point_id']})" if worst else "")
                         for o in outside))
 

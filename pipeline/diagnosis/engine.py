@@ -181,6 +181,8 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
     _forward_check(adapter, data, base_effects, base, candidates, cand_objects, p_max, min_gain, say,
                    base_region if regional else None)
+    if hasattr(adapter, "linear_done"):
+        adapter.linear_done(data)
     verified = (verify_set(adapter, data, base_effects, candidates, cand_objects, min_gain, say, base, base_region)
                 if hasattr(adapter, "refit_cv") else None)
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))

@@ -106,33 +106,48 @@ def effect_columns(robot, effect, data, Jext, idx_model) -> tuple[np.ndarray, li
 
 
 class Block:
-    """Columns of one effect in the linear problem: Jacobian (3n, k), penalty rows (m, k) or None."""
+    """Columns of one effect in the linear problem: Jacobian (3n, k), penalty rows (m, k) or None.
 
-    def __init__(self, J, pen=None, names=(), units=()):
-        self.J = J
+    ``dense=False`` (a candidate's block): once its columns are found sparse (:meth:`sparse`), only the sparse
+    copy is kept and :attr:`J` is made from it when asked for (the same values). A diagnosis keeps every
+    candidate's block; a joint map's dense columns on a 6-DoF campaign of 7,144 poses are 25 MB each, two
+    nonzeros a row (issue 32)."""
+
+    def __init__(self, J, pen=None, names=(), units=(), dense: bool = True):
+        self._J = J
+        self._dense = dense
         self.pen = pen if pen is not None and pen.size else None
         self.names, self.units = list(names), list(units)
         self._sparse, self._sparse_known, self._full = None, False, None
+        self._shape = J.shape
+
+    @property
+    def J(self) -> np.ndarray:
+        """The columns, dense (3n or 6n, k)."""
+        return self._J if self._J is not None else self._sparse.toarray()
 
     @property
     def k(self) -> int:
-        return self.J.shape[1]
+        return self._shape[1]
 
     def sparse(self):
         """The columns as a sparse matrix (CSR) when fewer than :data:`SPARSE_DENSITY` of them are nonzero (a
         joint map's: each pose moves two knots of a joint), else None."""
         if not self._sparse_known:
             self._sparse_known = True
-            if self.J.size and np.count_nonzero(self.J) < SPARSE_DENSITY * self.J.size:
+            J = self._J
+            if J.size and np.count_nonzero(J) < SPARSE_DENSITY * J.size:
                 import scipy.sparse
 
-                self._sparse = scipy.sparse.csr_matrix(self.J)
+                self._sparse = scipy.sparse.csr_matrix(J)
+                if not self._dense:
+                    self._J = None
         return self._sparse
 
     def columns(self):
         """The columns to multiply with: :meth:`sparse` when they are sparse, else the dense J."""
         sp = self.sparse()
-        return self.J if sp is None else sp
+        return self._J if sp is None else sp
 
 
 #: A candidate's columns sparser than this (fraction nonzero) are multiplied as a sparse matrix.
@@ -266,7 +281,7 @@ class LinearProblem:
         e = effect.prepared(self.robot, self.data)
         J, names, units = effect_columns(self.robot, e, self.data, self.Jext, self.idx_model)
         pen = e.penalty(self.robot, self.data.n)
-        return Block(J, pen, names, units)
+        return Block(J, pen, names, units, dense=False)
 
     # ------------------------------------------------------------------ solves
     def _rows(self, mask):

@@ -252,7 +252,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         # the round's baseline is measured as model_cv measures it once the loop's weight is fixed (a 6-DoF
         # campaign's first round finds it) or with positions alone: the swaps' yardstick, not measured again
         same_yardstick = not sample.has_orientation or bool(getattr(sample, "diagnosis_weight", None))
-        adapter = RobotAdapter(robot, repeat=repeat, refit_cache=refits)
+        adapter = RobotAdapter(robot, repeat=repeat, refit_cache=refits, keep_linear=False)
         result = diagnose(adapter, spec, sample, progress=say)
         if sample.has_orientation and not getattr(sample, "diagnosis_weight", None):
             # a 6-DoF campaign: every round's full residual (positions and weighted orientations) is

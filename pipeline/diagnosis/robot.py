@@ -70,14 +70,29 @@ class RobotAdapter:
     registry = REGISTRY
     parallel = False  # candidates are linear corrections to one shared fit: milliseconds each
 
-    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None, refit_cache=None):
+    def __init__(self, robot, n_folds: int = N_FOLDS, workers: int = 1, repeat=None, refit_cache=None,
+                 keep_linear: bool = True):
         self.robot = robot
         self.n_folds = n_folds
         self.workers = workers
         self.repeat = repeat
         self.refit_cache = refit_cache
+        #: False (the diagnosis loop): the shared fit and the candidates' columns are let go once every
+        #: candidate is measured (:meth:`linear_done`), before the recommended set's refits
+        self.keep_linear = keep_linear
         self._lin = None
         self._blocks = {}
+
+    def linear_done(self, data) -> None:
+        """Diagnosis has measured every candidate on the shared fit; what follows refits (the recommended
+        set, fold by fold). Without ``keep_linear`` the shared fit's dense columns (a 6-DoF baseline's
+        43,000 x 800: 275 MB) and the candidates' are let go here, not held through those refits (issue 32);
+        the orientation weight, the shared fit's, is kept."""
+        if self.keep_linear:
+            return
+        if data.has_orientation:
+            self.weight(data)
+        self._lin, self._blocks = None, {}
 
     # ------------------------------------------------------------------ model assembly
     def baseline_effects(self, spec, data):

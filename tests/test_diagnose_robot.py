@@ -170,19 +170,31 @@ def test_several_blocks_fold_products_are_the_training_rows_own(tmp_path):
             assert np.abs(got - lin.r).max() > 1e-3 * np.abs(lin.r).max()   # the blocks did fit something
 
 
-@pytest.mark.parametrize("rows, drop", [(10_000, [0]), (10_000, [5, 6, 39]), (3, [39]), (4097, list(range(0, 40, 2)))])
-def test_fixed_columns_squeezed_out_in_place_are_the_copy(rows, drop):
-    """The baseline's fixed columns are removed inside J's own buffer: the result equals J[:, keep] to
-    the bit, across block edges (4,096 rows a block), whichever columns are dropped, first or last."""
-    from pipeline.diagnosis.linear import _keep_columns
+@pytest.mark.parametrize("oriented", [False, True])
+def test_a_jacobian_of_some_columns_is_those_columns_of_the_whole(oriented):
+    """The baseline's fixed parameters' columns are never made: the Jacobian of the kept columns equals the
+    whole one's kept columns to the bit (geometry, base, tool, a joint map and compliance; positions and
+    6-DoF rows)."""
+    from pipeline.robot.arm.effects import RobotData
+    from pipeline.robot.arm.kinematics import gravity_torques
+    from pipeline.robot.model.calibrate import Design
 
-    A = np.random.default_rng(rows).normal(size=(rows, 40))
-    keep = np.ones(40, bool)
-    keep[drop] = False
-    want = A[:, keep].copy()
-    got = _keep_columns(A, keep)
-    assert got.shape == want.shape and np.array_equal(got, want)
-    assert np.shares_memory(got, A)      # no second buffer
+    robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
+    rng = np.random.default_rng(2)
+    q = robot.lower_deg + (robot.upper_deg - robot.lower_deg) * (0.15 + 0.7 * rng.random((60, robot.n_joints)))
+    data = RobotData(q, np.ones_like(q, int), np.zeros(60), np.full(60, 20.0), gravity_torques(robot, q),
+                     robot.lower_deg, robot.upper_deg)
+    effects = list(spec("geometry", "base", "tool", "joint_map", "compliance").effects)
+    d = Design(robot, [e.prepared(robot, data) for e in effects], data)
+    x = rng.normal(0.0, 1e-3, d.p)
+    keep = rng.random(d.p) < 0.6
+    keep[0] = keep[-1] = False
+    if oriented:
+        whole, part = d.pose_and_jacobian(x)[2], d.pose_and_jacobian(x, keep)[2]
+    else:
+        whole, part = d.predict_and_jacobian(x)[1], d.predict_and_jacobian(x, keep)[1]
+    assert part.shape == whole.shape[:2] + (int(keep.sum()),)
+    assert np.array_equal(part, whole[:, :, keep]) and np.abs(part).max() > 0
 
 
 @pytest.mark.parametrize("sparse", [False, True])

@@ -17,12 +17,12 @@ Without it the first pick of a pair would be permanent.
 
 from __future__ import annotations
 
-import gc
 import re
 
 import numpy as np
 
 from ..core.files import read_text_input
+from ..core.memory import release_freed_memory
 from ..core.spec import load_spec, parse_spec
 from ..robot.arm.effects import jh_orders
 from ..robot.model.estimate import fit_effects
@@ -149,7 +149,7 @@ def _screen(robot, trials: list[str], sample, jobs: int | None = None) -> list[t
     if (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
             and "fork" in mp.get_all_start_methods()):
         _SCREEN = (robot, trials, sample)
-        gc.collect()   # what the parent no longer holds is not inherited by every worker
+        release_freed_memory()   # what the parent no longer holds is not inherited by every worker
         try:
             with mp.get_context("fork").Pool(jobs) as pool:
                 return pool.map(_screen_one, range(len(trials)), chunksize=1)
@@ -252,6 +252,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         # the round's baseline is measured as model_cv measures it once the loop's weight is fixed (a 6-DoF
         # campaign's first round finds it) or with positions alone: the swaps' yardstick, not measured again
         same_yardstick = not sample.has_orientation or bool(getattr(sample, "diagnosis_weight", None))
+        release_freed_memory()   # the round before freed its columns and fits: not held into this one
         adapter = RobotAdapter(robot, repeat=repeat, refit_cache=refits, keep_linear=False)
         result = diagnose(adapter, spec, sample, progress=say)
         if sample.has_orientation and not getattr(sample, "diagnosis_weight", None):

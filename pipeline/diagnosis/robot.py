@@ -13,6 +13,7 @@ import numpy as np
 
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
+from ..core.memory import release_freed_memory
 from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, scaled_svd, start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
@@ -93,6 +94,7 @@ class RobotAdapter:
         if data.has_orientation:
             self.weight(data)
         self._lin, self._blocks = None, {}
+        release_freed_memory()
 
     # ------------------------------------------------------------------ model assembly
     def baseline_effects(self, spec, data):
@@ -193,6 +195,8 @@ class RobotAdapter:
             if data.has_orientation and getattr(self, "_weight", None) is None:
                 self._weight = self._lin[1].weight
             self._blocks = {}
+            if not self.keep_linear:
+                release_freed_memory()   # the baseline's fit is done with: not held beside its columns
         return self._lin[1]
 
     def block(self, cand, data, base_effects):

@@ -220,21 +220,29 @@ class Design:
         """Probe frames: rotations (n, 3, 3) and positions (n, 3) mm."""
         return placements(self.model, self.configurations(x), "smr")
 
-    def predict_and_jacobian(self, x):
-        """Positions (n, 3) mm and Jacobian (n, 3, p) mm per internal unit."""
+    def predict_and_jacobian(self, x, columns=None):
+        """Positions (n, 3) mm and Jacobian (n, 3, p) mm per internal unit (``columns``: only those
+        parameters', :meth:`parameter_jacobian`)."""
         P, Jext = positions_and_jacobians(self.model, self.configurations(x))
-        return P, self.parameter_jacobian(Jext)
+        return P, self.parameter_jacobian(Jext, columns)
 
-    def parameter_jacobian(self, Jext) -> np.ndarray:
+    def parameter_jacobian(self, Jext, columns=None) -> np.ndarray:
         """The parameters' Jacobian (n, m, p) from the configuration channels' (n, m, nq) (any rows m:
-        position mm, or position and orientation), each parameter's entries summed in order."""
+        position mm, or position and orientation), each parameter's entries summed in order.
+
+        ``columns`` (p,) bool: only those parameters' columns, (n, m, k), the same values (a 6-DoF
+        baseline's fixed parameters are a third of its 863: 100 MB of 43,000 rows, issue 32)."""
         Jext = np.asarray(Jext, float)
-        J = np.zeros((Jext.shape[0], Jext.shape[1], self.p))
+        where = np.arange(self.p) if columns is None else np.cumsum(columns) - 1
+        keep = np.ones(self.p, bool) if columns is None else np.asarray(columns, bool)
+        J = np.zeros((Jext.shape[0], Jext.shape[1], int(keep.sum())))
         for k, entries in self._by_param:
+            if not keep[k]:
+                continue
             col = Jext[:, :, self.c_idx[entries[0]]] * self._column(entries[0])[:, None]
             for e in entries[1:]:
                 col = col + Jext[:, :, self.c_idx[e]] * self._column(e)[:, None]
-            J[:, :, k] = col
+            J[:, :, where[k]] = col
         return J
 
     def predict_and_sparse_jacobian(self, x):
@@ -248,12 +256,13 @@ class Design:
             self._coo = _pose_csc_structure(ii, self.p_idx[ee], self.data.n, self.p)
         return P, _pose_csc(vals, self._coo)
 
-    def pose_and_jacobian(self, x):
+    def pose_and_jacobian(self, x, columns=None):
         """Rotations (n, 3, 3), positions (n, 3) mm and Jacobian (n, 6, p): rows x, y, z in mm and the
-        probe frame's turn about x, y, z (base frame) in mrad, per internal unit."""
+        probe frame's turn about x, y, z (base frame) in mrad, per internal unit (``columns``: only those
+        parameters', :meth:`parameter_jacobian`)."""
         R, P, Jext = pose_jacobians(self.model, self.configurations(x), "smr")
         Jext[:, 3:] *= 1000.0
-        return R, P, self.parameter_jacobian(Jext)
+        return R, P, self.parameter_jacobian(Jext, columns)
 
     def residual_and_sparse_jacobian(self, x):
         """A 6-DoF design's positions (n, 3) mm, :meth:`residual` and its Jacobian as a sparse matrix
@@ -263,10 +272,13 @@ class Design:
         ii, ee, vv = self._pose_major()
         n = self.data.n
         vals = Jext[ii, :, self.c_idx[ee]] * vv[:, None]          # (nnz, 6)
-        rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(), (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
-        cols = np.concatenate([np.repeat(self.p_idx[ee], 3)] * 2)
         data = np.concatenate([vals[:, :3].ravel(), vals[:, 3:].ravel()])
+        del vals
         if self._coo6 is None:
+            # the entries' rows and columns are the same at every x: the layout is built once
+            rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(),
+                                   (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
+            cols = np.concatenate([np.repeat(self.p_idx[ee], 3)] * 2)
             self._coo6 = _csc_structure(rows, cols, 6 * n, self.p)
         J = _csc(data, self._coo6)
         F = np.concatenate([(P - self.data.measured_mm).ravel(),

@@ -87,7 +87,7 @@ class RobotAdapter:
     def linear_done(self, data) -> None:
         """Diagnosis has measured every candidate on the shared fit; what follows refits (the recommended
         set, fold by fold). Without ``keep_linear`` the shared fit's dense columns (a 6-DoF baseline's
-        43,000 x 800: 275 MB) and the candidates' are let go here, not held through those refits (issue 32);
+        43,000 x 573: 196 MB) and the candidates' are let go here, not held through those refits (issue 32);
         the orientation weight, the shared fit's, is kept."""
         if self.keep_linear:
             return
@@ -195,8 +195,6 @@ class RobotAdapter:
             if data.has_orientation and getattr(self, "_weight", None) is None:
                 self._weight = self._lin[1].weight
             self._blocks = {}
-            if not self.keep_linear:
-                release_freed_memory()   # the baseline's fit is done with: not held beside its columns
         return self._lin[1]
 
     def block(self, cand, data, base_effects):

@@ -105,8 +105,9 @@ def test_gravity_torque_matches_finite_difference_of_potential_energy():
 
 
 def test_batched_kinematics_are_pinocchios():
-    """Issue 32: the error model's placements and positional frame Jacobians, computed for every pose at
-    once (kinematics.batch_placements, what positions() and positions_and_jacobians() use), equal
+    """Issue 32: the error model's placements and frame Jacobians (3 rows, and 6 for a 6-DoF probe), computed
+    for every pose at once (kinematics.batch_placements, what positions(), placements(),
+    positions_and_jacobians() and pose_jacobians() use), equal
     pinocchio's own forwardKinematics / getFrameJacobian(LOCAL_WORLD_ALIGNED) to rounding, for every
     error joint moved (arm, link, base and tool errors) on a 6- and a 7-joint arm."""
     import pinocchio as pin
@@ -129,6 +130,14 @@ def test_batched_kinematics_are_pinocchios():
                 np.testing.assert_allclose(p[k], M.translation, rtol=0, atol=1e-13)
                 np.testing.assert_allclose(R[k], M.rotation, rtol=0, atol=1e-13)
                 np.testing.assert_allclose(J[k], pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:3],
+                                           rtol=0, atol=1e-13)
+            # the 6-row Jacobian of a 6-DoF probe (what pose_jacobians() uses): angular rows too
+            R6, p6, J6 = batch_placements(model, Q, frame, jacobian=True, angular=True)
+            np.testing.assert_array_equal(J6[:, :3], J)
+            for k, q in enumerate(Q):
+                pin.computeJointJacobians(model, data, q)
+                pin.updateFramePlacement(model, data, fid)
+                np.testing.assert_allclose(J6[k], pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED),
                                            rtol=0, atol=1e-13)
 
 

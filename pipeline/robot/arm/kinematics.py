@@ -409,7 +409,8 @@ def _walk(steps, Q):
         yield j, revolute, a, iv, cols, p
 
 
-def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobian: bool = False):
+def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobian: bool = False,
+                     angular: bool = False):
     """``frame``'s placement for every configuration at once (numpy, no loop over the poses), and with
     ``jacobian`` its positional frame Jacobian (world-aligned), for models whose joints from the root to
     the frame are 1-dof axis joints (the error model's, :func:`build_error_model`). The same numbers as
@@ -423,7 +424,8 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
     Returns
     -------
     R : ndarray, shape (n, 3, 3); p : ndarray, shape (n, 3), m; J : ndarray, shape (n, 3, nv), m per unit
-    of each coordinate (only with ``jacobian``), or None
+    of each coordinate (only with ``jacobian``; shape (n, 6, nv) with ``angular``: rows 3-5 the angular
+    velocity, rad per unit, pinocchio's 6-row ``LOCAL_WORLD_ALIGNED`` Jacobian), or None
     """
     chain = _chain(model, frame)
     if chain is None:
@@ -441,15 +443,17 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
     Rw = np.stack(cols, axis=0).transpose(2, 1, 0)          # (n, 3, 3): [pose, row, column]
     if not jacobian:
         return Rw, pw.T, None
-    Jt = np.zeros((model.nv, 3, n))
+    Jt = np.zeros((model.nv, 6 if angular else 3, n))
     for iv, revolute, w, o in axes:
         if revolute:
             d = pw - o
             Jt[iv, 0] = w[1] * d[2] - w[2] * d[1]
             Jt[iv, 1] = w[2] * d[0] - w[0] * d[2]
             Jt[iv, 2] = w[0] * d[1] - w[1] * d[0]
+            if angular:
+                Jt[iv, 3:] = w
         else:
-            Jt[iv] = w
+            Jt[iv, :3] = w
     return Rw, pw.T, Jt.transpose(2, 1, 0)
 
 
@@ -523,6 +527,9 @@ def positions(model: pin.Model, Q: np.ndarray, frame: str = "smr") -> np.ndarray
 
 def placements(model: pin.Model, Q: np.ndarray, frame: str = "flange") -> tuple[np.ndarray, np.ndarray]:
     """Rotation (n, 3, 3) and translation (n, 3) mm of ``frame``."""
+    batch = batch_placements(model, Q, frame)
+    if batch is not None:
+        return batch[0], batch[1] * 1000.0
     data = model.createData()
     fid = model.getFrameId(frame)
     R = np.empty((len(Q), 3, 3))
@@ -560,6 +567,11 @@ def positions_and_jacobians(model: pin.Model, Q: np.ndarray, frame: str = "smr")
 
 def pose_jacobians(model: pin.Model, Q: np.ndarray, frame: str = "smr"):
     """Placement and 6-row world-aligned Jacobian (linear mm, angular rad) of ``frame``."""
+    batch = batch_placements(model, Q, frame, jacobian=True, angular=True)
+    if batch is not None:
+        R, P, J = batch
+        J[:, :3] *= 1000.0
+        return R, P * 1000.0, J
     data = model.createData()
     fid = model.getFrameId(frame)
     n = len(Q)

@@ -197,6 +197,40 @@ def test_a_jacobian_of_some_columns_is_those_columns_of_the_whole(oriented):
     assert np.array_equal(part, whole[:, :, keep]) and np.abs(part).max() > 0
 
 
+def test_a_six_dof_sparse_jacobian_is_the_dense_one():
+    """A 6-DoF design's sparse Jacobian, laid out from its nonzeros (calibrate._pose6_csc_structure), is the
+    general layout of its entries (_csc_structure) and, densified, the dense Jacobian's rows (positions, then
+    weighted turns); with a (pose, column) of several nonzeros too (the general way, summed)."""
+    from pipeline.robot.arm.effects import RobotData
+    from pipeline.robot.arm.kinematics import gravity_torques
+    from pipeline.robot.model import calibrate
+    from pipeline.robot.model.calibrate import Design
+
+    robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
+    rng = np.random.default_rng(4)
+    q = robot.lower_deg + (robot.upper_deg - robot.lower_deg) * (0.15 + 0.7 * rng.random((50, robot.n_joints)))
+    data = RobotData(q, np.ones_like(q, int), np.zeros(50), np.full(50, 20.0), gravity_torques(robot, q),
+                     robot.lower_deg, robot.upper_deg)
+    R0 = np.broadcast_to(np.eye(3), (50, 3, 3)).copy()
+    data.measured_mm, data.measured_R = rng.normal(0.0, 1.0, (50, 3)), R0
+    effects = list(spec("geometry", "base", "tool", "joint_map", "compliance").effects)
+    d = Design(robot, [e.prepared(robot, data) for e in effects], data)
+    d.weight = 0.3
+    x = rng.normal(0.0, 1e-3, d.p)
+    _, F, J = d.residual_and_sparse_jacobian(x)
+    dense_F, dense_J = d.residual_and_jacobian(x)
+    np.testing.assert_array_equal(F, dense_F)
+    np.testing.assert_allclose(J.toarray(), dense_J, rtol=1e-12, atol=1e-12 * np.abs(dense_J).max())
+    ii, ee, _ = d._pose_major()
+    for cols in (d.p_idx[ee], np.minimum(d.p_idx[ee], 5)):        # the second: many nonzeros per (pose, column)
+        rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(),
+                               (3 * data.n + 3 * ii[:, None] + np.arange(3)).ravel()])
+        general = calibrate._csc_structure(rows, np.concatenate([np.repeat(cols, 3)] * 2), 6 * data.n, d.p)
+        fast = calibrate._pose6_csc_structure(ii, cols, data.n, d.p)
+        for a, b in zip(fast, general):
+            assert (a is None and b is None) or np.array_equal(np.asarray(a), np.asarray(b))
+
+
 @pytest.mark.parametrize("sparse", [False, True])
 def test_scaled_svd_in_row_blocks_is_the_dense_svd(monkeypatch, sparse):
     """R built block by block (a tall-skinny QR: 7 blocks of 300 rows here) gives the singular values and

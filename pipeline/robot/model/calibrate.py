@@ -276,10 +276,7 @@ class Design:
         del vals
         if self._coo6 is None:
             # the entries' rows and columns are the same at every x: the layout is built once
-            rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(),
-                                   (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
-            cols = np.concatenate([np.repeat(self.p_idx[ee], 3)] * 2)
-            self._coo6 = _csc_structure(rows, cols, 6 * n, self.p)
+            self._coo6 = _pose6_csc_structure(ii, self.p_idx[ee], n, self.p)
         J = _csc(data, self._coo6)
         F = np.concatenate([(P - self.data.measured_mm).ravel(),
                             self.weight * orientation_errors(R, self.data.measured_R).ravel()])
@@ -348,6 +345,32 @@ def _pose_csc_structure(ii, cols, n, p):
     rows = (3 * i[first][:, None] + np.arange(3)).ravel().astype(np.int32)
     indptr = 3 * np.searchsorted(c[first], np.arange(p + 1)).astype(np.int64)
     return order, (first if first.size < i.size else None), rows, indptr, (3 * n, p)
+
+
+def _pose6_csc_structure(ii, cols, n, p):
+    """The :func:`_csc_structure` of a 6-DoF Jacobian (6 n, p) whose nonzeros t (pose ``ii[t]``, column
+    ``cols[t]``, pose-major) each fill the rows 3 ii + 0, 1, 2 (positions) and 3 n + 3 ii + 0, 1, 2 (turns),
+    the values laid out as ``[vals[:, :3].ravel(), vals[:, 3:].ravel()]``: the same layout, sorted as
+    nonzeros rather than as its six times as many entries (issue 32: 0.4 s a design on 7,000 poses). A
+    (pose, column) of several nonzeros goes the general way."""
+    ii, cols = np.asarray(ii, np.int64), np.asarray(cols, np.int64)
+    order, first, i, c = _by_column(ii, cols, p)
+    nnz = ii.size
+    if first.size < nnz:
+        rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(), (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
+        return _csc_structure(rows, np.concatenate([np.repeat(cols, 3)] * 2), 6 * n, p)
+    ptr = np.searchsorted(c, np.arange(p + 1)).astype(np.int64)      # each column's nonzeros, sorted
+    m = np.diff(ptr)[c]                                               # its column's count, per sorted nonzero
+    local = np.arange(nnz) - ptr[c]
+    at = 6 * ptr[c] + 3 * local                                       # where its position rows start
+    a = np.arange(3)
+    perm = np.empty(6 * nnz, np.int64)
+    rows = np.empty(6 * nnz, np.int32)
+    perm[(at[:, None] + a).ravel()] = (3 * order[:, None] + a).ravel()
+    perm[(at[:, None] + 3 * m[:, None] + a).ravel()] = (3 * nnz + 3 * order[:, None] + a).ravel()
+    rows[(at[:, None] + a).ravel()] = (3 * i[:, None] + a).ravel()
+    rows[(at[:, None] + 3 * m[:, None] + a).ravel()] = (3 * n + 3 * i[:, None] + a).ravel()
+    return perm, None, rows, 6 * ptr, (6 * n, p)
 
 
 def _pose_csc(vals, structure):

@@ -212,3 +212,19 @@ def test_a_model_written_before_it_states_no_u95_and_still_predicts(fitted, tmp_
     assert r.exit_code == 0, r.output
     p = json.loads(out.read_text())
     assert "coverage_95" not in p and "u95_mm" not in p["points"][0]
+
+
+def test_least_sure_parameters_of_equal_uncertainty_are_named_in_name_order():
+    """A pair the data cannot tell apart has one relative uncertainty but for its last digits: it is named
+    in the order of its names, whichever rounding a kernel leaves (the order of the largest is kept)."""
+    from pipeline.robot.model.uncertainty import largest_relative
+
+    def params(eps):
+        return [{"name": "dtheta1", "value": 1.0, "uncertainty": 0.5 * (1 + eps), "unit": "mrad"},
+                {"name": "base_ez", "value": -1.0, "uncertainty": 0.5, "unit": "mrad"},
+                {"name": "dd6", "value": 0.1, "uncertainty": 0.2, "unit": "mm"},
+                {"name": "tool_dx", "value": 1.0, "uncertainty": 0.01, "unit": "mm"}]
+
+    for eps in (1e-13, -1e-13, 0.0):
+        assert [r["name"] for r in largest_relative(params(eps))] == ["dd6", "base_ez", "dtheta1"]
+    assert [r["name"] for r in largest_relative(params(1e-3))] == ["dd6", "dtheta1", "base_ez"]

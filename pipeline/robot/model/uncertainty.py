@@ -338,7 +338,10 @@ def largest_relative(parameters: list[dict], k: int = 3, skip=()) -> list[dict]:
         rel = u / abs(p["value"]) if p["value"] != 0 else float("inf")
         rows.append({"name": p["name"], "value": p["value"], "uncertainty": u, "unit": p["unit"], "relative": rel,
                      "meaning": meaning(p["name"])})
-    rows.sort(key=lambda r: (-r["relative"], r["name"]))
+    # largest first, counted to 9 digits: a pair the data cannot tell apart (a joint's zero offset and the
+    # base's turn about the same axis) has the same relative uncertainty but for rounding, and is named
+    # in the order of its names, not of its last digits
+    rows.sort(key=lambda r: (-float(f"{r['relative']:.9g}"), r["name"]))
     return rows[:k]
 
 

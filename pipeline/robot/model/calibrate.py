@@ -362,14 +362,15 @@ def _pose6_csc_structure(ii, cols, n, p):
     ptr = np.searchsorted(c, np.arange(p + 1)).astype(np.int64)      # each column's nonzeros, sorted
     m = np.diff(ptr)[c]                                               # its column's count, per sorted nonzero
     local = np.arange(nnz) - ptr[c]
-    at = 6 * ptr[c] + 3 * local                                       # where its position rows start
     a = np.arange(3)
+    pos = ((6 * ptr[c] + 3 * local)[:, None] + a).ravel()          # where its position rows go
+    turn = pos + 3 * np.repeat(m, 3)                                # and its turns', after the column's positions
+    src = (3 * order[:, None] + a).ravel()                          # its position values in the layout
+    row = (3 * i[:, None] + a).ravel()
     perm = np.empty(6 * nnz, np.int64)
     rows = np.empty(6 * nnz, np.int32)
-    perm[(at[:, None] + a).ravel()] = (3 * order[:, None] + a).ravel()
-    perm[(at[:, None] + 3 * m[:, None] + a).ravel()] = (3 * nnz + 3 * order[:, None] + a).ravel()
-    rows[(at[:, None] + a).ravel()] = (3 * i[:, None] + a).ravel()
-    rows[(at[:, None] + 3 * m[:, None] + a).ravel()] = (3 * n + 3 * i[:, None] + a).ravel()
+    perm[pos], perm[turn] = src, 3 * nnz + src
+    rows[pos], rows[turn] = row, 3 * n + row
     return perm, None, rows, 6 * ptr, (6 * n, p)
 
 

@@ -228,3 +228,21 @@ def test_least_sure_parameters_of_equal_uncertainty_are_named_in_name_order():
     for eps in (1e-13, -1e-13, 0.0):
         assert [r["name"] for r in largest_relative(params(eps))] == ["dd6", "base_ez", "dtheta1"]
     assert [r["name"] for r in largest_relative(params(1e-3))] == ["dd6", "dtheta1", "base_ez"]
+
+
+def test_propagated_covariance_is_each_poses_sandwich(monkeypatch):
+    """J_i C J_i^T pose by pose (and its trace), also across the blocks the product is taken in."""
+    from pipeline.robot.model import uncertainty
+
+    rng = np.random.default_rng(7)
+    J = rng.normal(size=(11, 6, 9))
+    A = rng.normal(size=(9, 9))
+    C = A @ A.T
+    monkeypatch.setattr(uncertainty, "_BLOCK", 4)
+    S = uncertainty.prediction_covariance(J, C)
+    assert S.shape == (11, 6, 6)
+    for i in range(11):
+        np.testing.assert_allclose(S[i], J[i] @ C @ J[i].T, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(uncertainty.prediction_variance(J, C), np.trace(S, axis1=1, axis2=2), rtol=1e-12)
+    assert uncertainty.prediction_covariance(J[:0], C).shape == (0, 6, 6)
+    assert uncertainty.prediction_variance(J[:0], C).shape == (0,)

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..robot.arm.effects import RobotData
 from ..robot.model.estimate import effects_estimator
+from ..robot.model.uncertainty import prediction_covariance
 from ..robot.arm.kinematics import Robot, gravity_torques
 from ..core.units import REFERENCE_TEMPERATURE_C
 
@@ -246,7 +247,7 @@ def i_exchange(A, M0, W, chosen, candidates, say=None, max_passes=MAX_PASSES):
         Minv = np.linalg.inv(M)
         Minv = 0.5 * (Minv + Minv.T)
         H = Minv @ W @ Minv
-        return Minv, H, np.einsum("nkp,pq,nlq->nkl", A, Minv, A), np.einsum("nkp,pq,nlq->nkl", A, H, A)
+        return Minv, H, prediction_covariance(A, Minv), prediction_covariance(A, H)
 
     Minv, H, G, Q = state()
     value = float(np.trace(W @ Minv))
@@ -482,7 +483,7 @@ def _prediction_rms(A_pool, M, noise_mm) -> tuple[float | None, float | None]:
     (predicted RMS position error from the parameters' scatter, mm; the mean over the pool of the 95 %
     radius of that error plus the measurement noise itself, mm), each None when not defined.
     """
-    from ..robot.model.uncertainty import prediction_covariance, prediction_variance, radius95
+    from ..robot.model.uncertainty import prediction_variance, radius95
 
     try:
         Minv = np.linalg.inv(M)

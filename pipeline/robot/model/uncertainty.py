@@ -139,7 +139,10 @@ def prediction_variance(J, cov) -> np.ndarray:
     cov : ndarray, shape (p, p)
         Parameter covariance in the same parameter units.
     """
-    return np.einsum("nkp,pq,nkq->n", J, cov, J)
+    J = np.asarray(J, float)
+    if not len(J):
+        return np.zeros(0)
+    return np.concatenate([np.einsum("nkq,nkq->n", JC, Jc) for Jc, JC in _times_cov(J, cov)])
 
 
 def prediction_covariance(J, cov) -> np.ndarray:
@@ -151,7 +154,26 @@ def prediction_covariance(J, cov) -> np.ndarray:
         Prediction Jacobian (rows 1-3 position, mm per unit; rows 4-6, when given, orientation).
     cov : ndarray, shape (p, p)
     """
-    return np.einsum("nkp,pq,nlq->nkl", J, cov, J)
+    J = np.asarray(J, float)
+    if not len(J):
+        return np.zeros((0, J.shape[1], J.shape[1]))
+    return np.concatenate([np.matmul(JC, Jc.transpose(0, 2, 1)) for Jc, JC in _times_cov(J, cov)])
+
+
+#: poses a block of :func:`_times_cov` (12,000 poses x 6 rows x 876 parameters would be 0.5 GB at once)
+_BLOCK = 2048
+
+
+def _times_cov(J, cov):
+    """``(J_i, J_i C)`` by blocks of poses: ``J C`` as one matrix product a block. numpy's einsum of the
+    three operands ``J, C, J`` sums over both parameter indices at once, (m p)^2 products a pose: 40 times
+    slower at 600 parameters (24 s for 1,109 poses)."""
+    J = np.asarray(J, float)
+    n, m, p = J.shape
+    cov = np.asarray(cov, float)
+    for a in range(0, n, _BLOCK):
+        Jc = J[a:a + _BLOCK]
+        yield Jc, (Jc.reshape(-1, p) @ cov).reshape(Jc.shape)
 
 
 def radius95(S, p: float = P95) -> np.ndarray:

@@ -246,3 +246,36 @@ def test_propagated_covariance_is_each_poses_sandwich(monkeypatch):
     np.testing.assert_allclose(uncertainty.prediction_variance(J, C), np.trace(S, axis1=1, axis2=2), rtol=1e-12)
     assert uncertainty.prediction_covariance(J[:0], C).shape == (0, 6, 6)
     assert uncertainty.prediction_variance(J[:0], C).shape == (0,)
+
+
+@pytest.mark.parametrize("probe", ["smr", "6dof"])
+def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypatch):
+    """Beyond DENSE_SVD_MAX entries the covariance comes from the sparse Jacobian by blocks of rows (its
+    sv and V from a QR, the fitted degrees of freedom from the penalty rows): the dense SVD's numbers."""
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model import calibrate, uncertainty
+    from pipeline.robot.model.estimate import fit_effects
+
+    camp = KR210
+    if probe == "6dof":
+        camp = tmp_path / "cell"
+        camp.mkdir()
+        shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
+        r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "3",
+                          "--probe", "6dof")
+        assert r.exit_code == 0, r.output
+    robot, (sample,) = robot_data_sets(camp, ("sample",))
+    spec = parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
+                      '[[effect]]\nname = "tool"\n\n[[effect]]\nname = "joint_map"\njoints = [2]\n', "<test>")
+    model = fit_effects(robot, list(spec.effects), sample, checks=False)
+    assert np.asarray(model.penalty_).shape[0] > 0          # the joint map's smoothness rows take part
+    dense = uncertainty.parameter_covariance(model, sample)
+    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 1000)   # every campaign is large: blocks of rows too
+    large = uncertainty.parameter_covariance(model, sample)
+    C0, C1 = dense["covariance"], large["covariance"]
+    assert np.abs(C0).max() > 0
+    np.testing.assert_allclose(C1, C0, rtol=0, atol=1e-9 * np.abs(C0).max())
+    assert large["dof"] == pytest.approx(dense["dof"], rel=1e-9)
+    assert large["sigma_mm"] == pytest.approx(dense["sigma_mm"], rel=1e-9)
+    assert large["n_obs"] == dense["n_obs"]

@@ -96,30 +96,65 @@ def parameter_covariance(model, data) -> dict:
     dict: ``covariance`` (p, p) internal units, ``sigma_mm`` (s, per coordinate, mm), ``dof`` (fitted
     degrees of freedom), ``n_obs`` (3 n).
     """
+    from .calibrate import DENSE_SVD_MAX, gram, scaled_svd
+
     d = model.design(data)
-    if d.oriented:
-        # a 6-DoF fit: its residual rows are the positions and the weighted orientations (variance
-        # components make both of one variance per row), and so is its covariance's
-        r, J2 = d.residual_and_jacobian(model.coef_)
-    else:
-        P, J = d.predict_and_jacobian(model.coef_)
-        J2 = J.reshape(-1, d.p)
-        r = (P - np.asarray(data.measured_mm, float)).ravel()
     B = np.asarray(model.basis_, float)
     Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, d.p))), float)
-    A = np.vstack([J2 @ B, Pen @ B])
-    c = np.linalg.norm(A, axis=0)
-    c = np.where(c > 0, c, 1.0)
-    U, sv, Vt = np.linalg.svd(A / c, full_matrices=False)
-    live = sv > COVARIANCE_RCOND * (sv[0] if sv.size else 1.0)
-    U, sv, Vt = U[:, live], sv[live], Vt[live]
-    n_obs = J2.shape[0]
-    dof = float(np.sum(U[:n_obs] ** 2))
+    PB = Pen @ B
+    n_obs = (6 if d.oriented else 3) * data.n
+    if n_obs * d.p <= DENSE_SVD_MAX:
+        if d.oriented:
+            # a 6-DoF fit: its residual rows are the positions and the weighted orientations (variance
+            # components make both of one variance per row), and so is its covariance's
+            r, J2 = d.residual_and_jacobian(model.coef_)
+        else:
+            P, J = d.predict_and_jacobian(model.coef_)
+            J2 = J.reshape(-1, d.p)
+            r = (P - np.asarray(data.measured_mm, float)).ravel()
+        A = np.vstack([J2 @ B, PB])
+        c = np.linalg.norm(A, axis=0)
+        c = np.where(c > 0, c, 1.0)
+        U, sv, Vt = np.linalg.svd(A / c, full_matrices=False)
+        live = sv > COVARIANCE_RCOND * (sv[0] if sv.size else 1.0)
+        U, sv, Vt = U[:, live], sv[live], Vt[live]
+        dof = float(np.sum(U[:n_obs] ** 2))
+    else:
+        # a large campaign: the same sv and V from the sparse Jacobian, block of rows by block (the dense
+        # J (6 n, p) and U (6 n, k) of 12,000 6-DoF poses were 1.2 GB more), and the data rows' share of
+        # each direction as 1 less the penalty rows' (U's columns are unit vectors)
+        if d.oriented:
+            _, r, Js = d.residual_and_sparse_jacobian(model.coef_)
+        else:
+            P, Js = d.predict_and_sparse_jacobian(model.coef_)
+            r = (P - np.asarray(data.measured_mm, float)).ravel()
+        H, _ = gram(Js)
+        c = np.sqrt(np.maximum(np.einsum("pk,pk->k", B, H @ B) + np.sum(PB ** 2, axis=0), 0.0))
+        c = np.where(c > 0, c, 1.0)
+        sv, Vt = scaled_svd(_Rows(Js.tocsr(), B, PB), c)
+        live = sv > COVARIANCE_RCOND * (sv[0] if sv.size else 1.0)
+        sv, Vt = sv[live], Vt[live]
+        dof = float(np.sum(1.0 - np.sum(((PB / c) @ Vt.T / sv) ** 2, axis=0)))
     s2 = float(r @ r) / max(n_obs - dof, 1.0)
     Hinv = (Vt.T / sv ** 2) @ Vt / np.outer(c, c)
     cov = s2 * (B @ Hinv @ B.T)
     cov = 0.5 * (cov + cov.T)
     return {"covariance": cov, "sigma_mm": float(np.sqrt(s2)), "dof": dof, "n_obs": int(n_obs)}
+
+
+class _Rows:
+    """The rows of ``[J B; Pen B]`` (J sparse (m, p), B (p, k), Pen B (m_p, k)) as :func:`scaled_svd` reads
+    them: a slice of rows at a time, dense."""
+
+    def __init__(self, J, B, PB):
+        self.J, self.B, self.PB = J, B, PB
+        self.shape = (J.shape[0] + PB.shape[0], B.shape[1])
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        m = self.J.shape[0]
+        a, b = rows.start or 0, min(rows.stop, self.shape[0])
+        top = np.asarray(self.J[a:min(b, m)] @ self.B) if a < m else np.zeros((0, self.shape[1]))
+        return np.vstack([top, self.PB[max(a - m, 0):max(b - m, 0)]])
 
 
 def orientation_jacobian(model, data) -> np.ndarray:

@@ -69,16 +69,25 @@ ARCSEC_PER_MRAD = ARCSEC_PER_RAD / 1000.0
 COVARIANCE_RCOND = 1e-12
 
 
-def model_jacobian(model, data) -> np.ndarray:
+def model_jacobian(model, data, columns=None) -> np.ndarray:
     """Position Jacobian of a fitted model at its solution, shape (n, 3, p), mm per internal unit.
 
     Parameters
     ----------
     model : RobotErrorModel (fitted or rebuilt from JSON)
     data : RobotData, n poses
+    columns : ndarray, shape (p,), bool, optional
+        Only those parameters' columns: (n, 3, k).
     """
-    _, J = model.design(data).predict_and_jacobian(model.coef_)
+    _, J = model.design(data).predict_and_jacobian(model.coef_, columns)
     return J
+
+
+def moving(cov) -> np.ndarray:
+    """The parameters a covariance (p, p) holds, (p,) bool: a parameter left at nominal has an exactly zero
+    row and column, and adds nothing to ``J C J^T`` (its Jacobian columns need not be made: 293 of the 866
+    of Series A's loop model)."""
+    return np.any(np.asarray(cov) != 0.0, axis=0)
 
 
 def parameter_covariance(model, data) -> dict:
@@ -157,10 +166,11 @@ class _Rows:
         return np.vstack([top, self.PB[max(a - m, 0):max(b - m, 0)]])
 
 
-def orientation_jacobian(model, data) -> np.ndarray:
+def orientation_jacobian(model, data, columns=None) -> np.ndarray:
     """The probe frame's turn (base frame) with respect to the parameters at the solution, shape (n, 3, p),
-    mrad per internal unit (a 6-DoF probe's orientation, contract section 13)."""
-    _, _, J = model.design(data).pose_and_jacobian(model.coef_)
+    mrad per internal unit (a 6-DoF probe's orientation, contract section 13); ``columns`` as
+    :func:`model_jacobian`'s."""
+    _, _, J = model.design(data).pose_and_jacobian(model.coef_, columns)
     return J[:, 3:]
 
 
@@ -440,10 +450,12 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
     sd = np.sqrt(np.clip(np.diag(cov_rep), 0.0, None))
     fixed = set(model.fixed_)
     unc = [None if n in fixed else float(s) for n, s in zip(model.names_, sd)]
-    J = model_jacobian(model, sample)
+    mv = moving(cov)
+    cov_mv = cov[np.ix_(mv, mv)]
+    J = model_jacobian(model, sample, mv)
     n = sample.n
     train = n * (n_folds - 1) / n_folds
-    at_cv = prediction_covariance(J, cov) * (n / max(train, 1.0))
+    at_cv = prediction_covariance(J, cov_mv) * (n / max(train, 1.0))
     U = unexplained_covariance(cv_residuals, at_cv)
     S_cv = at_cv + U
     r_cv = np.linalg.norm(np.asarray(cv_residuals, float), axis=1)
@@ -467,8 +479,8 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
                        "error (docs/uncertainty.md); coverage_factor: the 0.95 quantile of the cross-validated "
                        "residuals over their own Gaussian radius")}
     if cv_orientation is not None and "tool_ex" in model.names_:
-        Jo = orientation_jacobian(model, sample)
-        at_o = prediction_covariance(Jo, cov) * (n / max(train, 1.0))
+        Jo = orientation_jacobian(model, sample, mv)
+        at_o = prediction_covariance(Jo, cov_mv) * (n / max(train, 1.0))
         Uo = unexplained_covariance(cv_orientation, at_o)
         ro = np.linalg.norm(np.asarray(cv_orientation, float), axis=1)
         bo = radius95(at_o + Uo)
@@ -534,8 +546,9 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
     dict of (n,) arrays, mm: ``u95_mm``, and the 1-sigma 3-D sizes sqrt(trace) of the parts
     ``parameters_mm``, ``unexplained_mm``, ``extrapolation_mm``.
     """
-    J = model_jacobian(model, data)
-    Sp = prediction_covariance(J, stated["covariance"])
+    mv = moving(stated["covariance"])
+    cov_mv = np.asarray(stated["covariance"])[np.ix_(mv, mv)]
+    Sp = prediction_covariance(model_jacobian(model, data, mv), cov_mv)
     Se = extrapolation_covariance(data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"],
                                   stated.get("spread_rad"))
     S = Sp + stated["unexplained"][None] + Se
@@ -544,7 +557,7 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
            "unexplained_mm": np.full(data.n, float(np.sqrt(max(np.trace(stated["unexplained"]), 0.0)))),
            "extrapolation_mm": tr(Se)}
     if "unexplained_orientation" in stated and "tool_ex" in model.names_:
-        So = prediction_covariance(orientation_jacobian(model, data), stated["covariance"])
+        So = prediction_covariance(orientation_jacobian(model, data, mv), cov_mv)
         So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
             data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"], stated.get("spread_rad"),
             Jturn=joint_jacobian(model, data, turn=True))

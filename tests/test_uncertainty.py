@@ -279,3 +279,13 @@ def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypa
     assert large["dof"] == pytest.approx(dense["dof"], rel=1e-9)
     assert large["sigma_mm"] == pytest.approx(dense["sigma_mm"], rel=1e-9)
     assert large["n_obs"] == dense["n_obs"]
+    # propagated over the parameters the covariance holds (the others' zero rows and columns left out): the same
+    # (here as if every third parameter were left at nominal: its row and column 0)
+    Cz = C0.copy()
+    Cz[::3], Cz[:, ::3] = 0.0, 0.0
+    mv = uncertainty.moving(Cz)
+    assert mv.sum() == mv.size - len(range(0, mv.size, 3))
+    full = uncertainty.prediction_covariance(uncertainty.model_jacobian(model, sample), Cz)
+    part = uncertainty.prediction_covariance(uncertainty.model_jacobian(model, sample, mv), Cz[np.ix_(mv, mv)])
+    assert np.abs(full).max() > 0
+    np.testing.assert_allclose(part, full, rtol=1e-12, atol=1e-12 * np.abs(full).max())

@@ -351,19 +351,24 @@ def _pose6_csc_structure(ii, cols, n, p):
     """The :func:`_csc_structure` of a 6-DoF Jacobian (6 n, p) whose nonzeros t (pose ``ii[t]``, column
     ``cols[t]``, pose-major) each fill the rows 3 ii + 0, 1, 2 (positions) and 3 n + 3 ii + 0, 1, 2 (turns),
     the values laid out as ``[vals[:, :3].ravel(), vals[:, 3:].ravel()]``: the same layout, sorted as
-    nonzeros rather than as its six times as many entries (issue 32: 0.4 s a design on 7,000 poses). A
-    (pose, column) of several nonzeros goes the general way."""
+    nonzeros rather than as its six times as many entries (issue 32: 0.4 s a design on 7,000 poses), also
+    where a (pose, column) has several nonzeros (a run, summed: the loop's designs, 0.27 s each the general
+    way)."""
     ii, cols = np.asarray(ii, np.int64), np.asarray(cols, np.int64)
     order, first, i, c = _by_column(ii, cols, p)
     nnz = ii.size
-    if first.size < nnz:
-        rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(), (3 * n + 3 * ii[:, None] + np.arange(3)).ravel()])
-        return _csc_structure(rows, np.concatenate([np.repeat(cols, 3)] * 2), 6 * n, p)
     ptr = np.searchsorted(c, np.arange(p + 1)).astype(np.int64)      # each column's nonzeros, sorted
     m = np.diff(ptr)[c]                                               # its column's count, per sorted nonzero
-    local = np.arange(nnz) - ptr[c]
+    # a run of L nonzeros of one (pose, column) (a joint map's and a compliance's on one joint, ...): its
+    # entries of one row side by side, in their order (as the general layout sorts them, stably), summed
+    starts = np.zeros(nnz, bool)
+    starts[first] = True
+    run = np.cumsum(starts) - 1                                       # each sorted nonzero's run
+    length = np.diff(np.append(first, nnz))[run]
+    lo = first[run] - ptr[c]                                          # the run's first nonzero in its column
+    j = np.arange(nnz) - first[run]                                   # and this nonzero's place in the run
     a = np.arange(3)
-    pos = ((6 * ptr[c] + 3 * local)[:, None] + a).ravel()          # where its position rows go
+    pos = ((6 * ptr[c] + 3 * lo + j)[:, None] + a * length[:, None]).ravel()   # where its position rows go
     turn = pos + 3 * np.repeat(m, 3)                                # and its turns', after the column's positions
     src = (3 * order[:, None] + a).ravel()                          # its position values in the layout
     row = (3 * i[:, None] + a).ravel()
@@ -371,7 +376,13 @@ def _pose6_csc_structure(ii, cols, n, p):
     rows = np.empty(6 * nnz, np.int32)
     perm[pos], perm[turn] = src, 3 * nnz + src
     rows[pos], rows[turn] = row, 3 * n + row
-    return perm, None, rows, 6 * ptr, (6 * n, p)
+    if first.size == nnz:
+        return perm, None, rows, 6 * ptr, (6 * n, p)
+    f = first
+    start = ((6 * ptr[c[f]] + 3 * lo[f])[:, None] + a * length[f][:, None]).ravel()
+    start = np.sort(np.concatenate([start, start + 3 * np.repeat(m[f], 3)]))
+    uptr = np.searchsorted(c[f], np.arange(p + 1)).astype(np.int64)  # each column's runs
+    return perm, start, rows[start], 6 * uptr, (6 * n, p)
 
 
 def _pose_csc(vals, structure):

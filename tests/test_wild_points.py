@@ -203,3 +203,42 @@ def test_wild_points_are_found_once_per_measurements(tmp_path, monkeypatch):
     monkeypatch.setenv("JOINTCAL_CACHE", "off")
     outliers.find_wild(robot, effects, s.subset(np.arange(s.n) > 0), tg, tmp_path / "c")
     assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2
+
+
+@pytest.mark.parametrize("probe", ["smr", "6dof"])
+def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
+    """The wild search's refit without the poses it names (stepped_without): one Gauss-Newton step from the
+    fit on all poses, on the normal equations of the rest, lands where a full refit on the rest does."""
+    import dataclasses
+
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+
+    camp = ROOT / "raw" / "robot" / "kr210"
+    if probe == "6dof":
+        camp = tmp_path / "cell"
+        camp.mkdir()
+        shutil.copy(ROOT / "raw" / "robot" / "kr210" / "robot.toml", camp / "robot.toml")
+        r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "5",
+                          "--probe", "6dof")
+        assert r.exit_code == 0, r.output
+    robot, (sample,) = robot_data_sets(camp, ("sample",))
+    bad = np.array([3, 17, 40])
+    meas = sample.measured_mm.copy()
+    meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
+    sample = dataclasses.replace(sample, measured_mm=meas)
+    spec = parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
+                      '[[effect]]\nname = "tool"\n\n[[effect]]\nname = "joint_map"\njoints = [2]\n', "<test>")
+    full = fit_effects(robot, list(spec.effects), sample, checks=False)
+    keep = np.ones(sample.n, bool)
+    keep[bad] = False
+    w = (full.weighting_ or {}).get("orientation_weight_mm_per_mrad")
+    refit = fit_effects(robot, list(spec.effects), sample.subset(keep), checks=False, orientation_weight=w)
+    step = full.stepped_without(sample, keep)
+    kept = sample.subset(keep)
+    moved = np.abs(full.predict(kept) - refit.predict(kept)).max()
+    off = np.abs(step.predict(kept) - refit.predict(kept)).max()
+    assert moved > 1e-3                        # leaving the three out moves the fit
+    assert off < 1e-3 * moved                  # and the one step follows it
+    assert np.array_equal(full.coef_, fit_effects(robot, list(spec.effects), sample, checks=False).coef_)

@@ -13,7 +13,8 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
    and wild points.
 2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
    fitted again, until the set named no longer changes (a redescending M-estimator with hard
-   rejection: a wild pose gets weight 0, every other weight 1). Each pose's residual is its 3-D
+   rejection: a wild pose gets weight 0, every other weight 1). A refit is one Gauss-Newton step from
+   the fit on all sample poses, on the normal equations of the poses kept (``stepped_without``). Each pose's residual is its 3-D
    distance from that model (for a pose left out, a prediction).
 3. **A robust scale** of the residuals: ``sigma = sqrt(median(|r|^2) / 2.366)``, the per-axis
    standard deviation the median of the squared 3-D residual gives for Gaussian noise (2.366 is
@@ -307,23 +308,25 @@ def _search(robot, effects, flex, sample, target) -> dict:
     span = np.maximum(np.ptp(sample.q_deg, axis=0), 1e-9)
     qs = _scaled(sample.q_deg, lo, span)
     rs = rt = None
-    start = weight = None
+    first = None
     for _ in range(MAX_REFITS):
-        fitted = sample.subset(~ws) if ws.any() else sample
-        try:
-            # a refit without the poses named starts from the fit before (the same model on all but a few
-            # of the same poses: one or two Gauss-Newton steps, not a fit from nominal)
-            model = fit_effects(robot, flex, fitted, checks=False, start=start, weight_start=weight)
-        except np.linalg.LinAlgError:
-            model = fit_effects(robot, list(effects), fitted, checks=False)
-        start = dict(zip(model.names_, model.coef_))
-        weight = (getattr(model, "weighting_", None) or {}).get("orientation_weight_mm_per_mrad")
+        n_fitted = int(np.sum(~ws))
+        if first is None:
+            try:
+                first = fit_effects(robot, flex, sample, checks=False)
+            except np.linalg.LinAlgError:
+                first = fit_effects(robot, list(effects), sample, checks=False)
+            model = first
+        else:
+            # the refit without the poses named: one Gauss-Newton step from the fit on all of them, on the
+            # normal equations of the rest (the same model on all but a few of the same poses)
+            model = first.stepped_without(sample, ~ws)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
-        n_res = rs.shape[1] * fitted.n
+        n_res = rs.shape[1] * n_fitted
         dof = getattr(model, "dof_", float("nan"))
         if np.isfinite(dof) and n_res - dof < MIN_RESIDUAL_DOF_FRACTION * n_res:
-            why = (f"the flexible model ({dof:.0f} effective parameters on {fitted.n} sample poses, {n_res} residuals) "
+            why = (f"the flexible model ({dof:.0f} effective parameters on {n_fitted} sample poses, {n_res} residuals) "
                    f"leaves {100 * (n_res - dof) / n_res:.0f} % of its residuals' degrees of freedom, less than "
                    f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sig_s:.2g} mm), "
                    "so they give no scale to judge wild points by; none is named")

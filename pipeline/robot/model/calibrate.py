@@ -1006,7 +1006,9 @@ class RobotErrorModel:
         A 6-DoF fit without a stated ``orientation_weight`` weighs the two by variance components:
         fitted at a weight, the weight becomes the ratio of the RMS position residual (mm, per axis)
         to the RMS orientation residual (mrad, per axis), and the model is fitted again, until the
-        weight changes by less than :data:`VCE_RTOL`. Where it starts does not decide where it ends."""
+        weight changes by less than :data:`VCE_RTOL`. Each next weight is where the iteration ends on the fit
+        linearised at its solution (:meth:`_vce_linear`), so a campaign usually needs two fits. Where it starts
+        does not decide where it ends."""
         t0 = time.perf_counter()
         self._weight = None
         self.weighting_ = None
@@ -1049,7 +1051,11 @@ class RobotErrorModel:
                 h = float(np.log(w_new / w))
                 if abs(h) < VCE_RTOL:
                     break
-                w = vce_next(np.log(w), h, before)
+                # the next weight: where the fit, linearised at this solution, ends the iteration (the
+                # position and orientation rows' normal equations apart: a (k, k) solve a trial weight);
+                # the plain or secant step where the linear problem cannot say
+                guess = self._vce_linear(data, w)
+                w = guess if guess is not None else vce_next(np.log(w), h, before)
                 before = (float(np.log(history[-1])), h)
         finally:
             self._designs = None
@@ -1063,6 +1069,55 @@ class RobotErrorModel:
             "position_sigma_mm": sp, "orientation_sigma_arcsec": so * ARCSEC_PER_MRAD}
         self.seconds_ = time.perf_counter() - t0
         return self
+
+    def _vce_linear(self, data: RobotData, w: float) -> float | None:
+        """The weight (mm per mrad) where the variance components' iteration ends on the fit linearised at
+        its solution (fitted at weight ``w``), to :data:`VCE_RTOL` / 10 on ``h``; None where the linear problem
+        cannot say.
+
+        In the fit's directions B (``basis_``) and with its penalty rows, the position and orientation rows
+        enter the normal equations apart: at a trial weight v the linear fit is
+        ``(Hp + v^2 Ho + Pen^T Pen) dz = -(gp + v^2 go + Pen^T Pen x)`` and its RMS residuals follow from the
+        same sums, so each trial costs a (k, k) solve, not a fit. The fit at the weight found decides (the
+        iteration's test is on that fit's residuals, as for every weight)."""
+        d = self.design(data)
+        x = np.asarray(self.coef_, float)
+        B, Pen = self.basis_, self.penalty_
+        if B is None or B.shape[1] == 0 or w <= 0:
+            return None
+        n3 = 3 * data.n
+        if self._large(data):
+            _, F, J = d.residual_and_sparse_jacobian(x)
+            J = J.tocsr()
+            Hp, gp = gram(J[:n3].tocsc(), F[:n3])
+            Ho, go = gram(J[n3:].tocsc(), F[n3:])
+        else:
+            F, J = d.residual_and_jacobian(x)
+            Hp, gp = J[:n3].T @ J[:n3], J[:n3].T @ F[:n3]
+            Ho, go = J[n3:].T @ J[n3:], J[n3:].T @ F[n3:]
+        # the orientation rows unweighted (mrad)
+        Ho, go, Fo, Fp = Ho / w ** 2, go / w ** 2, F[n3:] / w, F[:n3]
+        Hp, Ho, gp, go = B.T @ Hp @ B, B.T @ Ho @ B, B.T @ gp, B.T @ go
+        PB = Pen @ B
+        PtP, pz = PB.T @ PB, PB.T @ (Pen @ x)
+        fp2, fo2 = float(Fp @ Fp), float(Fo @ Fo)
+        v, before = float(w), None
+        for _ in range(4 * VCE_MAX_ITER):
+            A = Hp + v * v * Ho + PtP
+            sc = np.sqrt(np.maximum(np.diag(A), 0.0))
+            sc = np.where(sc > 0, sc, 1.0)
+            ev, V = np.linalg.eigh(A / np.outer(sc, sc))
+            use = ev > 1e-12 * max(float(ev[-1]), 0.0)
+            dz = -(V[:, use] @ ((V[:, use].T @ ((gp + v * v * go + pz) / sc)) / ev[use])) / sc
+            sp2 = (fp2 + 2.0 * float(gp @ dz) + float(dz @ Hp @ dz)) / n3
+            so2 = (fo2 + 2.0 * float(go @ dz) + float(dz @ Ho @ dz)) / n3
+            if not (np.isfinite(sp2) and np.isfinite(so2) and sp2 > 0 and so2 > 0):
+                return None
+            h = 0.5 * float(np.log(sp2 / so2)) - float(np.log(v))
+            if abs(h) < VCE_RTOL / 10:
+                return v
+            v, before = vce_next(np.log(v), h, before), (float(np.log(v)), h)
+        return None
 
     def _register_mounting(self, data: RobotData) -> None:
         """Set the probe frame's turn on the flange (the tool's orientation parameters) to the chordal

@@ -155,8 +155,8 @@ def test_the_variance_components_secant_ends_where_the_plain_iteration_does():
 
 
 def test_a_refit_on_nearly_the_same_poses_starts_from_the_weight_before(cell):
-    """The wild-point search refits without a few poses: started from the weight the fit before ended
-    with, its variance components end at once, where a fit from the usual start ends."""
+    """A refit without a few poses (``weight_start``): started from the weight the fit before ended with,
+    its variance components end at once, where a fit from the usual start ends."""
     from pipeline.robot.campaign.ingest import robot_data_sets
     from pipeline.robot.model.calibrate import RobotErrorModel, VCE_RTOL
     from pipeline.core.spec import parse_spec
@@ -173,6 +173,26 @@ def test_a_refit_on_nearly_the_same_poses_starts_from_the_weight_before(cell):
     assert warm.weighting_["iterations"] <= min(2, fresh.weighting_["iterations"])
     ww, wf = (m.weighting_["orientation_weight_mm_per_mrad"] for m in (warm, fresh))
     assert abs(np.log(ww / wf)) < 3 * VCE_RTOL, (ww, wf)
+
+
+def test_the_linearised_weight_ends_the_variance_components_in_two_fits(cell):
+    """From the usual start (1 mm per mrad, far from this campaign's weight), the next weight is where the
+    fit linearised at its solution ends the iteration: the second fit passes the iteration's test on its own
+    residuals."""
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.calibrate import RobotErrorModel, VCE_RTOL, orientation_errors
+    from pipeline.core.spec import parse_spec
+
+    robot, (sample,) = robot_data_sets(cell["tmp"] / "meas", ("sample",))
+    effects = list(parse_spec(KINEMATIC.read_text(), KINEMATIC).effects)
+    m = RobotErrorModel(robot, effects).fit(sample)
+    w = m.weighting_["orientation_weight_mm_per_mrad"]
+    assert abs(np.log(w)) > 10 * VCE_RTOL                 # the start was off
+    assert m.weighting_["iterations"] == 2
+    R, P = m.predict_pose(sample)
+    sp = np.sqrt(np.mean((P - sample.measured_mm) ** 2))
+    so = np.sqrt(np.mean(orientation_errors(R, sample.measured_R) ** 2))
+    assert abs(np.log(sp / so / w)) < VCE_RTOL
 
 
 def test_folds_in_forked_processes_give_the_same_cross_validation(cell):

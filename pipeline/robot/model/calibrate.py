@@ -1012,7 +1012,12 @@ class RobotErrorModel:
         t0 = time.perf_counter()
         self._weight = None
         self.weighting_ = None
+        # a caller that goes on with the same poses (the wild search's refit steps and predictions) keeps
+        # the fit's design: its sparse layouts are not built again
+        retain = getattr(self, "_retain_designs", False)
         if getattr(data, "measured_R", None) is None:
+            if retain:
+                self._designs = {}
             return self._fit_once(data, t0)
         if not self.orientation:
             # positions alone; a 6-DoF probe's mounting on the flange then comes from the orientations
@@ -1058,7 +1063,8 @@ class RobotErrorModel:
                 w = guess if guess is not None else vce_next(np.log(w), h, before)
                 before = (float(np.log(history[-1])), h)
         finally:
-            self._designs = None
+            if not retain:
+                self._designs = None
         self.weighting_ = {
             "method": "stated" if self.orientation_weight else "variance components",
             "rule": ("the orientation rows (mrad) weigh orientation_weight_mm_per_mrad mm each: the ratio of the "
@@ -1405,6 +1411,8 @@ class RobotErrorModel:
         """
         import copy
 
+        import scipy.sparse
+
         keep = np.asarray(keep, bool)
         out = copy.copy(self)
         B, Pen = self.basis_, self.penalty_
@@ -1412,7 +1420,7 @@ class RobotErrorModel:
             return out
         d = self.design(data)
         x = np.asarray(self.coef_, float)
-        rows = np.repeat(keep, 3)
+        rows = np.repeat(keep, 3).astype(float)
         if d.oriented:
             rows = np.concatenate([rows, rows])
         PB = Pen @ B
@@ -1423,7 +1431,10 @@ class RobotErrorModel:
             else:
                 P, J = d.predict_and_sparse_jacobian(x)
                 F = (P - np.asarray(data.measured_mm, float)).ravel()
-            H, g = gram(J.tocsr()[rows].tocsc(), F[rows])
+            # the poses left out weigh 0 (their rows zeroed in place: no row slicing of the CSC matrix)
+            J = scipy.sparse.csc_matrix(J)
+            J.data *= rows[J.indices]
+            H, g = gram(J, F * rows)
             A = B.T @ H @ B + PtP
             b = B.T @ g + PB.T @ (Pen @ x)
             sc = np.sqrt(np.maximum(np.diag(A), 0.0))
@@ -1432,7 +1443,7 @@ class RobotErrorModel:
             use = ev > 1e-12 * max(float(ev[-1]), 0.0)
             c = (V[:, use].T @ (b / sc)) / np.sqrt(ev[use])
             gain = float(c @ c)                       # the step's ||dF||^2 (the linear model's)
-            cost2 = float(F[rows] @ F[rows]) + float((Pen @ x) @ (Pen @ x))
+            cost2 = float((F * rows) @ F) + float((Pen @ x) @ (Pen @ x))
             if not np.isfinite(gain) or gain <= 1e-12 * cost2:
                 break
             x = x - B @ ((V[:, use] @ (c / np.sqrt(ev[use]))) / sc)

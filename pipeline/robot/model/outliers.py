@@ -301,7 +301,7 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
 def _search(robot, effects, flex, sample, target) -> dict:
     """The robust fit and the rule of the module docstring: the wild sample and target poses (indices), the
     size of each (mm), the robust sigmas, or why there is no scale (JSON-ready)."""
-    from .estimate import fit_effects
+    from .estimate import effects_estimator, fit_effects
 
     ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
     lo = np.min(sample.q_deg, axis=0)
@@ -313,7 +313,9 @@ def _search(robot, effects, flex, sample, target) -> dict:
         n_fitted = int(np.sum(~ws))
         if first is None:
             try:
-                first = fit_effects(robot, flex, sample, checks=False)
+                est = effects_estimator(robot, flex, checks=False)
+                est._retain_designs = True       # the refit steps and predictions on the sample reuse its design
+                first = est.fit(sample)
             except np.linalg.LinAlgError:
                 first = fit_effects(robot, list(effects), sample, checks=False)
             model = first

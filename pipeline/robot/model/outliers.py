@@ -13,9 +13,9 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
    and wild points.
 2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
    fitted again, until the set named no longer changes (a redescending M-estimator with hard
-   rejection: a wild pose gets weight 0, every other weight 1). A refit is one Gauss-Newton step from
-   the fit on all sample poses, on the normal equations of the poses kept (``stepped_without``). Each pose's residual is its 3-D
-   distance from that model (for a pose left out, a prediction).
+   rejection: a wild pose gets weight 0, every other weight 1). A refit is Gauss-Newton steps from the
+   fit on all sample poses, on the normal equations of the poses kept (``stepped_without``). Each pose's
+   residual is its 3-D distance from that model (for a pose left out, a prediction).
 3. **A robust scale** of the residuals: ``sigma = sqrt(median(|r|^2) / 2.366)``, the per-axis
    standard deviation the median of the squared 3-D residual gives for Gaussian noise (2.366 is
    the median of chi-square with 3 degrees of freedom); the median is not moved by a handful of
@@ -320,7 +320,7 @@ def _search(robot, effects, flex, sample, target) -> dict:
                 first = fit_effects(robot, list(effects), sample, checks=False)
             model = first
         else:
-            # the refit without the poses named: one Gauss-Newton step from the fit on all of them, on the
+            # the refit without the poses named: Gauss-Newton steps from the fit on all of them, on the
             # normal equations of the rest (the same model on all but a few of the same poses)
             model = first.stepped_without(sample, ~ws)
         rs = sample.measured_mm - model.predict(sample)

@@ -91,6 +91,23 @@ def angle_arcsec(e_mrad) -> np.ndarray:
     return np.linalg.norm(np.asarray(e_mrad, float), axis=-1) * ARCSEC_PER_MRAD
 
 
+#: Gauss-Newton has converged when a full step would change the residuals by ||dF||^2 <= GN_PHI (mm^2),
+#: the improved L-M's phi (pipeline.robot.model.lm)
+GN_PHI = 1e-5
+
+
+def scaled_min_norm_step(A, b) -> tuple[np.ndarray, float]:
+    """The minimum-norm solution dz of the normal equations ``A dz = -b`` (A (k, k) symmetric positive
+    semi-definite, b (k,)), solved column-scaled by its eigen-directions, those below 1e-12 of the largest
+    left out; and the step's gain ``b^T A^+ b``, the change ``||dF||^2`` the linear model predicts."""
+    sc = np.sqrt(np.maximum(np.diag(A), 0.0))
+    sc = np.where(sc > 0, sc, 1.0)
+    ev, V = np.linalg.eigh(A / np.outer(sc, sc))
+    use = ev > 1e-12 * max(float(ev[-1]), 0.0) if ev.size else np.zeros(0, bool)
+    t = V[:, use].T @ (b / sc)
+    return -(V[:, use] @ (t / ev[use])) / sc, float(t @ (t / ev[use]))
+
+
 def vce_next(log_w: float, h: float, before) -> float:
     """The next weight of the variance components' iteration (mm per mrad).
 
@@ -1109,12 +1126,7 @@ class RobotErrorModel:
         fp2, fo2 = float(Fp @ Fp), float(Fo @ Fo)
         v, before = float(w), None
         for _ in range(4 * VCE_MAX_ITER):
-            A = Hp + v * v * Ho + PtP
-            sc = np.sqrt(np.maximum(np.diag(A), 0.0))
-            sc = np.where(sc > 0, sc, 1.0)
-            ev, V = np.linalg.eigh(A / np.outer(sc, sc))
-            use = ev > 1e-12 * max(float(ev[-1]), 0.0)
-            dz = -(V[:, use] @ ((V[:, use].T @ ((gp + v * v * go + pz) / sc)) / ev[use])) / sc
+            dz, _ = scaled_min_norm_step(Hp + v * v * Ho + PtP, gp + v * v * go + pz)
             sp2 = (fp2 + 2.0 * float(gp @ dz) + float(dz @ Hp @ dz)) / n3
             so2 = (fo2 + 2.0 * float(go @ dz) + float(dz @ Ho @ dz)) / n3
             if not (np.isfinite(sp2) and np.isfinite(so2) and sp2 > 0 and so2 > 0):
@@ -1254,7 +1266,6 @@ class RobotErrorModel:
             # full Gauss-Newton step would change the residuals by ||dF||^2 <= GN_PHI (or a
             # GAIN_REL_CONVERGED fraction of ||F||^2): the improved L-M's test (pipeline.robot.model.lm).
             # Step halving alone stopped at its iteration limit on a real UR10, worse than the start.
-            GN_PHI = 1e-5  # mm^2, as the improved L-M's phi
             xf = z0.copy()
             if large:
                 # the same iteration on the normal equations (GRAM_MIN_K): Jf^T Jf = V diag(sv^2) V^T
@@ -1435,19 +1446,12 @@ class RobotErrorModel:
             J = scipy.sparse.csc_matrix(J)
             J.data *= rows[J.indices]
             H, g = gram(J, F * rows)
-            A = B.T @ H @ B + PtP
-            b = B.T @ g + PB.T @ (Pen @ x)
-            sc = np.sqrt(np.maximum(np.diag(A), 0.0))
-            sc = np.where(sc > 0, sc, 1.0)
-            ev, V = np.linalg.eigh(A / np.outer(sc, sc))
-            use = ev > 1e-12 * max(float(ev[-1]), 0.0)
-            c = (V[:, use].T @ (b / sc)) / np.sqrt(ev[use])
-            gain = float(c @ c)                       # the step's ||dF||^2 (the linear model's)
+            dz, gain = scaled_min_norm_step(B.T @ H @ B + PtP, B.T @ g + PB.T @ (Pen @ x))
             cost2 = float((F * rows) @ F) + float((Pen @ x) @ (Pen @ x))
             if not np.isfinite(gain) or gain <= 1e-12 * cost2:
                 break
-            x = x - B @ ((V[:, use] @ (c / np.sqrt(ev[use]))) / sc)
-            if gain <= 1e-5:
+            x = x + B @ dz
+            if gain <= GN_PHI:
                 break
         out.coef_ = x
         return out

@@ -18,10 +18,10 @@ KR210 = ROOT / "raw" / "robot" / "kr210"
 SPEC = ROOT / "specs" / "robot_kinematic.toml"
 
 
-def _throw(dst, n_sample, n_target, seed, sizes=(5.0, -3.0, 8.0, 4.0, -6.0, 7.0)):
-    """A copy of the fixture with ``n_sample`` sample and ``n_target`` target points thrown off in x
+def _throw(dst, n_sample, n_target, seed, sizes=(5.0, -3.0, 8.0, 4.0, -6.0, 7.0), src=KR210):
+    """A copy of the fixture (or of the campaign ``src``) with ``n_sample`` sample and ``n_target`` target points thrown off in x
     (mm, ``sizes`` in turn); returns {point_id: (set, tracker.csv line)} of the points thrown."""
-    shutil.copytree(KR210, dst)
+    shutil.copytree(src, dst)
     poses = pd.read_csv(dst / "poses.csv", dtype={"point_id": str})
     lines = (dst / "tracker.csv").read_text().splitlines()
     xi = lines[0].split(",").index("x_mm")
@@ -242,3 +242,90 @@ def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
     assert moved > 1e-3                        # leaving the three out moves the fit
     assert off < 1e-3 * moved                  # and the one step follows it
     assert np.array_equal(full.coef_, fit_effects(robot, list(spec.effects), sample, checks=False).coef_)
+
+
+def test_on_a_large_campaign_the_search_runs_beside_a_fit_stepped_to_the_poses_kept(tmp_path, monkeypatch):
+    """Issue 32: from BACKGROUND_MIN_POSES sample poses (lowered here to the fixture's size) the wild search runs
+    in a forked process while the kinematic model is fitted on every sample pose, which Gauss-Newton steps then
+    take to the poses kept: the points thrown are named as before, and the model is the one fitted on the
+    campaign without them (to a small part of how far the thrown points move it when kept)."""
+    from pipeline.robot.model import outliers
+
+    thrown = _throw(tmp_path / "c", 3, 1, 4)
+    monkeypatch.setenv("JOINTCAL_CACHE", "off")
+    monkeypatch.setattr(outliers, "BACKGROUND_MIN_POSES", 50)
+    forked = []
+    fork = outliers.WildSearch._fork
+    monkeypatch.setattr(outliers.WildSearch, "_fork", lambda self: forked.append(1) or fork(self))
+
+    def fitted(campaign, *extra):
+        out = tmp_path / f"fit{len(list(tmp_path.glob('fit*.json')))}.json"
+        r = cli_invoker()("fit", "--campaign", campaign, "--spec", SPEC, "--out", out, *extra)
+        assert r.exit_code == 0, r.output
+        return json.loads(out.read_text())
+
+    doc = fitted(tmp_path / "c")
+    assert forked == [1]
+    assert {o["point_id"]: (o["set"], o["line"]) for o in doc["outliers"]} == thrown
+    kept = fitted(tmp_path / "c", "--keep-outliers")
+    clean = tmp_path / "clean"
+    shutil.copytree(tmp_path / "c", clean)
+    for name in ("poses.csv", "tracker.csv"):
+        t = pd.read_csv(clean / name, dtype=str)
+        t[~t.point_id.isin(list(thrown))].to_csv(clean / name, index=False)
+    ref = fitted(clean)
+
+    def values(d):
+        return np.array([p["value"] for p in d["parameters"]])
+
+    moved = np.abs(values(kept) - values(ref)).max()
+    off = np.abs(values(doc) - values(ref)).max()
+    assert moved > 1e-3
+    assert off < 1e-3 * moved
+    assert doc["heldout"]["rms_after_mm"] == pytest.approx(ref["heldout"]["rms_after_mm"], rel=1e-4)
+
+
+def test_a_6dof_fit_stepped_to_the_poses_kept_is_the_fit_on_them(tmp_path):
+    """refitted_without on a 6-DoF campaign: the model fitted on every pose (variance components), stepped to the
+    poses kept, predicts as the fit on them does, at a weight within the weighting's 1 %, with their RMS; where
+    the kept poses ask for another weight it gives way (None) to a fit on them."""
+    import dataclasses
+
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.calibrate import VCE_RTOL
+    from pipeline.robot.model.estimate import effects_estimator, fit_effects
+
+    camp = tmp_path / "cell"
+    camp.mkdir()
+    shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
+    r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "5",
+                      "--probe", "6dof")
+    assert r.exit_code == 0, r.output
+    robot, (sample,) = robot_data_sets(camp, ("sample",))
+    bad = np.array([3, 17, 40])
+    meas = sample.measured_mm.copy()
+    meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
+    sample = dataclasses.replace(sample, measured_mm=meas)
+    effects = list(load_spec(SPEC).effects)
+    keep = np.ones(sample.n, bool)
+    keep[bad] = False
+    kept = sample.subset(keep)
+    est = effects_estimator(robot, effects)
+    est._retain_designs = True
+    full = est.fit(sample)
+    ref = fit_effects(robot, effects, kept)
+    moved = np.abs(full.predict(kept) - ref.predict(kept)).max()
+    # three poses of 100 thrown off by millimetres: the kept ones weigh the orientations otherwise
+    assert abs(np.log(ref._weight / full._weight)) > VCE_RTOL
+    assert full.refitted_without(sample, keep, kept) is None
+    # at the weight the kept poses give, the steps are the fit on them
+    est = effects_estimator(robot, effects, orientation_weight=ref._weight)
+    est._retain_designs = True
+    full = est.fit(sample)
+    step = full.refitted_without(sample, keep, kept)
+    off = np.abs(step.predict(kept) - ref.predict(kept)).max()
+    assert moved > 1e-2 and off < 1e-3 * moved
+    assert step.rms_mm_ == pytest.approx(ref.rms_mm_, rel=1e-6)
+    assert step.orientation_rms_arcsec_ == pytest.approx(ref.orientation_rms_arcsec_, rel=1e-6)
+    assert step.plausible_ == ref.plausible_

@@ -96,15 +96,18 @@ def angle_arcsec(e_mrad) -> np.ndarray:
 GN_PHI = 1e-5
 
 
-def scaled_min_norm_step(A, b) -> tuple[np.ndarray, float]:
+def scaled_min_norm_step(A, b, with_rank: bool = False) -> tuple:
     """The minimum-norm solution dz of the normal equations ``A dz = -b`` (A (k, k) symmetric positive
     semi-definite, b (k,)), solved column-scaled by its eigen-directions, those below 1e-12 of the largest
-    left out; and the step's gain ``b^T A^+ b``, the change ``||dF||^2`` the linear model predicts."""
+    left out; and the step's gain ``b^T A^+ b``, the change ``||dF||^2`` the linear model predicts (and,
+    ``with_rank``, the number of directions kept)."""
     sc = np.sqrt(np.maximum(np.diag(A), 0.0))
     sc = np.where(sc > 0, sc, 1.0)
     ev, V = np.linalg.eigh(A / np.outer(sc, sc))
     use = ev > 1e-12 * max(float(ev[-1]), 0.0) if ev.size else np.zeros(0, bool)
     t = V[:, use].T @ (b / sc)
+    if with_rank:
+        return -(V[:, use] @ (t / ev[use])) / sc, float(t @ (t / ev[use])), int(use.sum())
     return -(V[:, use] @ (t / ev[use])) / sc, float(t @ (t / ev[use]))
 
 
@@ -1364,10 +1367,16 @@ class RobotErrorModel:
             self.orientation_rms_arcsec_ = None
         self.rms_mm_ = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
         self.solver_result_ = result
+        self._judge(d, data)
+        self.seconds_ = time.perf_counter() - t0
+        return self
+
+    def _judge(self, d, data: RobotData) -> None:
+        """Whether a real robot can have the fitted parameters (``implausible_``, ``plausible_``; None
+        without ``checks``), on the design ``d`` of the poses ``data`` it was fitted on."""
         if not self.checks:
             self.implausible_, self.plausible_ = [], None
-            self.seconds_ = time.perf_counter() - t0
-            return self
+            return
         # every fit checks itself: converged_ / convergence_ (set by the solver branch above) and
         # whether a real robot can have the fitted parameters (pipeline.robot.model.lm.PLAUSIBLE_BOUNDS)
         params, checked, k = self.parameters(), [], 0
@@ -1382,8 +1391,6 @@ class RobotErrorModel:
         # joint box (the yardstick diagnosis uses: pipeline.robot.model.budget)
         self.implausible_ = implausible_parameters(checked) + self._over_budget(d, data)
         self.plausible_ = not self.implausible_
-        self.seconds_ = time.perf_counter() - t0
-        return self
 
     def _over_budget(self, d, data) -> list[dict]:
         """Joints whose fitted angle error varies beyond the robot's error budget (:mod:`.budget`)."""
@@ -1446,7 +1453,8 @@ class RobotErrorModel:
             J = scipy.sparse.csc_matrix(J)
             J.data *= rows[J.indices]
             H, g = gram(J, F * rows)
-            dz, gain = scaled_min_norm_step(B.T @ H @ B + PtP, B.T @ g + PB.T @ (Pen @ x))
+            dz, gain, rank = scaled_min_norm_step(B.T @ H @ B + PtP, B.T @ g + PB.T @ (Pen @ x), with_rank=True)
+            out.step_rank_ = rank
             cost2 = float((F * rows) @ F) + float((Pen @ x) @ (Pen @ x))
             if not np.isfinite(gain) or gain <= 1e-12 * cost2:
                 break
@@ -1454,6 +1462,36 @@ class RobotErrorModel:
             if gain <= GN_PHI:
                 break
         out.coef_ = x
+        return out
+
+    def refitted_without(self, data: RobotData, keep, kept: RobotData) -> "RobotErrorModel | None":
+        """This model (fitted on ``data``) taken to the poses ``keep`` of it (``kept``, the same poses as
+        ``data.subset(keep)``) by :meth:`stepped_without`, and judged there as a fit on ``kept`` is: its RMS
+        residuals, its variance components and its plausibility. A new model; None where the steps cannot
+        stand for a fit on ``kept``: the kept poses do not determine every fitted direction, or (a 6-DoF fit
+        weighed by variance components) the weight the kept poses give differs from the fit's by
+        :data:`VCE_RTOL` or more. The identification stays the fit's (it needs joint values only)."""
+        keep = np.asarray(keep, bool)
+        if keep.all():
+            return self
+        out = self.stepped_without(data, keep)
+        if getattr(out, "step_rank_", 0) < self.basis_.shape[1]:
+            return None
+        d = out.design(kept)
+        meas = np.asarray(kept.measured_mm, float)
+        if d.oriented:
+            R, P = d.predict_pose(out.coef_)
+            ori = orientation_errors(R, kept.measured_R)
+            out.orientation_rms_arcsec_ = float(np.sqrt(np.mean(angle_arcsec(ori) ** 2)))
+            if out.weighting_ and out.weighting_.get("method") == "variance components":
+                sp, so = float(np.sqrt(np.mean((P - meas) ** 2))), float(np.sqrt(np.mean(ori ** 2)))
+                if not (sp > 0 and so > 0) or abs(float(np.log(sp / so / out._weight))) >= VCE_RTOL:
+                    return None
+                out.weighting_ = dict(out.weighting_, position_sigma_mm=sp, orientation_sigma_arcsec=so * ARCSEC_PER_MRAD)
+        else:
+            P = d.predict(out.coef_)
+        out.rms_mm_ = float(np.sqrt(np.mean(np.sum((P - meas) ** 2, axis=1))))
+        out._judge(d, kept)
         return out
 
     def predict_error(self, data: RobotData) -> np.ndarray:

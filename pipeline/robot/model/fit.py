@@ -12,10 +12,12 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import _locate
 from .calibrate import angle_arcsec
-from .estimate import N_FOLDS, PARALLEL_CV_MIN_POSES, cpu_count, cross_validate, fit_effects, fold_description, heldout_fit
+from .estimate import (N_FOLDS, PARALLEL_CV_MIN_POSES, cpu_count, cross_validate, effects_estimator, fit_effects,
+                       fold_description, heldout_fit)
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
-from .outliers import describe, find_wild
+from . import outliers
+from .outliers import WildSearch, describe
 from .predict import model_document, outside_calibrated_range, outside_message, outside_range, sampled_range
 from .rigid import chain_document, fit_rigid_chain, has_tables
 from .uncertainty import largest_relative, uncertainty_document
@@ -76,13 +78,26 @@ def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orie
     if outside:
         warn(f"warning: {outside_message(outside, worst=True)}")
     check_spec_joints(spec, robot)
-    wild = find_wild(robot, list(spec.effects), sample, target, campaign, keep_outliers)
-    if describe(wild):
-        warn(describe(wild))
-    return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild, orientation=orientation)
+    # on a large campaign the wild search runs in a forked process while the model is fitted on every sample
+    # pose (robot_fit_result), then taken to the poses kept
+    wild = WildSearch(robot, list(spec.effects), sample, target, campaign, keep_outliers)
+    return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild, orientation=orientation,
+                            warn=warn)
 
 
-def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool = True) -> dict:
+def fitted_before_wild(effects, sample, orientation: bool = True) -> bool:
+    """Whether :func:`robot_fit_result` fits the model on every sample pose, wild or not, and then takes it to
+    the poses kept by Gauss-Newton steps (:meth:`~pipeline.robot.model.calibrate.RobotErrorModel.refitted_without`):
+    on :data:`~pipeline.robot.model.outliers.BACKGROUND_MIN_POSES` sample poses or more, for a model of the
+    effects on the whole robot (geometry, base, tool, thermal: nothing prepared from the poses' joint ranges,
+    no nested model), positions or positions and orientations weighed by variance components. The fit then
+    runs beside the wild search; a few poses of thousands left out move it by little."""
+    return (sample.n >= outliers.BACKGROUND_MIN_POSES and bool(effects)
+            and all(not getattr(e, "per_joint", True) and e.name != "chebyshev" for e in effects)
+            and (orientation or not sample.has_orientation))
+
+
+def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool = True, warn=_silent) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
@@ -91,8 +106,11 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     reads it: robot, effects, every parameter with its unit and why it was left at nominal if it
     was, the sampled joint ranges, the tracker-to-base transform). ``loaded``: the campaign
     already read, ``(robot, sample, target)`` or ``(robot, sample, target, frame_info)``.
-    ``wild``: the campaign's wild poses (:func:`pipeline.robot.model.outliers.find_wild`), left out of the
-    fit, the cross-validation and the held-out errors (given with them beside, ``heldout_with_outliers``).
+    ``wild``: the campaign's wild poses (:func:`pipeline.robot.model.outliers.find_wild`, or a
+    :class:`~pipeline.robot.model.outliers.WildSearch` begun), left out of the fit, the cross-validation and
+    the held-out errors (given with them beside, ``heldout_with_outliers``); ``warn`` receives the line
+    naming them. Where :func:`fitted_before_wild`, the model is fitted on every sample pose first and taken
+    to the poses kept by Gauss-Newton steps.
     ``orientation``: on a 6-DoF campaign, fit the orientations too (contract section 13; False: the
     positions alone, the probe's mounting then registered on the orientations). How positions and
     orientations were weighed is ``weighting``; held-out orientation errors are in ``heldout``.
@@ -104,16 +122,34 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         robot, sample, target, *rest = loaded
         frame_info = rest[0] if rest else None
     check_spec_joints(spec, robot)
-    target_all = target
+    effects = list(spec.effects)
+    target_all, sample_all = target, sample
+    first = None
+    if wild is not None and sample.n and fitted_before_wild(effects, sample, orientation):
+        est = effects_estimator(robot, effects, orientation=orientation)
+        est._retain_designs = True       # the steps to the poses kept reuse its design
+        first = est.fit(sample)
+        first.conflict_, first.nested_ = "", []
+    if isinstance(wild, WildSearch):
+        wild = wild.result()
+        if describe(wild):
+            warn(describe(wild))
     if wild is not None:
         sample, target = wild.clean(sample, target)
     if sample.n == 0:
         raise InputError(Path(campaign) / "poses.csv", "no pose has set = sample: nothing to fit the model on "
                          "(to check a fitted model on these poses, use jointcal predict)", 1, "set")
-    effects = list(spec.effects)
     out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
            "spec_lines": [e.spec_lines() for e in effects]}
-    model = fit_effects(robot, effects, sample, check_nested=True, orientation=orientation)
+    model = None
+    if first is not None:
+        keep = np.ones(sample_all.n, bool) if wild.kept else ~wild.sample
+        model = first.refitted_without(sample_all, keep, sample)
+        first._designs = None
+        if model is not None:
+            model._designs = None
+    if model is None:
+        model = fit_effects(robot, effects, sample, check_nested=True, orientation=orientation)
     if target.n:
         out["heldout"] = heldout_fit(robot, effects, sample, target, model=model)
         rng = sampled_range(sample.q_deg)

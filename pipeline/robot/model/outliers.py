@@ -259,20 +259,106 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
         More than :data:`MAX_WILD_FRACTION` of the poses wild, and more than :data:`HANDFUL` (not with
         ``keep``).
     """
-    ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
-    if sample.measured_mm is None or sample.n == 0:
-        return Wild(ws, wt, [], {}, keep)
-    if sample.n < max(20, 2 * NEIGHBOURS):
-        return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "
-                                          "none is named")
-    flex = flexible_effects(robot, effects, sample)
-    # the wild points are the measurements', not the model's: found once, kept in the cache (the same result,
-    # to the bit, as finding them again), and read by every later fit, diagnose, loop or predict on them
-    key = measurements_key(robot, flex, sample, target)
-    found = _cached(key)
-    if found is None:
+    return WildSearch(robot, effects, sample, target, campaign, keep).result()
+
+
+#: sample poses from which a wild search not in the cache runs in a forked process (:class:`WildSearch`), the
+#: caller going on with work that does not need it (a fork costs about 0.1 s)
+BACKGROUND_MIN_POSES = 2000
+_BACKGROUND = None
+
+
+class WildSearch:
+    """:func:`find_wild`, begun: on a campaign of :data:`BACKGROUND_MIN_POSES` sample poses or more whose wild
+    points are not in the cache, the search runs in a forked process (Linux) while the caller goes on;
+    :meth:`result` waits for it. Otherwise it is found when asked. The result is the same either way (the
+    same computation; the cache holds what it returns)."""
+
+    def __init__(self, robot, effects, sample, target, campaign=None, keep: bool = False):
+        self.args = (robot, effects, sample, target, campaign, keep)
+        self._found, self._proc, self._pipe, self._key = None, None, None, None
+        if sample.measured_mm is None or sample.n < max(20, 2 * NEIGHBOURS):
+            return
+        flex = flexible_effects(robot, effects, sample)
+        self._flex = flex
+        self._key = measurements_key(robot, flex, sample, target)
+        self._found = _cached(self._key)
+        if self._found is None and sample.n >= BACKGROUND_MIN_POSES:
+            self._fork()
+
+    @property
+    def running(self) -> bool:
+        """Whether the search runs in a forked process now."""
+        return self._proc is not None
+
+    def _fork(self) -> None:
+        global _BACKGROUND
+        import multiprocessing as mp
+        import sys
+
+        if not (sys.platform.startswith("linux") and not mp.current_process().daemon
+                and "fork" in mp.get_all_start_methods()):
+            return
+        sys.stdout.flush()         # the forked process flushes its copy of what is buffered when it ends
+        sys.stderr.flush()
+        ctx = mp.get_context("fork")
+        receive, send = ctx.Pipe(duplex=False)
+        _BACKGROUND = (self.args, self._flex, send)
+        try:
+            self._proc = ctx.Process(target=_search_in_background, daemon=True)
+            self._proc.start()
+        finally:
+            _BACKGROUND = None
+        send.close()
+        self._pipe = receive
+
+    def result(self) -> Wild:
+        """The :class:`Wild` poses (waits for a search in a forked process)."""
+        robot, effects, sample, target, campaign, keep = self.args
+        ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
+        if sample.measured_mm is None or sample.n == 0:
+            return Wild(ws, wt, [], {}, keep)
+        if sample.n < max(20, 2 * NEIGHBOURS):
+            return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "
+                                              "none is named")
+        if self._found is None and self._proc is not None:
+            try:
+                status, found = self._pipe.recv()
+            except EOFError:
+                status, found = "lost", None
+            self._proc.join()
+            self._pipe.close()
+            self._proc = self._pipe = None
+            if status == "error":
+                raise found
+            self._found = found
+        if self._found is None:
+            # the wild points are the measurements', not the model's: found once, kept in the cache (the same
+            # result, to the bit, as finding them again), and read by every later fit, diagnose, loop or predict
+            self._found = _search(robot, effects, self._flex, sample, target)
+            _keep(self._key, self._found)
+        return _wild(self._found, sample, target, campaign, keep)
+
+
+def _search_in_background() -> None:
+    """The forked process of :class:`WildSearch`: the search, kept in the cache, its result sent back."""
+    (robot, effects, sample, target, campaign, keep), flex, send = _BACKGROUND
+    try:
         found = _search(robot, effects, flex, sample, target)
-        _keep(key, found)
+        _keep(measurements_key(robot, flex, sample, target), found)
+        send.send(("ok", found))
+    except BaseException as exc:   # noqa: BLE001 - the parent raises it (an InputError is the user's one line)
+        try:
+            send.send(("error", exc))
+        except Exception:   # noqa: BLE001 - not picklable: the parent searches itself
+            send.send(("lost", None))
+    finally:
+        send.close()
+
+
+def _wild(found: dict, sample, target, campaign, keep: bool) -> Wild:
+    """The :class:`Wild` poses of a search's (or the cache's) result."""
+    ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
     ws[found["sample"]] = True
     wt[found["target"]] = True
     if found["no_scale"]:

@@ -329,3 +329,43 @@ def test_a_6dof_fit_stepped_to_the_poses_kept_is_the_fit_on_them(tmp_path):
     assert step.rms_mm_ == pytest.approx(ref.rms_mm_, rel=1e-6)
     assert step.orientation_rms_arcsec_ == pytest.approx(ref.orientation_rms_arcsec_, rel=1e-6)
     assert step.plausible_ == ref.plausible_
+
+
+def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones():
+    """Issue 32: FoldsBeforeWild (a large campaign's cross-validation, fitted while the wild search runs): each
+    kept pose's held-out residual is the one of a fold model fitted on the other folds' kept poses (to a small
+    part of what the wild ones would move it); fitted first, fitted and stepped in one process or in two: the
+    same numbers to the bit."""
+    import dataclasses
+
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import FoldsBeforeWild, fit_effects, fold_ids
+
+    robot, (sample,) = robot_data_sets(KR210, ("sample",))
+    bad = np.array([5, 30, 61])
+    meas = sample.measured_mm.copy()
+    meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
+    sample = dataclasses.replace(sample, measured_mm=meas)
+    effects = list(load_spec(SPEC).effects)
+    keep = np.ones(sample.n, bool)
+    keep[bad] = False
+    a = FoldsBeforeWild(robot, effects, sample).cross_validate(keep)
+    b = FoldsBeforeWild(robot, effects, sample).fit().cross_validate(keep)
+    c = FoldsBeforeWild(robot, effects, sample).cross_validate(keep, jobs=2)
+    assert a.residuals.shape == (keep.sum(), 3)
+    assert np.array_equal(a.residuals, b.residuals) and np.array_equal(a.residuals, c.residuals)
+    ids = fold_ids(sample.n)[keep]
+    kept = sample.subset(keep)
+    ref, wild_in = np.empty_like(a.residuals), np.empty_like(a.residuals)
+    for f in range(5):
+        own = np.flatnonzero(keep)[ids == f]
+        held = sample.subset(own)
+        m = fit_effects(robot, effects, sample.subset(keep & (fold_ids(sample.n) != f)), checks=False)
+        ref[ids == f] = held.measured_mm - m.predict(held)
+        m = fit_effects(robot, effects, sample.subset(fold_ids(sample.n) != f), checks=False)
+        wild_in[ids == f] = held.measured_mm - m.predict(held)
+    assert kept.n == a.residuals.shape[0]
+    moved = np.abs(wild_in - ref).max()
+    assert moved > 1e-2
+    assert np.abs(a.residuals - ref).max() < 1e-3 * moved

@@ -1443,16 +1443,24 @@ class RobotErrorModel:
             rows = np.concatenate([rows, rows])
         PB = Pen @ B
         PtP = PB.T @ PB
+        # a fit of many parameters steps on its sparse Jacobian (its layout already built), a small one on the
+        # dense Jacobian it was fitted with
+        sparse = self._large(data)
         for _ in range(max_steps):
-            if d.oriented:
-                _, F, J = d.residual_and_sparse_jacobian(x)
+            if not sparse:
+                F, J = d.residual_and_jacobian(x)
+                J = J * rows[:, None]
+                H, g = J.T @ J, J.T @ (F * rows)
             else:
-                P, J = d.predict_and_sparse_jacobian(x)
-                F = (P - np.asarray(data.measured_mm, float)).ravel()
-            # the poses left out weigh 0 (their rows zeroed in place: no row slicing of the CSC matrix)
-            J = scipy.sparse.csc_matrix(J)
-            J.data *= rows[J.indices]
-            H, g = gram(J, F * rows)
+                if d.oriented:
+                    _, F, J = d.residual_and_sparse_jacobian(x)
+                else:
+                    P, J = d.predict_and_sparse_jacobian(x)
+                    F = (P - np.asarray(data.measured_mm, float)).ravel()
+                # the poses left out weigh 0 (their rows zeroed in place: no row slicing of the CSC matrix)
+                J = scipy.sparse.csc_matrix(J)
+                J.data *= rows[J.indices]
+                H, g = gram(J, F * rows)
             dz, gain, rank = scaled_min_norm_step(B.T @ H @ B + PtP, B.T @ g + PB.T @ (Pen @ x), with_rank=True)
             out.step_rank_ = rank
             cost2 = float((F * rows) @ F) + float((Pen @ x) @ (Pen @ x))

@@ -266,3 +266,109 @@ def _cv_fold(robot, effects, data, folds, orientation, orientation_weight, f):
 
 def _cv_shared_fold(f):
     return _cv_fold(*_CV_SHARED, f)
+
+
+class FoldsBeforeWild:
+    """The k-fold cross-validation by pose of a model fitted before its campaign's wild poses are known
+    (:func:`pipeline.robot.model.fit.fitted_before_wild`): the folds are drawn over every sample pose
+    (:func:`fold_ids`), each fold's model is fitted on the other folds' poses (:meth:`fit`, while the wild search
+    runs) and then taken to their kept poses by Gauss-Newton steps (:meth:`cross_validate`). A wild pose is in
+    no fold's fit and has no residual. Each fold's model is the one fitted on the other folds' kept poses, to the
+    steps' 1e-5 mm^2 (where the kept poses leave a direction undetermined: fitted on them).
+
+    Parameters
+    ----------
+    robot : Robot
+    effects : list of RobotEffect
+    data : RobotData
+        Every sample pose, n of them.
+    orientation : bool
+    orientation_weight : float or None
+        mm per mrad, every fold's (the whole sample's weight).
+    """
+
+    def __init__(self, robot, effects, data, orientation: bool = True, orientation_weight: float | None = None,
+                 n_folds: int = N_FOLDS):
+        self.robot, self.effects, self.data = robot, effects, data
+        self.orientation, self.orientation_weight, self.n_folds = orientation, orientation_weight, n_folds
+
+    def _fit_fold(self, f: int):
+        folds = fold_ids(self.data.n, self.n_folds)
+        train = self.data.subset(folds != f)
+        est = effects_estimator(self.robot, self.effects, checks=False, orientation=self.orientation,
+                                orientation_weight=self.orientation_weight)
+        est._retain_designs = True       # the steps to the kept poses reuse its design
+        return train, est.fit(train)
+
+    def fit(self) -> "FoldsBeforeWild":
+        """Fit every fold's model on the other folds' poses, wild or not (``models_``)."""
+        self.models_ = [self._fit_fold(f) for f in range(self.n_folds)]
+        return self
+
+    def _fold(self, f: int, keep, fitted=None):
+        """Fold ``f``'s kept poses' held-out residuals (n_f, 3) mm and orientation errors (n_f, 3) mrad (None
+        without orientations), by its model taken to the other folds' kept poses."""
+        folds = fold_ids(self.data.n, self.n_folds)
+        train, m = fitted if fitted is not None else self._fit_fold(f)
+        keep_train = keep[folds != f]
+        if not keep_train.all():
+            step = m.stepped_without(train, keep_train)
+            if getattr(step, "step_rank_", 0) < m.basis_.shape[1]:
+                step = fit_effects(self.robot, self.effects, train.subset(keep_train), checks=False,
+                                   orientation=self.orientation, orientation_weight=self.orientation_weight)
+            m = step
+        m._designs = None
+        held = self.data.subset((folds == f) & keep)
+        o = None
+        if self.data.has_orientation:
+            R, pred = m.predict_pose(held)
+            o = orientation_errors(R, held.measured_R)
+        else:
+            pred = m.predict(held)
+        return held.measured_mm - pred, o
+
+    def cross_validate(self, keep, jobs: int = 1) -> CVResult:
+        """Held-out residuals (mm, shape (n_kept, 3)) of the poses ``keep`` (n,) bool, in their order, as
+        :func:`cross_validate` gives them (``extra["orientation"]`` on a 6-DoF campaign). Folds fitted by
+        :meth:`fit` are stepped here; otherwise each fold is fitted and stepped, in up to ``jobs`` forked
+        processes (the same computation: the same result)."""
+        global _FOLDS_SHARED
+        import multiprocessing as mp
+        import sys
+
+        keep = np.asarray(keep, bool)
+        fitted = getattr(self, "models_", None)
+        jobs = min(int(jobs), self.n_folds)
+        if fitted is not None:
+            parts = [self._fold(f, keep, fitted[f]) for f in range(self.n_folds)]
+            self.models_ = None
+        elif (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
+              and "fork" in mp.get_all_start_methods()):
+            _FOLDS_SHARED = (self, keep)
+            try:
+                with mp.get_context("fork").Pool(jobs) as pool:
+                    parts = pool.map(_shared_fold, range(self.n_folds), chunksize=1)
+            finally:
+                _FOLDS_SHARED = None
+        else:
+            parts = [self._fold(f, keep) for f in range(self.n_folds)]
+        folds = fold_ids(self.data.n, self.n_folds)[keep]
+        n = int(keep.sum())
+        res = np.empty((n, 3))
+        ori = np.empty((n, 3)) if self.data.has_orientation else None
+        for f, (r, o) in enumerate(parts):
+            res[folds == f] = r
+            if ori is not None:
+                ori[folds == f] = o
+        out = CVResult(res, np.arange(n))
+        if ori is not None:
+            out.extra["orientation"] = ori
+        return out
+
+
+_FOLDS_SHARED = None
+
+
+def _shared_fold(f):
+    folds, keep = _FOLDS_SHARED
+    return folds._fold(f, keep)

@@ -12,8 +12,8 @@ import numpy as np
 from ...core.errors import InputError
 from ...core.spec import _locate
 from .calibrate import angle_arcsec
-from .estimate import (N_FOLDS, PARALLEL_CV_MIN_POSES, cpu_count, cross_validate, effects_estimator, fit_effects,
-                       fold_description, heldout_fit)
+from .estimate import (N_FOLDS, PARALLEL_CV_MIN_POSES, FoldsBeforeWild, cpu_count, cross_validate, effects_estimator,
+                       fit_effects, fold_description, heldout_fit)
 from ..campaign.ingest import robot_data_sets
 from .lm import describe_implausible
 from . import outliers
@@ -124,12 +124,15 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     check_spec_joints(spec, robot)
     effects = list(spec.effects)
     target_all, sample_all = target, sample
-    first = None
+    first = folds = None
     if wild is not None and sample.n and fitted_before_wild(effects, sample, orientation):
         est = effects_estimator(robot, effects, orientation=orientation)
         est._retain_designs = True       # the steps to the poses kept reuse its design
         first = est.fit(sample)
         first.conflict_, first.nested_ = "", []
+        folds = FoldsBeforeWild(robot, effects, sample, orientation, getattr(first, "_weight", None))
+        if isinstance(wild, WildSearch) and wild.running:
+            folds.fit()                  # while the search runs
     if isinstance(wild, WildSearch):
         wild = wild.result()
         if describe(wild):
@@ -148,6 +151,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         first._designs = None
         if model is not None:
             model._designs = None
+    from_first = model is not None
     if model is None:
         model = fit_effects(robot, effects, sample, check_nested=True, orientation=orientation)
     if target.n:
@@ -159,13 +163,19 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         if target_all.n > target.n:
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
-    cv = cross_validate(robot, effects, sample, orientation=orientation,
-                        orientation_weight=getattr(model, "_weight", None) if orientation else None,
-                        jobs=cpu_count() if sample.n >= PARALLEL_CV_MIN_POSES else 1)
+    jobs = cpu_count() if sample.n >= PARALLEL_CV_MIN_POSES else 1
+    if folds is not None and from_first:
+        # the folds drawn over every sample pose, each fold's model taken to the other folds' kept poses
+        cv = folds.cross_validate(keep, jobs=jobs)
+        out["cv_folds"] = fold_description(sample) + (f" (drawn over all {sample_all.n}, the {sample_all.n - sample.n} "
+                                                        "wild ones in none)" if sample_all.n > sample.n else "")
+    else:
+        cv = cross_validate(robot, effects, sample, orientation=orientation,
+                            orientation_weight=getattr(model, "_weight", None) if orientation else None, jobs=jobs)
+        out["cv_folds"] = fold_description(sample)
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))
-    out["cv_folds"] = fold_description(sample)
     if getattr(model, "weighting_", None):
         out["weighting"] = model.weighting_
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))

@@ -259,7 +259,7 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
         More than :data:`MAX_WILD_FRACTION` of the poses wild, and more than :data:`HANDFUL` (not with
         ``keep``).
     """
-    return WildSearch(robot, effects, sample, target, campaign, keep).result()
+    return WildSearch(robot, effects, sample, target, campaign, keep, background=False).result()
 
 
 #: sample poses from which a wild search not in the cache runs in a forked process (:class:`WildSearch`), the
@@ -270,11 +270,12 @@ _BACKGROUND = None
 
 class WildSearch:
     """:func:`find_wild`, begun: on a campaign of :data:`BACKGROUND_MIN_POSES` sample poses or more whose wild
-    points are not in the cache, the search runs in a forked process (Linux) while the caller goes on;
+    points are not in the cache, the search runs in a forked process (Linux; not without ``background``) while
+    the caller goes on;
     :meth:`result` waits for it. Otherwise it is found when asked. The result is the same either way (the
     same computation; the cache holds what it returns)."""
 
-    def __init__(self, robot, effects, sample, target, campaign=None, keep: bool = False):
+    def __init__(self, robot, effects, sample, target, campaign=None, keep: bool = False, background: bool = True):
         self.args = (robot, effects, sample, target, campaign, keep)
         self._found, self._proc, self._pipe, self._key = None, None, None, None
         if sample.measured_mm is None or sample.n < max(20, 2 * NEIGHBOURS):
@@ -283,7 +284,7 @@ class WildSearch:
         self._flex = flex
         self._key = measurements_key(robot, flex, sample, target)
         self._found = _cached(self._key)
-        if self._found is None and sample.n >= BACKGROUND_MIN_POSES:
+        if self._found is None and background and sample.n >= BACKGROUND_MIN_POSES:
             self._fork()
 
     @property

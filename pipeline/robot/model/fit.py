@@ -167,15 +167,16 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     if folds is not None and from_first:
         # the folds drawn over every sample pose, each fold's model taken to the other folds' kept poses
         cv = folds.cross_validate(keep, jobs=jobs)
-        out["cv_folds"] = fold_description(sample) + (f" (drawn over all {sample_all.n}, the {sample_all.n - sample.n} "
-                                                        "wild ones in none)" if sample_all.n > sample.n else "")
+        described = fold_description(sample) + (f" (drawn over all {sample_all.n}, the {sample_all.n - sample.n} "
+                                                 "wild ones in none)" if sample_all.n > sample.n else "")
     else:
         cv = cross_validate(robot, effects, sample, orientation=orientation,
                             orientation_weight=getattr(model, "_weight", None) if orientation else None, jobs=jobs)
-        out["cv_folds"] = fold_description(sample)
+        described = fold_description(sample)
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))
+    out["cv_folds"] = described
     if getattr(model, "weighting_", None):
         out["weighting"] = model.weighting_
     out.update(model_document(robot, effects, model, sample.q_deg, frame_info, sample=sample))

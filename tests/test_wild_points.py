@@ -352,9 +352,10 @@ def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones
     keep[bad] = False
     a = FoldsBeforeWild(robot, effects, sample).cross_validate(keep)
     b = FoldsBeforeWild(robot, effects, sample).fit().cross_validate(keep)
-    c = FoldsBeforeWild(robot, effects, sample).cross_validate(keep, jobs=2)
+    c = FoldsBeforeWild(robot, effects, sample).start(keep, jobs=2)()
+    d = FoldsBeforeWild(robot, effects, sample).fit().start(keep, jobs=2)()
     assert a.residuals.shape == (keep.sum(), 3)
-    assert np.array_equal(a.residuals, b.residuals) and np.array_equal(a.residuals, c.residuals)
+    assert all(np.array_equal(a.residuals, x.residuals) for x in (b, c, d))
     ids = fold_ids(sample.n)[keep]
     kept = sample.subset(keep)
     ref, wild_in = np.empty_like(a.residuals), np.empty_like(a.residuals)

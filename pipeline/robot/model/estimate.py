@@ -327,31 +327,50 @@ class FoldsBeforeWild:
             pred = m.predict(held)
         return held.measured_mm - pred, o
 
-    def cross_validate(self, keep, jobs: int = 1) -> CVResult:
-        """Held-out residuals (mm, shape (n_kept, 3)) of the poses ``keep`` (n,) bool, in their order, as
-        :func:`cross_validate` gives them (``extra["orientation"]`` on a 6-DoF campaign). Folds fitted by
-        :meth:`fit` are stepped here; otherwise each fold is fitted and stepped, in up to ``jobs`` forked
-        processes (the same computation: the same result)."""
+    def start(self, keep, jobs: int = 1):
+        """Begin :meth:`cross_validate` of the poses ``keep`` (n,) bool in up to ``jobs`` forked processes
+        (Linux, not from inside a worker process; else here, when asked): returns a function that gives its
+        :class:`CVResult`. Folds fitted by :meth:`fit` are stepped there; the others fitted and stepped. The
+        caller goes on meanwhile (the model's own steps, its held-out errors)."""
         global _FOLDS_SHARED
         import multiprocessing as mp
         import sys
 
         keep = np.asarray(keep, bool)
-        fitted = getattr(self, "models_", None)
         jobs = min(int(jobs), self.n_folds)
-        if fitted is not None:
-            parts = [self._fold(f, keep, fitted[f]) for f in range(self.n_folds)]
-            self.models_ = None
-        elif (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
-              and "fork" in mp.get_all_start_methods()):
-            _FOLDS_SHARED = (self, keep)
+        if not (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
+                and "fork" in mp.get_all_start_methods()):
+            return lambda: self.cross_validate(keep)
+        _FOLDS_SHARED = (self, keep)
+        try:
+            pool = mp.get_context("fork").Pool(jobs)      # the workers fork here, with the folds' models
+        finally:
+            _FOLDS_SHARED = None
+        pending = pool.map_async(_shared_fold, range(self.n_folds), chunksize=1)
+
+        def result() -> CVResult:
             try:
-                with mp.get_context("fork").Pool(jobs) as pool:
-                    parts = pool.map(_shared_fold, range(self.n_folds), chunksize=1)
+                parts = pending.get()
             finally:
-                _FOLDS_SHARED = None
-        else:
-            parts = [self._fold(f, keep) for f in range(self.n_folds)]
+                pool.terminate()
+                pool.join()
+            self.models_ = None
+            return self._assemble(keep, parts)
+
+        return result
+
+    def cross_validate(self, keep) -> CVResult:
+        """Held-out residuals (mm, shape (n_kept, 3)) of the poses ``keep`` (n,) bool, in their order, as
+        :func:`cross_validate` gives them (``extra["orientation"]`` on a 6-DoF campaign), in this process. Folds
+        fitted by :meth:`fit` are stepped; otherwise each fold is fitted and stepped (:meth:`start`: the same
+        computation in forked processes, the same result)."""
+        keep = np.asarray(keep, bool)
+        fitted = getattr(self, "models_", None)
+        parts = [self._fold(f, keep, fitted[f] if fitted else None) for f in range(self.n_folds)]
+        self.models_ = None
+        return self._assemble(keep, parts)
+
+    def _assemble(self, keep, parts) -> CVResult:
         folds = fold_ids(self.data.n, self.n_folds)[keep]
         n = int(keep.sum())
         res = np.empty((n, 3))
@@ -371,4 +390,5 @@ _FOLDS_SHARED = None
 
 def _shared_fold(f):
     folds, keep = _FOLDS_SHARED
-    return folds._fold(f, keep)
+    fitted = getattr(folds, "models_", None)
+    return folds._fold(f, keep, fitted[f] if fitted else None)

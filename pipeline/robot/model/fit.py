@@ -144,9 +144,12 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
                          "(to check a fitted model on these poses, use jointcal predict)", 1, "set")
     out = {"kind": "robot", "campaign": str(campaign), "effects": [e.name for e in effects],
            "spec_lines": [e.spec_lines() for e in effects]}
-    model = None
+    model = cv_pending = None
+    jobs = cpu_count() if sample.n >= PARALLEL_CV_MIN_POSES else 1
     if first is not None:
         keep = np.ones(sample_all.n, bool) if wild.kept else ~wild.sample
+        # the folds stepped (or fitted and stepped) to the kept poses in forked processes, the model here
+        cv_pending = folds.start(keep, jobs)
         model = first.refitted_without(sample_all, keep, sample)
         first._designs = None
         if model is not None:
@@ -163,10 +166,9 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         if target_all.n > target.n:
             out["heldout_with_outliers"] = heldout_fit(robot, effects, sample, target_all, model=model)
             out["heldout_with_outliers"].pop("parameters", None)
-    jobs = cpu_count() if sample.n >= PARALLEL_CV_MIN_POSES else 1
-    if folds is not None and from_first:
+    cv = cv_pending() if cv_pending is not None else None
+    if cv is not None and from_first:
         # the folds drawn over every sample pose, each fold's model taken to the other folds' kept poses
-        cv = folds.cross_validate(keep, jobs=jobs)
         described = fold_description(sample) + (f" (drawn over all {sample_all.n}, the {sample_all.n - sample.n} "
                                                  "wild ones in none)" if sample_all.n > sample.n else "")
     else:

@@ -196,6 +196,19 @@ class Design:
             self._channel_nz.append((c, self._rows[at], self._vals[at], self._ent[at]))
         self._nonzero = None
         self._coo = self._coo6 = None
+        # the last residual-and-Jacobian evaluation, (key, result): a fit's last iteration is at its solution,
+        # where the variance components' linearisation and the wild search's steps evaluate again
+        self._last = None
+
+    def _once(self, kind: str, x, compute):
+        """``compute()``, or what it gave for the same ``kind``, parameters x and weight last time (the one
+        evaluation kept). Callers do not write into the arrays returned."""
+        key = (kind, float(self.weight or 0.0), np.asarray(x, float).tobytes())
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        out = compute()
+        self._last = (key, out)
+        return out
 
     def _column(self, e: int) -> np.ndarray:
         """Entry ``e``'s channel values at every pose (n,), zeros included."""
@@ -287,6 +300,9 @@ class Design:
     def residual_and_sparse_jacobian(self, x):
         """A 6-DoF design's positions (n, 3) mm, :meth:`residual` and its Jacobian as a sparse matrix
         (6 n, p) (CSC; rows as the residual's: every pose's x, y, z, then every pose's weighted turn)."""
+        return self._once("sparse6", x, lambda: self._residual_and_sparse_jacobian(x))
+
+    def _residual_and_sparse_jacobian(self, x):
         R, P, Jext = pose_jacobians(self.model, self.configurations(x), "smr")
         Jext[:, 3:] *= 1000.0 * self.weight
         ii, ee, vv = self._pose_major()
@@ -313,6 +329,9 @@ class Design:
 
     def residual_and_jacobian(self, x):
         """:meth:`residual` and its Jacobian (rows as the residual's, p columns)."""
+        return self._once("dense", x, lambda: self._residual_and_jacobian(x))
+
+    def _residual_and_jacobian(self, x):
         if not self.oriented:
             P, J = self.predict_and_jacobian(x)
             return (P - self.data.measured_mm).ravel(), J.reshape(-1, self.p)
@@ -1457,9 +1476,8 @@ class RobotErrorModel:
                 else:
                     P, J = d.predict_and_sparse_jacobian(x)
                     F = (P - np.asarray(data.measured_mm, float)).ravel()
-                # the poses left out weigh 0 (their rows zeroed in place: no row slicing of the CSC matrix)
-                J = scipy.sparse.csc_matrix(J)
-                J.data *= rows[J.indices]
+                # the poses left out weigh 0 (their rows zeroed: no row slicing of the CSC matrix)
+                J = scipy.sparse.csc_matrix((J.data * rows[J.indices], J.indices, J.indptr), shape=J.shape)
                 H, g = gram(J, F * rows)
             dz, gain, rank = scaled_min_norm_step(B.T @ H @ B + PtP, B.T @ g + PB.T @ (Pen @ x), with_rank=True)
             out.step_rank_ = rank

@@ -196,13 +196,17 @@ class Design:
             self._channel_nz.append((c, self._rows[at], self._vals[at], self._ent[at]))
         self._nonzero = None
         self._coo = self._coo6 = None
-        # the last residual-and-Jacobian evaluation, (key, result): a fit's last iteration is at its solution,
-        # where the variance components' linearisation and the wild search's steps evaluate again
+        # the last residual-and-Jacobian evaluation, (key, result), on a design an estimator keeps for more than
+        # one fit (``keep_last``): a fit's last iteration is at its solution, where the variance components'
+        # linearisation and the wild search's steps evaluate again
         self._last = None
+        self.keep_last = False
 
     def _once(self, kind: str, x, compute):
         """``compute()``, or what it gave for the same ``kind``, parameters x and weight last time (the one
         evaluation kept). Callers do not write into the arrays returned."""
+        if not self.keep_last:
+            return compute()
         key = (kind, float(self.weight or 0.0), np.asarray(x, float).tobytes())
         if self._last is not None and self._last[0] == key:
             return self._last[1]
@@ -981,6 +985,7 @@ class RobotErrorModel:
                        getattr(self, "_model_and_index", None))
             if memo is not None:
                 memo[id(data)] = (data, d)
+                d.keep_last = True
         if self.orientation and getattr(data, "measured_R", None) is not None:
             d.weight = getattr(self, "_weight", None) or self.orientation_weight or start_weight(data)[0]
         return d

@@ -422,9 +422,14 @@ def _pose6_csc_structure(ii, cols, n, p):
     if first.size == nnz:
         return perm, None, rows, 6 * ptr, (6 * n, p)
     f = first
-    start = ((6 * ptr[c[f]] + 3 * lo[f])[:, None] + a * length[f][:, None]).ravel()
-    start = np.sort(np.concatenate([start, start + 3 * np.repeat(m[f], 3)]))
     uptr = np.searchsorted(c[f], np.arange(p + 1)).astype(np.int64)  # each column's runs
+    # where each run's stored values start, in the layout's order: a column's runs' position rows (run by
+    # run, x y z), then the same runs' turns; placed there directly (a sort of them took 0.23 s on 7,000 poses)
+    pos_start = ((6 * ptr[c[f]] + 3 * lo[f])[:, None] + a * length[f][:, None]).ravel()
+    at = (3 * uptr[c[f]] + 3 * np.arange(f.size))[:, None] + a
+    start = np.empty(2 * pos_start.size, np.int64)
+    start[at.ravel()] = pos_start
+    start[(at + 3 * (uptr[c[f] + 1] - uptr[c[f]])[:, None]).ravel()] = pos_start + 3 * np.repeat(m[f], 3)
     return perm, start, rows[start], 6 * uptr, (6 * n, p)
 
 

@@ -271,9 +271,8 @@ _BACKGROUND = None
 class WildSearch:
     """:func:`find_wild`, begun: on a campaign of :data:`BACKGROUND_MIN_POSES` sample poses or more whose wild
     points are not in the cache, the search runs in a forked process (Linux; not without ``background``) while
-    the caller goes on;
-    :meth:`result` waits for it. Otherwise it is found when asked. The result is the same either way (the
-    same computation; the cache holds what it returns)."""
+    the caller goes on; :meth:`result` waits for it. Otherwise it is found when asked. The result is the same
+    either way (the same computation; the cache holds what it returns)."""
 
     def __init__(self, robot, effects, sample, target, campaign=None, keep: bool = False, background: bool = True):
         self.args = (robot, effects, sample, target, campaign, keep)
@@ -304,7 +303,7 @@ class WildSearch:
         sys.stderr.flush()
         ctx = mp.get_context("fork")
         receive, send = ctx.Pipe(duplex=False)
-        _BACKGROUND = (self.args, self._flex, send)
+        _BACKGROUND = (self.args, self._flex, self._key, send)
         try:
             self._proc = ctx.Process(target=_search_in_background, daemon=True)
             self._proc.start()
@@ -343,10 +342,10 @@ class WildSearch:
 
 def _search_in_background() -> None:
     """The forked process of :class:`WildSearch`: the search, kept in the cache, its result sent back."""
-    (robot, effects, sample, target, campaign, keep), flex, send = _BACKGROUND
+    (robot, effects, sample, target, campaign, keep), flex, key, send = _BACKGROUND
     try:
         found = _search(robot, effects, flex, sample, target)
-        _keep(measurements_key(robot, flex, sample, target), found)
+        _keep(key, found)
         send.send(("ok", found))
     except BaseException as exc:   # noqa: BLE001 - the parent raises it (an InputError is the user's one line)
         try:

@@ -205,34 +205,41 @@ def test_wild_points_are_found_once_per_measurements(tmp_path, monkeypatch):
     assert len(list((tmp_path / "cache").glob("wild-*.json"))) == 2
 
 
-@pytest.mark.parametrize("probe", ["smr", "6dof"])
-def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
-    """The wild search's refit without the poses it names (stepped_without): one Gauss-Newton step from the
-    fit on all poses, on the normal equations of the rest, lands where a full refit on the rest does."""
+def _three_thrown(tmp_path, probe="smr", bad=(3, 17, 40)):
+    """The KR210 fixture's sample poses (or, ``probe="6dof"``, a simulated 6-DoF cell's) with three of them
+    thrown 4-6 mm off: (robot, sample, keep), ``keep`` False at the thrown ones."""
     import dataclasses
 
-    from pipeline.core.spec import parse_spec
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model.estimate import fit_effects
 
-    camp = ROOT / "raw" / "robot" / "kr210"
+    camp = KR210
     if probe == "6dof":
         camp = tmp_path / "cell"
         camp.mkdir()
-        shutil.copy(ROOT / "raw" / "robot" / "kr210" / "robot.toml", camp / "robot.toml")
+        shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
         r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "5",
                           "--probe", "6dof")
         assert r.exit_code == 0, r.output
     robot, (sample,) = robot_data_sets(camp, ("sample",))
-    bad = np.array([3, 17, 40])
+    bad = np.asarray(bad)
     meas = sample.measured_mm.copy()
     meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
-    sample = dataclasses.replace(sample, measured_mm=meas)
+    keep = np.ones(sample.n, bool)
+    keep[bad] = False
+    return robot, dataclasses.replace(sample, measured_mm=meas), keep
+
+
+@pytest.mark.parametrize("probe", ["smr", "6dof"])
+def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
+    """The wild search's refit without the poses it names (stepped_without): one Gauss-Newton step from the
+    fit on all poses, on the normal equations of the rest, lands where a full refit on the rest does."""
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.model.estimate import fit_effects
+
+    robot, sample, keep = _three_thrown(tmp_path, probe)
     spec = parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
                       '[[effect]]\nname = "tool"\n\n[[effect]]\nname = "joint_map"\njoints = [2]\n', "<test>")
     full = fit_effects(robot, list(spec.effects), sample, checks=False)
-    keep = np.ones(sample.n, bool)
-    keep[bad] = False
     w = (full.weighting_ or {}).get("orientation_weight_mm_per_mrad")
     refit = fit_effects(robot, list(spec.effects), sample.subset(keep), checks=False, orientation_weight=w)
     step = full.stepped_without(sample, keep)
@@ -289,27 +296,12 @@ def test_a_6dof_fit_stepped_to_the_poses_kept_is_the_fit_on_them(tmp_path):
     """refitted_without on a 6-DoF campaign: the model fitted on every pose (variance components), stepped to the
     poses kept, predicts as the fit on them does, at a weight within the weighting's 1 %, with their RMS; where
     the kept poses ask for another weight it gives way (None) to a fit on them."""
-    import dataclasses
-
     from pipeline.core.spec import load_spec
-    from pipeline.robot.campaign.ingest import robot_data_sets
     from pipeline.robot.model.calibrate import VCE_RTOL
     from pipeline.robot.model.estimate import effects_estimator, fit_effects
 
-    camp = tmp_path / "cell"
-    camp.mkdir()
-    shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
-    r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "5",
-                      "--probe", "6dof")
-    assert r.exit_code == 0, r.output
-    robot, (sample,) = robot_data_sets(camp, ("sample",))
-    bad = np.array([3, 17, 40])
-    meas = sample.measured_mm.copy()
-    meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
-    sample = dataclasses.replace(sample, measured_mm=meas)
+    robot, sample, keep = _three_thrown(tmp_path, "6dof")
     effects = list(load_spec(SPEC).effects)
-    keep = np.ones(sample.n, bool)
-    keep[bad] = False
     kept = sample.subset(keep)
     est = effects_estimator(robot, effects)
     est._retain_designs = True
@@ -331,25 +323,16 @@ def test_a_6dof_fit_stepped_to_the_poses_kept_is_the_fit_on_them(tmp_path):
     assert step.plausible_ == ref.plausible_
 
 
-def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones():
+def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones(tmp_path):
     """Issue 32: FoldsBeforeWild (a large campaign's cross-validation, fitted while the wild search runs): each
     kept pose's held-out residual is the one of a fold model fitted on the other folds' kept poses (to a small
     part of what the wild ones would move it); fitted first, fitted and stepped in one process or in two: the
     same numbers to the bit."""
-    import dataclasses
-
     from pipeline.core.spec import load_spec
-    from pipeline.robot.campaign.ingest import robot_data_sets
     from pipeline.robot.model.estimate import FoldsBeforeWild, fit_effects, fold_ids
 
-    robot, (sample,) = robot_data_sets(KR210, ("sample",))
-    bad = np.array([5, 30, 61])
-    meas = sample.measured_mm.copy()
-    meas[bad] += np.array([[4.0, -3.0, 2.0], [-5.0, 1.0, 3.0], [2.0, 6.0, -4.0]])
-    sample = dataclasses.replace(sample, measured_mm=meas)
+    robot, sample, keep = _three_thrown(tmp_path, bad=(5, 30, 61))
     effects = list(load_spec(SPEC).effects)
-    keep = np.ones(sample.n, bool)
-    keep[bad] = False
     a = FoldsBeforeWild(robot, effects, sample).cross_validate(keep)
     b = FoldsBeforeWild(robot, effects, sample).fit().cross_validate(keep)
     c = FoldsBeforeWild(robot, effects, sample).start(keep, jobs=2)()

@@ -1510,6 +1510,8 @@ class RobotErrorModel:
         keep = np.asarray(keep, bool)
         if keep.all():
             return self
+        if getattr(self, "basis_", None) is None:
+            return None
         out = self.stepped_without(data, keep)
         if getattr(out, "step_rank_", 0) < self.basis_.shape[1]:
             return None

@@ -265,14 +265,20 @@ def test_on_a_large_campaign_the_search_runs_beside_a_fit_stepped_to_the_poses_k
     fork = outliers.WildSearch._fork
     monkeypatch.setattr(outliers.WildSearch, "_fork", lambda self: forked.append(1) or fork(self))
 
+    said = []
+
     def fitted(campaign, *extra):
         out = tmp_path / f"fit{len(list(tmp_path.glob('fit*.json')))}.json"
         r = cli_invoker()("fit", "--campaign", campaign, "--spec", SPEC, "--out", out, *extra)
         assert r.exit_code == 0, r.output
+        said.append(r.output)
         return json.loads(out.read_text())
 
     doc = fitted(tmp_path / "c")
     assert forked == [1]
+    # what it is doing, step by step, on stderr (the search beside the fit: four steps)
+    assert [ln.split("]")[0].strip() for ln in said[0].splitlines() if ln.startswith("  [")] == \
+        ["[1/4", "[2/4", "[3/4", "[4/4"]
     assert {o["point_id"]: (o["set"], o["line"]) for o in doc["outliers"]} == thrown
     kept = fitted(tmp_path / "c", "--keep-outliers")
     clean = tmp_path / "clean"

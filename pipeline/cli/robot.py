@@ -500,7 +500,10 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
     def warn(msg):
         click.echo(f"jointcal: {msg}", err=True)
 
-    result = fit_campaign(campaign, spec, keep_outliers, warn, orientation=orientation)
+    def progress(msg):
+        click.echo(f"  {msg}", err=True)
+
+    result = fit_campaign(campaign, spec, keep_outliers, warn, orientation=orientation, progress=progress)
     result["provenance"] = provenance(campaign_files(campaign), spec_path)
     problems = fit_problems(result)
     if problems:

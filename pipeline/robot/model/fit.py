@@ -65,12 +65,13 @@ def _silent(message: str) -> None:
     pass
 
 
-def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orientation: bool = True) -> dict:
+def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orientation: bool = True,
+                 progress=_silent) -> dict:
     """``jointcal fit --campaign``: :func:`robot_fit_result` of a robot campaign folder, its wild
     measurements named and left out (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``.
 
     ``warn`` receives each console line as it is found (target poses outside the sampled joint
-    ranges, the wild poses). The result has no provenance (the caller hashes the files).
+    ranges, the wild poses); ``progress`` what a large campaign's fit is doing (stderr lines). The result has no provenance (the caller hashes the files).
     """
     spec.require_kind("robot", campaign)
     robot, (sample, target), frame_info = robot_data_sets(campaign, ("sample",), ("target",), with_frame=True)
@@ -82,7 +83,7 @@ def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orie
     # pose (robot_fit_result), then taken to the poses kept
     wild = WildSearch(robot, list(spec.effects), sample, target, campaign, keep_outliers)
     return robot_fit_result(campaign, spec, (robot, sample, target, frame_info), wild, orientation=orientation,
-                            warn=warn)
+                            warn=warn, progress=progress)
 
 
 def fitted_before_wild(effects, sample, orientation: bool = True) -> bool:
@@ -97,7 +98,8 @@ def fitted_before_wild(effects, sample, orientation: bool = True) -> bool:
             and (orientation or not sample.has_orientation))
 
 
-def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool = True, warn=_silent) -> dict:
+def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool = True, warn=_silent,
+                     progress=_silent) -> dict:
     """The spec's whole model fitted on a campaign's sample poses, judged on its held-out targets.
 
     Pure apart from reading the campaign: returns the JSON-ready dict ``jointcal fit`` writes
@@ -109,7 +111,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     ``wild``: the campaign's wild poses (:func:`pipeline.robot.model.outliers.find_wild`, or a
     :class:`~pipeline.robot.model.outliers.WildSearch` begun), left out of the fit, the cross-validation and
     the held-out errors (given with them beside, ``heldout_with_outliers``); ``warn`` receives the line
-    naming them. Where :func:`fitted_before_wild`, the model is fitted on every sample pose first and taken
+    naming them, ``progress`` what the fit of a large campaign is doing. Where :func:`fitted_before_wild`, the model is fitted on every sample pose first and taken
     to the poses kept by Gauss-Newton steps.
     ``orientation``: on a 6-DoF campaign, fit the orientations too (contract section 13; False: the
     positions alone, the probe's mounting then registered on the orientations). How positions and
@@ -126,13 +128,19 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     target_all, sample_all = target, sample
     first = folds = None
     if wild is not None and sample.n and fitted_before_wild(effects, sample, orientation):
+        beside = isinstance(wild, WildSearch) and wild.running
+        steps = 4 if beside else 2
+        progress(f"[1/{steps}] {' + '.join(e.name for e in effects)} on all {sample.n} sample poses"
+                 + (" (the wild-point search runs beside it)" if beside else ""))
         est = effects_estimator(robot, effects, orientation=orientation)
         est._retain_designs = True       # the steps to the poses kept reuse its design
         first = est.fit(sample)
         first.conflict_, first.nested_ = "", []
         folds = FoldsBeforeWild(robot, effects, sample, orientation, getattr(first, "_weight", None))
-        if isinstance(wild, WildSearch) and wild.running:
+        if beside:
+            progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
             folds.fit()                  # while the search runs
+            progress("[3/4] waiting for the wild-point search")
     if isinstance(wild, WildSearch):
         wild = wild.result()
         if describe(wild):
@@ -149,6 +157,8 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     if first is not None:
         keep = np.ones(sample_all.n, bool) if wild.kept else ~wild.sample
         # the folds stepped (or fitted and stepped) to the kept poses in forked processes, the model here
+        progress(f"[{steps}/{steps}] the model and the {N_FOLDS} cross-validation folds taken to the {int(keep.sum())} "
+                 "sample poses kept; uncertainty")
         cv_pending = folds.start(keep, jobs)
         model = first.refitted_without(sample_all, keep, sample)
         first._designs = None

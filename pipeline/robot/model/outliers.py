@@ -277,7 +277,15 @@ class WildSearch:
     def __init__(self, robot, effects, sample, target, campaign=None, keep: bool = False, background: bool = True):
         self.args = (robot, effects, sample, target, campaign, keep)
         self._found, self._proc, self._pipe, self._key = None, None, None, None
-        if sample.measured_mm is None or sample.n < max(20, 2 * NEIGHBOURS):
+        # no search: nothing measured, or too few sample poses to give a scale
+        ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
+        self._none = None
+        if sample.measured_mm is None or sample.n == 0:
+            self._none = Wild(ws, wt, [], {}, keep)
+        elif sample.n < max(20, 2 * NEIGHBOURS):
+            self._none = Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at "
+                                                    "least); none is named")
+        if self._none is not None:
             return
         flex = flexible_effects(robot, effects, sample)
         self._flex = flex
@@ -315,12 +323,8 @@ class WildSearch:
     def result(self) -> Wild:
         """The :class:`Wild` poses (waits for a search in a forked process)."""
         robot, effects, sample, target, campaign, keep = self.args
-        ws, wt = np.zeros(sample.n, bool), np.zeros(target.n, bool)
-        if sample.measured_mm is None or sample.n == 0:
-            return Wild(ws, wt, [], {}, keep)
-        if sample.n < max(20, 2 * NEIGHBOURS):
-            return Wild(ws, wt, [], {}, keep, f"{sample.n} sample poses are too few to give a scale (20 at least); "
-                                              "none is named")
+        if self._none is not None:
+            return self._none
         if self._found is None and self._proc is not None:
             try:
                 status, found = self._pipe.recv()

@@ -1500,6 +1500,14 @@ class RobotErrorModel:
         out.coef_ = x
         return out
 
+    def determined_without(self, data: RobotData, keep) -> "RobotErrorModel | None":
+        """:meth:`stepped_without`, or None where the steps cannot stand for a fit on the poses ``keep``: the
+        model has no fitted directions to step in, or the kept poses do not determine every one of them."""
+        if getattr(self, "basis_", None) is None:
+            return None
+        out = self.stepped_without(data, keep)
+        return out if getattr(out, "step_rank_", self.basis_.shape[1]) >= self.basis_.shape[1] else None
+
     def refitted_without(self, data: RobotData, keep, kept: RobotData) -> "RobotErrorModel | None":
         """This model (fitted on ``data``) taken to the poses ``keep`` of it (``kept``, the same poses as
         ``data.subset(keep)``) by :meth:`stepped_without`, and judged there as a fit on ``kept`` is: its RMS
@@ -1510,10 +1518,8 @@ class RobotErrorModel:
         keep = np.asarray(keep, bool)
         if keep.all():
             return self
-        if getattr(self, "basis_", None) is None:
-            return None
-        out = self.stepped_without(data, keep)
-        if getattr(out, "step_rank_", 0) < self.basis_.shape[1]:
+        out = self.determined_without(data, keep)
+        if out is None:
             return None
         d = out.design(kept)
         meas = np.asarray(kept.measured_mm, float)

@@ -312,8 +312,8 @@ class FoldsBeforeWild:
         train, m = fitted if fitted is not None else self._fit_fold(f)
         keep_train = keep[folds != f]
         if not keep_train.all():
-            step = m.stepped_without(train, keep_train) if getattr(m, "basis_", None) is not None else None
-            if step is None or getattr(step, "step_rank_", 0) < m.basis_.shape[1]:
+            step = m.determined_without(train, keep_train)
+            if step is None:
                 step = fit_effects(self.robot, self.effects, train.subset(keep_train), checks=False,
                                    orientation=self.orientation, orientation_weight=self.orientation_weight)
             m = step

@@ -38,6 +38,18 @@ def invoke():
     return cli_invoker()
 
 
+def six_dof_cell(folder, truth, seed, *extra):
+    """``folder`` made a simulated 6-DoF KR210 cell (``jointcal simulate robot --probe 6dof``, the generator's
+    truth written to ``truth``; ``extra``: more options, e.g. ``--hidden``); returns ``folder``."""
+    folder = Path(folder)
+    folder.mkdir()
+    shutil.copy(ROOT / "raw" / "robot" / "kr210" / "robot.toml", folder / "robot.toml")
+    r = cli_invoker()("simulate", "robot", "--campaign", folder, "--truth", truth, "--seed", str(seed), *extra,
+                      "--probe", "6dof")
+    assert r.exit_code == 0, r.output
+    return folder
+
+
 @pytest.fixture
 def campaign_copy(tmp_path):
     """A writable copy of a shipped encoder campaign (module a)."""

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import ROOT, cli_invoker
+from conftest import ROOT, cli_invoker, six_dof_cell
 
 SPEC = (ROOT / "specs" / "robot_cell.toml").read_text() + """[[effect]]
 name = "joint_harmonic"
@@ -47,11 +47,7 @@ def cell(tmp_path_factory):
     """A 6-DoF cell (KR210, hidden joint harmonic on joint 2) measured without gratings, and its models."""
     tmp = tmp_path_factory.mktemp("cell6")
     run = cli_invoker()
-    (tmp / "cell").mkdir()
-    shutil.copy(KR210, tmp / "cell" / "robot.toml")
-    r = run("simulate", "robot", "--campaign", tmp / "cell", "--truth", tmp / "truth.json", "--seed", "3",
-            "--hidden", "joint_harmonic:2", "--probe", "6dof")
-    assert r.exit_code == 0, r.output
+    six_dof_cell(tmp / "cell", tmp / "truth.json", 3, "--hidden", "joint_harmonic:2")
     poses = pd.read_csv(tmp / "cell" / "poses.csv")
     prog = poses[poses["set"] != "repeat"][["point_id", "set"] + [f"q{j}" for j in range(1, 7)] + ["payload_kg"]]
     prog.to_csv(tmp / "measure.csv", index=False)

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from conftest import ROOT, cli_invoker
+from conftest import ROOT, cli_invoker, six_dof_cell
 
 KR210 = ROOT / "raw" / "robot" / "kr210"
 KINEMATIC = ROOT / "specs" / "robot_kinematic.toml"
@@ -257,14 +257,7 @@ def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypa
     from pipeline.robot.model import calibrate, uncertainty
     from pipeline.robot.model.estimate import fit_effects
 
-    camp = KR210
-    if probe == "6dof":
-        camp = tmp_path / "cell"
-        camp.mkdir()
-        shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
-        r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "3",
-                          "--probe", "6dof")
-        assert r.exit_code == 0, r.output
+    camp = KR210 if probe != "6dof" else six_dof_cell(tmp_path / "cell", tmp_path / "truth.json", 3)
     robot, (sample,) = robot_data_sets(camp, ("sample",))
     spec = parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
                       '[[effect]]\nname = "tool"\n\n[[effect]]\nname = "joint_map"\njoints = [2]\n', "<test>")

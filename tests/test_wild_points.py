@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import ROOT, cli_invoker
+from conftest import ROOT, cli_invoker, six_dof_cell
 
 KR210 = ROOT / "raw" / "robot" / "kr210"
 SPEC = ROOT / "specs" / "robot_kinematic.toml"
@@ -212,14 +212,7 @@ def _three_thrown(tmp_path, probe="smr", bad=(3, 17, 40)):
 
     from pipeline.robot.campaign.ingest import robot_data_sets
 
-    camp = KR210
-    if probe == "6dof":
-        camp = tmp_path / "cell"
-        camp.mkdir()
-        shutil.copy(KR210 / "robot.toml", camp / "robot.toml")
-        r = cli_invoker()("simulate", "robot", "--campaign", camp, "--truth", tmp_path / "truth.json", "--seed", "5",
-                          "--probe", "6dof")
-        assert r.exit_code == 0, r.output
+    camp = KR210 if probe != "6dof" else six_dof_cell(tmp_path / "cell", tmp_path / "truth.json", 5)
     robot, (sample,) = robot_data_sets(camp, ("sample",))
     bad = np.asarray(bad)
     meas = sample.measured_mm.copy()

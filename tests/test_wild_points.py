@@ -328,7 +328,7 @@ def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones
     part of what the wild ones would move it); fitted first, fitted and stepped in one process or in two: the
     same numbers to the bit."""
     from pipeline.core.spec import load_spec
-    from pipeline.robot.model.estimate import FoldsBeforeWild, fit_effects, fold_ids
+    from pipeline.robot.model.estimate import FoldsBeforeWild, effects_estimator, fit_effects, fold_ids
 
     robot, sample, keep = _three_thrown(tmp_path, bad=(5, 30, 61))
     effects = list(load_spec(SPEC).effects)
@@ -352,3 +352,13 @@ def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones
     moved = np.abs(wild_in - ref).max()
     assert moved > 1e-2
     assert np.abs(a.residuals - ref).max() < 1e-3 * moved
+    # each fold's model stepped from the model of every pose (given as first), not fitted: the same folds
+    est = effects_estimator(robot, effects, checks=False)
+    est._retain_designs = True
+    first = est.fit(sample)
+    e = FoldsBeforeWild(robot, effects, sample, first=first).fit()
+    assert all(train is None for train, _ in e.models_)
+    e = e.cross_validate(keep)
+    g = FoldsBeforeWild(robot, effects, sample, first=first).start(keep, jobs=2)()
+    assert np.array_equal(e.residuals, g.residuals)
+    assert np.abs(e.residuals - ref).max() < 1e-3 * moved

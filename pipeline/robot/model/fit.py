@@ -136,7 +136,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         est._retain_designs = True       # the steps to the poses kept reuse its design
         first = est.fit(sample)
         first.conflict_, first.nested_ = "", []
-        folds = FoldsBeforeWild(robot, effects, sample, orientation, getattr(first, "_weight", None))
+        folds = FoldsBeforeWild(robot, effects, sample, orientation, getattr(first, "_weight", None), first=first)
         if beside:
             progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
             folds.fit()                  # while the search runs

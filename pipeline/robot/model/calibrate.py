@@ -1314,7 +1314,7 @@ class RobotErrorModel:
             scale = np.zeros(free.size)
             # a start from a nested model's solution counts as having left nominal
             lam, moved, converged, it = 0.0, bool(self.start), False, 0
-            dof = float("nan")
+            dof, hat = float("nan"), None
             reason = f"iteration limit ({self.max_iter}) reached"
             for it in range(1, self.max_iter + 1):
                 if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Gf if large else Jf))):
@@ -1328,9 +1328,7 @@ class RobotErrorModel:
                     r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
                     sv, Vt = sv[:r], Vt[:r]
                     c = (Vt @ (gF / sc)) / sv
-                    # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
-                    Gd = (Gf - PtP) / np.outer(sc, sc)
-                    dof = float(np.sum(np.sum((Vt @ Gd) * Vt, axis=1) / sv ** 2))
+                    hat = (Gf, sc, Vt, sv)         # the last iteration's: its hat matrix trace is dof_ (below)
                 else:
                     scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
                     sc = np.where(scale > 0, scale, 1.0)
@@ -1369,6 +1367,11 @@ class RobotErrorModel:
                 cost = 0.5 * float(F @ F)
             self.n_iter_ = it
             self.converged_, self.convergence_ = bool(converged), reason
+            if large and hat is not None:
+                # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
+                Gh, sch, Vth, svh = hat
+                Gd = (Gh - PtP) / np.outer(sch, sch)
+                dof = float(np.sum(np.sum((Vth @ Gd) * Vth, axis=1) / svh ** 2))
             self.dof_ = dof
         elif self.solver == "lm":
             result = lm.improved_lm(fun, None, z0, fun_and_jac=fun_and_jac, **(self.lm_options or {}))

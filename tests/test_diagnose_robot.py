@@ -302,3 +302,53 @@ def test_span_weights_project_as_an_orthonormal_basis_would():
     np.testing.assert_allclose(outside, direct, rtol=1e-5)
     assert np.all(outside[:2] < 0.02) and outside[2] > 0.9
     assert span_weights(np.zeros((5, 0))).shape == (0, 0)
+
+
+def test_normal_equations_solved_by_cholesky_where_well_conditioned_are_the_eigen_solution(monkeypatch):
+    """Issue 32: a well-conditioned scaled matrix is solved by its Cholesky factor, with the step, gain and rank
+    of the eigen-solution; a rank-deficient or nearly singular one is not (the eigen-solution leaves the
+    missing direction out: the minimum-norm step)."""
+    from pipeline.robot.model import calibrate
+
+    rng = np.random.default_rng(3)
+    J = rng.normal(size=(400, 25)) * rng.uniform(0.01, 100.0, size=25)
+    A, b = J.T @ J, J.T @ rng.normal(size=400)
+    assert calibrate.well_conditioned_cholesky(A / np.outer(np.sqrt(np.diag(A)), np.sqrt(np.diag(A)))) is not None
+    fast = calibrate.scaled_min_norm_step(A, b, with_rank=True)
+    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: None)
+    slow = calibrate.scaled_min_norm_step(A, b, with_rank=True)
+    monkeypatch.undo()
+    np.testing.assert_allclose(fast[0], slow[0], rtol=1e-9, atol=1e-12 * np.abs(slow[0]).max())
+    assert fast[1] == pytest.approx(slow[1], rel=1e-10) and fast[2] == slow[2] == 25
+    J[:, 7] = J[:, 3] - 2.0 * J[:, 5]           # a redundant column: singular
+    A, b = J.T @ J, J.T @ rng.normal(size=400)
+    sc = np.sqrt(np.diag(A))
+    assert calibrate.well_conditioned_cholesky(A / np.outer(sc, sc)) is None
+    dz, gain, rank = calibrate.scaled_min_norm_step(A, b, with_rank=True)
+    assert rank == 24
+    want = -np.linalg.pinv(A / np.outer(sc, sc), rcond=1e-12, hermitian=True) @ (b / sc) / sc
+    np.testing.assert_allclose(dz, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
+
+
+def test_a_large_fit_by_cholesky_steps_is_the_fit_by_eigen_steps(monkeypatch, tmp_path):
+    """Issue 32: a fit of many parameters (a joint map, on its normal equations) stepped by Cholesky solves
+    reaches the parameters, the residuals and the effective number of parameters (dof_) the eigen-solution's
+    iteration reaches."""
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model import calibrate
+    from pipeline.robot.model.estimate import fit_effects
+
+    robot, (sample,) = robot_data_sets(ROOT / "raw" / "robot" / "kr210", ("sample",))
+    effects = list(parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
+                              '[[effect]]\nname = "joint_map"\njoints = [2, 3]\n', "<test>").effects)
+    solved = []
+    factor = calibrate.well_conditioned_cholesky
+    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: solved.append(factor(As)) or solved[-1])
+    fast = fit_effects(robot, effects, sample, checks=False)
+    assert fast._large(sample) and solved and all(f is not None for f in solved)
+    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: None)
+    slow = fit_effects(robot, effects, sample, checks=False)
+    np.testing.assert_allclose(fast.coef_, slow.coef_, rtol=1e-7, atol=1e-9 * np.abs(slow.coef_).max())
+    assert fast.rms_mm_ == pytest.approx(slow.rms_mm_, rel=1e-9)
+    assert fast.dof_ == pytest.approx(slow.dof_, rel=1e-8)

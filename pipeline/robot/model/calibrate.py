@@ -96,16 +96,48 @@ def angle_arcsec(e_mrad) -> np.ndarray:
 GN_PHI = 1e-5
 
 
+#: A column-scaled normal-equations matrix whose reciprocal condition number (LAPACK's 1-norm estimate after
+#: its Cholesky factor) is above this is solved by that factor: its eigenvalues then all lie far above the
+#: 1e-12 of the largest below which an eigen-solution leaves a direction out, and both give the same step.
+CHOLESKY_RCOND = 1e-7
+
+
+def well_conditioned_cholesky(As):
+    """The Cholesky factor of the symmetric matrix ``As`` (k, k) (as ``scipy.linalg.cho_factor`` gives it)
+    where it is positive definite with a reciprocal condition number above :data:`CHOLESKY_RCOND`; else None
+    (a rank-deficient or nearly singular matrix: solved in its eigen-directions)."""
+    from scipy.linalg import lapack
+
+    if As.shape[0] == 0 or not np.all(np.isfinite(As)):
+        return None
+    try:
+        factor = scipy.linalg.cho_factor(As, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    rcond, info = lapack.dpocon(factor[0], float(np.abs(As).sum(axis=0).max()), uplo="L")
+    return factor if info == 0 and rcond > CHOLESKY_RCOND else None
+
+
+def _largest_eigenvalue(As) -> float:
+    return float(scipy.linalg.eigh(As, eigvals_only=True, subset_by_index=[As.shape[0] - 1] * 2, check_finite=False)[0])
+
+
 def scaled_min_norm_step(A, b, with_rank: bool = False) -> tuple:
     """The minimum-norm solution dz of the normal equations ``A dz = -b`` (A (k, k) symmetric positive
     semi-definite, b (k,)), solved column-scaled by its eigen-directions, those below 1e-12 of the largest
-    left out; and the step's gain ``b^T A^+ b``, the change ``||dF||^2`` the linear model predicts (and,
-    ``with_rank``, the number of directions kept)."""
+    left out (by its Cholesky factor where every direction is kept: :func:`well_conditioned_cholesky`); and
+    the step's gain ``b^T A^+ b``, the change ``||dF||^2`` the linear model predicts (and, ``with_rank``, the
+    number of directions kept)."""
     sc = np.sqrt(np.maximum(np.diag(A), 0.0))
     sc = np.where(sc > 0, sc, 1.0)
-    ev, V = np.linalg.eigh(A / np.outer(sc, sc))
+    As, bs = A / np.outer(sc, sc), b / sc
+    factor = well_conditioned_cholesky(As)
+    if factor is not None:
+        y = scipy.linalg.cho_solve(factor, bs, check_finite=False)
+        return (-y / sc, float(bs @ y), int(A.shape[0])) if with_rank else (-y / sc, float(bs @ y))
+    ev, V = np.linalg.eigh(As)
     use = ev > 1e-12 * max(float(ev[-1]), 0.0) if ev.size else np.zeros(0, bool)
-    t = V[:, use].T @ (b / sc)
+    t = V[:, use].T @ bs
     if with_rank:
         return -(V[:, use] @ (t / ev[use])) / sc, float(t @ (t / ev[use])), int(use.sum())
     return -(V[:, use] @ (t / ev[use])) / sc, float(t @ (t / ev[use]))
@@ -1320,15 +1352,27 @@ class RobotErrorModel:
                 if not (np.all(np.isfinite(F)) and np.all(np.isfinite(Gf if large else Jf))):
                     reason = "non-finite residual or Jacobian"
                     break
+                factor = top = None
                 if large:
                     scale = np.maximum(scale, np.sqrt(np.maximum(np.diag(Gf), 0.0)))
                     sc = np.where(scale > 0, scale, 1.0)
-                    w, V = np.linalg.eigh(Gf / np.outer(sc, sc))
-                    sv, Vt = np.sqrt(np.maximum(w[::-1], 0.0)), V[:, ::-1].T
-                    r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
-                    sv, Vt = sv[:r], Vt[:r]
-                    c = (Vt @ (gF / sc)) / sv
-                    hat = (Gf, sc, Vt, sv)         # the last iteration's: its hat matrix trace is dof_ (below)
+                    As, gs = Gf / np.outer(sc, sc), gF / sc
+                    factor = well_conditioned_cholesky(As)
+                    if factor is not None:
+                        # every direction kept (as the eigen-solution would keep them): solved by the factor,
+                        # the largest curvature (the damping's scale) found only when a step needs damping
+                        y = scipy.linalg.cho_solve(factor, gs, check_finite=False)
+                        gain = float(gs @ y)
+                    else:
+                        w, V = np.linalg.eigh(As)
+                        sv, Vt = np.sqrt(np.maximum(w[::-1], 0.0)), V[:, ::-1].T
+                        r = int(np.sum(sv > 1e-12 * sv[0])) if sv.size else 0
+                        sv, Vt = sv[:r], Vt[:r]
+                        c = (Vt @ gs) / sv
+                        gain = float(c @ c)
+                        top = float(sv[0] ** 2)
+                    # the last iteration's: its hat matrix trace is dof_ (below)
+                    hat = (Gf, sc, factor) + ((None, None) if factor is not None else (Vt, sv))
                 else:
                     scale = np.maximum(scale, np.linalg.norm(Jf, axis=0))
                     sc = np.where(scale > 0, scale, 1.0)
@@ -1338,7 +1382,8 @@ class RobotErrorModel:
                     c = U.T @ F
                     nd = F.size - PB.shape[0]
                     dof = float(np.sum(U[:nd] ** 2))
-                gain = float(c @ c)
+                    gain = float(c @ c)
+                    top = float(sv[0] ** 2)
                 stationary = gain <= max(GN_PHI, GAIN_REL_CONVERGED * 2.0 * cost)
                 if gain <= 1e-12 * 2.0 * cost:  # the linear model predicts no decrease beyond rounding
                     converged = moved or cost == 0.0
@@ -1346,18 +1391,27 @@ class RobotErrorModel:
                               if converged else "the start is already stationary (never left it)")
                     break
                 for _ in range(16):
-                    step = -(Vt.T @ (sv / (sv**2 + lam) * c)) / sc
+                    if factor is None:
+                        step = -(Vt.T @ (sv / (sv**2 + lam) * c)) / sc
+                    elif lam == 0.0:
+                        step = -y / sc
+                    else:
+                        damped = scipy.linalg.cho_factor(As + lam * np.eye(As.shape[0]), lower=True, check_finite=False)
+                        step = -scipy.linalg.cho_solve(damped, gs, check_finite=False) / sc
                     F_try = fun(xf + step)
                     cost_try = 0.5 * float(F_try @ F_try)
                     if np.isfinite(cost_try) and cost_try < cost:
                         break
-                    lam = max(10.0 * lam, 1e-3 * float(sv[0] ** 2))
+                    top = top if top is not None else _largest_eigenvalue(As)
+                    lam = max(10.0 * lam, 1e-3 * top)
                 else:
                     converged = moved and stationary
                     reason = (f"no damped step lowers the cost; a Gauss-Newton step would change F by ||dF||^2 = "
                               f"{gain:.2g} mm^2" + (f" <= {GN_PHI:g}" if stationary else " (not stationary)"))
                     break
-                lam = lam / 10.0 if lam > 1e-9 * float(sv[0] ** 2) else 0.0
+                if lam > 0.0:
+                    top = top if top is not None else _largest_eigenvalue(As)
+                lam = lam / 10.0 if lam > 0.0 and lam > 1e-9 * top else 0.0
                 xf = xf + step
                 moved = True
                 if large:
@@ -1369,9 +1423,10 @@ class RobotErrorModel:
             self.converged_, self.convergence_ = bool(converged), reason
             if large and hat is not None:
                 # the hat matrix's trace: the data rows' share of each direction (penalty rows excluded)
-                Gh, sch, Vth, svh = hat
+                Gh, sch, fh, Vth, svh = hat
                 Gd = (Gh - PtP) / np.outer(sch, sch)
-                dof = float(np.sum(np.sum((Vth @ Gd) * Vth, axis=1) / svh ** 2))
+                dof = (float(np.trace(scipy.linalg.cho_solve(fh, Gd, check_finite=False))) if fh is not None
+                       else float(np.sum(np.sum((Vth @ Gd) * Vth, axis=1) / svh ** 2)))
             self.dof_ = dof
         elif self.solver == "lm":
             result = lm.improved_lm(fun, None, z0, fun_and_jac=fun_and_jac, **(self.lm_options or {}))

@@ -405,10 +405,11 @@ def largest_relative(parameters: list[dict], k: int = 3, skip=()) -> list[dict]:
         rel = u / abs(p["value"]) if p["value"] != 0 else float("inf")
         rows.append({"name": p["name"], "value": p["value"], "uncertainty": u, "unit": p["unit"], "relative": rel,
                      "meaning": meaning(p["name"])})
-    # largest first, counted to 9 digits: a pair the data cannot tell apart (a joint's zero offset and the
-    # base's turn about the same axis) has the same relative uncertainty but for rounding, and is named
-    # in the order of its names, not of its last digits
-    rows.sort(key=lambda r: (-float(f"{r['relative']:.9g}"), r["name"]))
+    # largest first, counted to 6 digits: a pair the data cannot tell apart (a joint's zero offset and the
+    # base's turn about the same axis: dd1 and base_dz) has the same relative uncertainty but for rounding,
+    # which reaches the 8th digit on a real series (0.905366221 / 0.905366203), and is named in the order of
+    # its names, not of its last digits
+    rows.sort(key=lambda r: (-float(f"{r['relative']:.6g}"), r["name"]))
     return rows[:k]
 
 

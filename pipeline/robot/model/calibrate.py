@@ -1370,7 +1370,7 @@ class RobotErrorModel:
                         sv, Vt = sv[:r], Vt[:r]
                         c = (Vt @ gs) / sv
                         gain = float(c @ c)
-                        top = float(sv[0] ** 2)
+                        top = float(sv[0] ** 2) if sv.size else 0.0
                     # the last iteration's: its hat matrix trace is dof_ (below)
                     hat = (Gf, sc, factor) + ((None, None) if factor is not None else (Vt, sv))
                 else:
@@ -1383,7 +1383,7 @@ class RobotErrorModel:
                     nd = F.size - PB.shape[0]
                     dof = float(np.sum(U[:nd] ** 2))
                     gain = float(c @ c)
-                    top = float(sv[0] ** 2)
+                    top = float(sv[0] ** 2) if sv.size else 0.0
                 stationary = gain <= max(GN_PHI, GAIN_REL_CONVERGED * 2.0 * cost)
                 if gain <= 1e-12 * 2.0 * cost:  # the linear model predicts no decrease beyond rounding
                     converged = moved or cost == 0.0

@@ -273,8 +273,9 @@ class FoldsBeforeWild:
     (:func:`pipeline.robot.model.fit.fitted_before_wild`): the folds are drawn over every sample pose
     (:func:`fold_ids`), each fold's model is fitted on the other folds' poses (:meth:`fit`, while the wild search
     runs; stepped there from ``first``, given) and then taken to their kept poses by Gauss-Newton steps
-    (:meth:`cross_validate`). A wild pose is in no fold's fit and has no residual. Each fold's model is the one fitted on the other folds' kept poses, to the
-    steps' 1e-5 mm^2 (where the kept poses leave a direction undetermined: fitted on them).
+    (:meth:`cross_validate`). A wild pose is in no fold's fit and has no residual. Each fold's model is the one
+    fitted on the other folds' kept poses, to the steps' 1e-5 mm^2 (where the kept poses leave a direction
+    undetermined: fitted on them).
 
     Parameters
     ----------

@@ -290,8 +290,8 @@ class FoldsBeforeWild:
         The model fitted on every pose of ``data`` (its design kept), or None. Given, each fold's model is it
         taken to the other folds' poses by Gauss-Newton steps (:meth:`~pipeline.robot.model.calibrate.\
 RobotErrorModel.determined_without`, at its orientation weight, in its fitted directions): the fit on them
-        to the steps' 1e-5 mm^2, from a start four fifths of the way there, instead of a design, an
-        identification and an iteration from nominal; fitted where the other folds' poses leave a fitted
+        to the steps' 1e-5 mm^2, from the fit on all the poses (four fifths of them the fold's), instead of a
+        design, an identification and an iteration from nominal; fitted where the other folds' poses leave a fitted
         direction undetermined.
     """
 

@@ -21,7 +21,7 @@ import pandas as pd
 
 from ...core.errors import InputError
 from ...core.files import read_json_input
-from ...core.tables import FLOAT, SIGN, STR, read_table
+from ...core.tables import FLOAT, SIGN, STR, check_unique_ids, read_table
 from ...core.units import REFERENCE_TEMPERATURE_C
 from ..arm.kinematics import Robot, directions_from_sequence, load_robot, parse_robot
 from .simulate import VirtualCell, add_orientations, rng_for
@@ -200,10 +200,7 @@ def read_commanded_poses(path, robot: Robot) -> dict:
                        {"payload_kg": FLOAT, "temperature_c": FLOAT, "set": STR,
                         **{f"dir{j}": SIGN for j in range(1, nj + 1)}})
     lines = frame["_line"].to_numpy(int)
-    dup = frame["point_id"].duplicated().to_numpy()
-    if dup.any():
-        k = int(np.argmax(dup))
-        raise InputError(path, f"point_id '{frame['point_id'].iloc[k]}' appears twice", lines[k], "point_id")
+    check_unique_ids(path, frame, "point_id '{id}' appears twice")
     sets = frame["set"].replace("", "target").to_numpy(str) if "set" in frame else np.full(len(frame), "target")
     bad = ~np.isin(sets, ("sample", "target", "repeat"))
     if bad.any():

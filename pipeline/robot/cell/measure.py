@@ -151,6 +151,45 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
     return poses.to_csv(index=False, lineterminator="\n"), tracker.to_csv(index=False, lineterminator="\n")
 
 
+def measured_campaign(robot: Robot, cell: VirtualCell, point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c,
+                      seed=None, closed_loop_joints=()) -> dict:
+    """A campaign folder's files (contract section 2): the cell moved to commanded poses and measured.
+
+    Parameters
+    ----------
+    robot : Robot
+        The cell's nominal robot (``robot.toml``).
+    cell : VirtualCell
+    point_id, sets : ndarray of str, shape (n,)
+    q_cmd_deg : ndarray, shape (n, N), deg
+        Commanded poses, in visiting order.
+    dirs : ndarray, shape (n, N), int (+1/-1), or None
+        Approach directions (None: from the visiting order).
+    payload_kg : ndarray, shape (n,), kg
+    temperature_c : ndarray, shape (n,), degC
+    seed : int, optional
+        Seed of the jitter and tracker noise (None: the cell's).
+    closed_loop_joints : sequence of int
+        Joints (1-based) run closed loop on their gratings.
+
+    Returns
+    -------
+    dict
+        File name (``robot.toml``, ``poses.csv``, ``tracker.csv``) -> text, in writing order.
+
+    Raises
+    ------
+    ValueError
+        A closed-loop joint the cell has no grating on (:func:`measure_poses`).
+    """
+    dirs, xyz, gratings, R = measure_poses(cell, q_cmd_deg, dirs, payload_kg, temperature_c, seed, closed_loop_joints,
+                                           orientation=True)
+    poses_csv, tracker_csv = campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz,
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings, R,
+                                             cell.config.get("probe_sigma_arcsec"))
+    return {"robot.toml": robot.to_toml(), "poses.csv": poses_csv, "tracker.csv": tracker_csv}
+
+
 # ------------------------------------------------------------------------ the command's inputs
 _HINT = "run the stage that makes it first, or `make all`"
 

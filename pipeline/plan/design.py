@@ -48,10 +48,9 @@ DS_WEIGHT = 0.5
 #: designs to reduce dependence on an assumed model"): the design also gathers information on
 #: *potential terms* - errors the model lacks - held by a prior: the second paper's error transfer
 #: (Chebyshev) terms of this order on every joint, orthogonalised against the model's parameters,
-#: scaled like them, with this prior precision (one pose's worth). On the real UR10 a held-out error
-#: floor of 0.45 mm comes from such errors, not from noise; plain D-optimal poses (extreme postures)
-#: then fitted worse than the median random draw at 30 and 60 poses on Series C. Order 2 and
-#: precision 1 are the method's textbook choice (unit prior on scaled terms); no other was tried.
+#: scaled like them, with this prior precision (one pose's worth); why plain D-optimality was not
+#: enough: docs/speed.md "Measurements behind the code". Order 2 and precision 1 are the method's
+#: textbook choice (unit prior on scaled terms); no other was tried.
 POTENTIAL_ORDER = 2
 POTENTIAL_PRECISION = 1.0
 #: A pool pose within this of a measured one (deg, every joint) is that pose again (--campaign never

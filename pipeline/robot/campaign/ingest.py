@@ -77,8 +77,8 @@ def _dup(path, frame, problems):
 
 
 def _member(series, values) -> pd.Series:
-    """``series.isin(values)`` for text columns by a Python set (pandas' isin on its Arrow strings took
-    0.1 s a call on 12,000 rows, issue 32); NaN is no member."""
+    """``series.isin(values)`` for text columns by a Python set (pandas' isin on its Arrow strings is slow
+    at a user's scale: docs/speed.md "Measurements behind the code"); NaN is no member."""
     pool = set(v for v in values if isinstance(v, str))
     return pd.Series([isinstance(v, str) and v in pool for v in series.tolist()], index=series.index, dtype=bool)
 

@@ -176,38 +176,9 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     closed = _angle_problem(model_path, doc, closed_loop, len(loaded[0].joints))
     t0 = time.perf_counter()
     run = correct_targets(targets_path, doc, loaded, max_correction_deg)
-    res, tg, payload = run.result, run.targets, run.payload_kg
     write_text(out_path, run.csv)
-    c = res.counts()
-    ok = res.status == "ok"
-    worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
-    if res.u95_mm is not None and ok.any():
-        import numpy as np
-
-        worst += (f"; u95_mm {np.median(res.u95_mm[ok]):.3f} mm (median of the corrected rows, largest "
-                  f"{res.u95_mm[ok].max():.3f} mm)")
-    largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
-    click.echo(f"{out_path}: {len(res.status)} rows in {time.perf_counter() - t0:.1f} s: {c['ok']} corrected{largest}"
-               f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "
-               f"{c['correction_too_large']} beyond --max-correction-deg {max_correction_deg:g}, "
-               f"{c['no_solution']} without a solution", err=True)
-    if (~ok).any():
-        k = int(((~ok).nonzero())[0][0])
-        click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
-    if ok.any():
-        held_all = int((res.orientation_held[ok] == "all").sum())
-        pos_only = int(sum(r.startswith("orientation not held") for r in res.reason[ok]))
-        click.echo(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
-                   + (f"; {pos_only} corrected in position alone (holding the orientation too needed more than "
-                      f"--max-correction-deg {max_correction_deg:g})" if pos_only else "")
-                   + ("" if held_all + pos_only == ok.sum() else
-                      "; the rest only about the axes the measurements determine"), err=True)
-    missing = int((~tg.payload_given).sum())
-    click.echo(f"  {run.assumed}"
-               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
-                  + ("" if payload is not None else " (the model was not fitted at one payload)") if missing else ""),
-               err=True)
+    for line in run.report(out_path, time.perf_counter() - t0, max_correction_deg, closed):
+        click.echo(line, err=True)
 
 
 def _frame_option(text, name, fmt):
@@ -240,31 +211,13 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     tool = _frame_option(tool_text, "--tool", program.format)
     base = _frame_option(base_text, "--base", program.format)
     run = filter_with_model(program, doc, loaded, tool, base, payload_kg, max_correction_deg)
-    res, rows, counts = run.filtered, run.filtered.rows, run.counts
     written = write_all(out_dir, program, run.texts)
-    click.echo(f"{', '.join(map(str, written))}: {len(rows)} targets in {time.perf_counter() - t0:.1f} s: "
-               f"{counts.get('ok', 0)} filtered (largest joint correction {run.largest_arcsec:.1f} arcsec, largest "
-               f"target move {run.moved_mm:.3f} mm), {len(res.changes)} numbers changed; left as given: "
-               + (", ".join(f"{v} {k}" for k, v in sorted(counts.items()) if k != "ok") or "none"), err=True)
-    for r in rows:
-        if r["status"] not in ("ok", "same_target"):
-            click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
-    for r in res.conflicts:
-        click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}", err=True)
-    for note in program.notes:
-        click.echo(f"  {note}", err=True)
-    if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
-        click.echo(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it states one, "
-                   "the program's", err=True)
-    click.echo(f"  {run.assumed}"
-               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + "; payload: " + "; ".join(f"{v:g} kg ({src}; {len(rs)} target{'s' if len(rs) > 1 else ''}, from "
-                                           f"{rs[0]['file']}:{rs[0]['line']})" for (v, src), rs in run.payloads.items()),
-               err=True)
+    for line in run.report(written, time.perf_counter() - t0, program.notes, payload_kg, closed):
+        click.echo(line, err=True)
     if json_path:
         write_json(json_path, {"program": str(program_path), "format": program.format, "model": str(model_path),
-                               "payload_kg": payload_kg, "counts": counts, "files": [str(w) for w in written],
-                               "targets": rows})
+                               "payload_kg": payload_kg, "counts": run.counts, "files": [str(w) for w in written],
+                               "targets": run.filtered.rows})
 
 
 # ------------------------------------------------------------------------------ simulate measure
@@ -407,7 +360,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
       jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
     """
     from ..core.files import write_text
-    from ..export.run import ENCODER_NOTE, export_encoder, export_robot, heldout_export, ur_paths
+    from ..export.run import ENCODER_NOTE, export_encoder, export_robot, heldout_export, heldout_line, ur_paths
 
     doc = read_json(model_path)
     if not _is_robot_model(doc):
@@ -440,12 +393,6 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         h, wild = heldout_export(model_path, loaded, exported, heldout_campaign)
         if wild:
             click.echo(f"jointcal: {heldout_campaign}: {wild}", err=True)
-        click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
-                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
-                   f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
-                   f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
-                   f"(the model's own geometry with them {h['model_geometry_tables_rms_mm']:.3f} mm) "
-                   f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
-                   err=True)
+        click.echo(heldout_line(h, heldout_campaign), err=True)
         if json_out:
             write_json(json_out, h)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..robot.model.rigid import assumptions, model_payload
 from ..robot.model.uncertainty import load_prediction
 from .robot import Correction, ModelKinematics, correct_commands
@@ -43,6 +45,43 @@ class CorrectedTargets:
     csv: str
     payload_kg: float | None
     assumed: str
+
+    def report(self, out_path, seconds: float, max_correction_deg: float, closed=()) -> list[str]:
+        """The console's lines: rows corrected and left as given (and the first of them, with its line),
+        the largest correction (arcsec), residual (um) and u95 (mm), the orientation held, what was assumed.
+
+        ``seconds`` the time the correction took; ``closed`` the joints (1-based) run closed loop.
+        """
+        res, tg, payload = self.result, self.targets, self.payload_kg
+        c = res.counts()
+        ok = res.status == "ok"
+        worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
+        if res.u95_mm is not None and ok.any():
+            worst += (f"; u95_mm {np.median(res.u95_mm[ok]):.3f} mm (median of the corrected rows, largest "
+                      f"{res.u95_mm[ok].max():.3f} mm)")
+        largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
+        lines = [f"{out_path}: {len(res.status)} rows in {seconds:.1f} s: {c['ok']} corrected{largest}"
+                 f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "
+                 f"{c['correction_too_large']} beyond --max-correction-deg {max_correction_deg:g}, "
+                 f"{c['no_solution']} without a solution"]
+        if (~ok).any():
+            k = int(((~ok).nonzero())[0][0])
+            lines.append(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}")
+        if ok.any():
+            held_all = int((res.orientation_held[ok] == "all").sum())
+            pos_only = int(sum(r.startswith("orientation not held") for r in res.reason[ok]))
+            lines.append(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
+                         + (f"; {pos_only} corrected in position alone (holding the orientation too needed more "
+                            f"than --max-correction-deg {max_correction_deg:g})" if pos_only else "")
+                         + ("" if held_all + pos_only == ok.sum() else
+                            "; the rest only about the axes the measurements determine"))
+        missing = int((~tg.payload_given).sum())
+        lines.append(f"  {self.assumed}"
+                     + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+                     + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
+                        + ("" if payload is not None else " (the model was not fitted at one payload)")
+                        if missing else ""))
+        return lines
 
 
 def correct_targets(targets_path, doc: dict, loaded: tuple, max_correction_deg: float) -> CorrectedTargets:

@@ -6,7 +6,7 @@ The whole job between reading the inputs and writing the outputs, one function p
 * :func:`export_robot`: a fitted robot model as a URDF, UR's ``calibration.conf`` and kinematics YAML, or
   per-joint tables, each with what it cannot carry said in comments;
 * :func:`heldout_export`: on another campaign's target poses, the held-out RMS of the full model and of
-  what each format carries.
+  what each format carries (:func:`heldout_line` in words).
 
 The command (``pipeline.cli.deploy``) reads the files, writes the texts these return and prints.
 """
@@ -252,3 +252,13 @@ def heldout_export(model_path, loaded: tuple, exported: RobotExport, campaign) -
     h.update(wild.document())
     h.update({"model": str(model_path), "campaign": str(campaign), "effects": [e.name for e in effects]})
     return h, describe(wild)
+
+
+def heldout_line(h: dict, campaign) -> str:
+    """The console's line of :func:`heldout_export`'s numbers (mm) on ``campaign``'s target poses."""
+    return (f"held-out RMS on {h['n']} target poses of {campaign}: full model {h['full_rms_mm']:.3f} mm; "
+            f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
+            f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
+            f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
+            f"(the model's own geometry with them {h['model_geometry_tables_rms_mm']:.3f} mm) "
+            f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm")

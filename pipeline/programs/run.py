@@ -53,6 +53,34 @@ class FilteredProgram:
     payloads: dict
     assumed: str
 
+    def report(self, written, seconds: float, notes=(), payload_kg=None, closed=()) -> list[str]:
+        """The console's lines: motions filtered and left as given (each named at its file and line), the
+        largest joint correction (arcsec) and target move (mm), the program's notes, what was assumed and
+        the payload of each motion with where it comes from.
+
+        ``written`` the files written; ``seconds`` the time the filter took; ``notes`` the program's
+        (:attr:`Program.notes`); ``payload_kg`` the --payload given (kg); ``closed`` the joints run closed loop.
+        """
+        res, rows, counts = self.filtered, self.filtered.rows, self.counts
+        lines = [f"{', '.join(map(str, written))}: {len(rows)} targets in {seconds:.1f} s: "
+                 f"{counts.get('ok', 0)} filtered (largest joint correction {self.largest_arcsec:.1f} arcsec, "
+                 f"largest target move {self.moved_mm:.3f} mm), {len(res.changes)} numbers changed; left as given: "
+                 + (", ".join(f"{v} {k}" for k, v in sorted(counts.items()) if k != "ok") or "none")]
+        lines += [f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}"
+                  for r in rows if r["status"] not in ("ok", "same_target")]
+        lines += [f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}"
+                  for r in res.conflicts]
+        lines += [f"  {note}" for note in notes]
+        if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
+            lines.append(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it "
+                         "states one, the program's")
+        lines.append(f"  {self.assumed}"
+                     + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+                     + "; payload: " + "; ".join(f"{v:g} kg ({src}; {len(rs)} target{'s' if len(rs) > 1 else ''}, "
+                                                 f"from {rs[0]['file']}:{rs[0]['line']})"
+                                                 for (v, src), rs in self.payloads.items()))
+        return lines
+
 
 def filter_with_model(program: Program, doc: dict, loaded: tuple, tool=None, base=None, payload_kg=None,
                       max_correction_deg: float = 0.5) -> FilteredProgram:

@@ -279,3 +279,19 @@ def test_measured_campaign_is_seeded_and_refuses_a_loop_without_gratings(loop):
         measured_campaign(*args, seed=1, closed_loop_joints=[6])
     closed = measured_campaign(*args, seed=1, closed_loop_joints=[1, 2, 3])
     assert "grating1_deg" in closed["poses.csv"] and "grating1_deg" not in a["poses.csv"]
+
+
+def test_correct_targets_report_names_the_first_row_left_as_given(loop, tmp_path):
+    from pipeline.correct.run import correct_targets
+    from pipeline.robot.model.predict import load_model_document
+
+    fit = loop["fit"]
+    fresh = loop["fresh"].head(5).copy()
+    fresh.loc[3, "q3"] = fit["sampled_range"]["upper_deg"][2] + 5.0      # beyond what the model saw
+    fresh.to_csv(tmp_path / "t.csv", index=False)
+    run = correct_targets(tmp_path / "t.csv", fit, load_model_document(fit, "fit.json"), 0.5)
+    lines = run.report("out.csv", 1.25, 0.5, closed=[1, 2])
+    assert lines[0].startswith("out.csv: 5 rows in 1.2 s: 4 corrected, largest correction ")
+    assert "left as given: 1 outside the sampled joint range, 0 beyond --max-correction-deg 0.5, 0 without" in lines[0]
+    assert lines[1].startswith(f"  first left as given: {fresh.loc[3, 'point_id']} (line 5): ")
+    assert lines[-1].endswith("; closed loop on their encoders: joints 1 2")

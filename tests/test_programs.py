@@ -913,3 +913,8 @@ def test_filter_with_model_counts_and_payloads(cells, tmp_path):
     for (kg, source), rows in run.payloads.items():
         assert all((r["payload_kg"], r["payload_source"]) == (kg, source) for r in rows)
         assert kg == 2.5 if source == "--payload" else source.startswith("program:")
+    lines = run.report(["f.script"], 0.0, ["a note"], 2.5)
+    left = [r for r in run.filtered.rows if r["status"] not in ("ok", "same_target")]
+    assert lines[0].startswith(f"f.script: {len(program.targets)} targets in 0.0 s: {run.counts['ok']} filtered")
+    assert len([x for x in lines if " left as given: " in x and x.startswith("  ")]) == len(left)
+    assert "  a note" in lines and "; payload: " in lines[-1]

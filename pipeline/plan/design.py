@@ -40,9 +40,8 @@ RIDGE = 1e-9
 #: Joint values closer than this (deg, every joint) are the same pose
 SAME_POSE_DEG = 1e-6
 #: Reveal: ``log det M_full - DS_WEIGHT log det M_model`` = (1 - w) D of the larger model + w Ds of the
-#: effect: pure Ds (w = 1) chose the same few poses twice for backlash (the play told apart, the model
-#: left 1.7 mm uncertain on the real UR10 pool); half of each keeps enough distinct poses to fit the
-#: larger model.
+#: effect: half of each keeps enough distinct poses to fit the larger model, which pure Ds (w = 1) did
+#: not (docs/speed.md "Measurements behind the code").
 DS_WEIGHT = 0.5
 #: Model-robust D-optimality (DuMouchel & Jones 1994, "A simple Bayesian modification of D-optimal
 #: designs to reduce dependence on an assumed model"): the design also gathers information on

@@ -43,10 +43,9 @@ MAX_POINT_MM = 60.0
 #: When at most this fraction of the poses (at least one) are beyond :data:`MAX_POINT_MM` and the
 #: rest fit, those poses are named as wrong measurements rather than the whole campaign.
 OUTLIER_FRACTION = 0.05
-#: With ``frame = "base"`` the fit itself must be near identity: a robot's base error is a few
-#: mm and a fraction of a degree (the KR210 cell: 0.1 mm, 0.01 deg); a translation beyond
-#: this (mm) or a rotation beyond :data:`MAX_BASE_ROTATION_DEG` (deg) means the points are in
-#: another frame, the tracker's (the UR10's tracker: 3,820 mm and 20 deg from its base).
+#: With ``frame = "base"`` the fit itself must be near identity: a robot's base error is a few mm and a
+#: fraction of a degree, so a translation beyond this (mm) or a rotation beyond :data:`MAX_BASE_ROTATION_DEG`
+#: (deg) means the points are in another frame, the tracker's (docs/speed.md "Measurements behind the code").
 MAX_BASE_TRANSLATION_MM = 100.0
 MAX_BASE_ROTATION_DEG = 3.0
 #: A hypothesis explains the data when its refit's RMS is within :data:`MAX_RMS_MM` and at most

@@ -214,3 +214,84 @@ def test_step_reaches_the_point_for_any_joint_count(n_joints):
         # smallest: no motion of the self-motion direction (null space of the full 6-row Jacobian) is in it
         null = np.linalg.svd(J)[2][-1]
         assert abs(null @ (q - q0)) < 1e-6 * np.linalg.norm(q - q0) + 1e-9
+
+
+def test_correct_targets_uses_the_models_payload_where_a_row_gives_none(loop, tmp_path):
+    """correct_targets, the library of `jointcal correct --targets`: rows without payload_kg are corrected
+    at the one payload the model was fitted at (0 kg when it was fitted at several), said in the CSV."""
+    import io
+
+    from pipeline.correct.run import correct_targets
+    from pipeline.robot.model.predict import load_model_document
+
+    fit = loop["fit"]
+    loaded = load_model_document(fit, "fit.json")
+    fresh = loop["fresh"].head(6).copy()
+    fresh["payload_kg"] = [12.5, None, 12.5, None, None, 3.0]
+    fresh.to_csv(tmp_path / "t.csv", index=False)
+    run = correct_targets(tmp_path / "t.csv", fit, loaded, 0.5)
+    pays = fit.get("payloads_kg") or []
+    model_kg = float(pays[0]) if len(pays) == 1 else None
+    assert run.payload_kg == model_kg
+    expect = np.array([12.5, model_kg or 0.0, 12.5, model_kg or 0.0, model_kg or 0.0, 3.0])
+    assert np.array_equal(run.targets.payload_kg, expect)
+    assert list(run.targets.payload_given) == [True, False, True, False, False, True]
+    out = pd.read_csv(io.StringIO(run.csv))
+    assert list(out["point_id"]) == list(fresh["point_id"]) and np.allclose(out["payload_kg"], expect)
+    assert (run.result.status == "ok").all() and "joint" in run.assumed
+
+
+def test_correct_targets_refuses_a_repeated_point_id(loop, tmp_path):
+    from pipeline.core.errors import InputError
+    from pipeline.correct.run import correct_targets
+    from pipeline.robot.model.predict import load_model_document
+
+    fresh = loop["fresh"].head(4).copy()
+    fresh.loc[3, "point_id"] = fresh.loc[1, "point_id"]
+    fresh.to_csv(tmp_path / "t.csv", index=False)
+    with pytest.raises(InputError) as err:
+        correct_targets(tmp_path / "t.csv", loop["fit"], load_model_document(loop["fit"], "fit.json"), 0.5)
+    assert (err.value.line, err.value.column) == (5, "point_id")
+    assert err.value.message == f"point_id '{fresh.loc[1, 'point_id']}' appears twice; ids must be unique"
+
+
+def test_measured_campaign_is_seeded_and_refuses_a_loop_without_gratings(loop):
+    """measured_campaign, the library of `jointcal simulate measure`: the campaign's three files, the
+    same bytes for the same seed, other noise for another; a closed loop on a joint the cell has no
+    grating on is a ValueError (the command's --closed-loop-joints)."""
+    import io
+
+    from pipeline.robot.cell.measure import measure_cell, measured_campaign
+
+    tmp = loop["tmp"]
+    robot, cell = measure_cell(tmp / "truth.json", tmp / "meas")
+    fresh = loop["fresh"].head(5)
+    q, n = _q(fresh), len(fresh)
+    args = (robot, cell, fresh["point_id"].to_numpy(), np.full(n, "target"), q, None, np.zeros(n), np.full(n, 20.0))
+    a = measured_campaign(*args, seed=1)
+    assert list(a) == ["robot.toml", "poses.csv", "tracker.csv"]
+    assert a == measured_campaign(*args, seed=1)
+    b = measured_campaign(*args, seed=2)
+    assert a["poses.csv"] == b["poses.csv"] and a["tracker.csv"] != b["tracker.csv"]
+    t = pd.read_csv(io.StringIO(a["tracker.csv"]))
+    assert list(t["point_id"]) == list(fresh["point_id"])
+    with pytest.raises(ValueError, match="joint 6 has no grating"):       # the KR210 cell's are on joints 1-3
+        measured_campaign(*args, seed=1, closed_loop_joints=[6])
+    closed = measured_campaign(*args, seed=1, closed_loop_joints=[1, 2, 3])
+    assert "grating1_deg" in closed["poses.csv"] and "grating1_deg" not in a["poses.csv"]
+
+
+def test_correct_targets_report_names_the_first_row_left_as_given(loop, tmp_path):
+    from pipeline.correct.run import correct_targets
+    from pipeline.robot.model.predict import load_model_document
+
+    fit = loop["fit"]
+    fresh = loop["fresh"].head(5).copy()
+    fresh.loc[3, "q3"] = fit["sampled_range"]["upper_deg"][2] + 5.0      # beyond what the model saw
+    fresh.to_csv(tmp_path / "t.csv", index=False)
+    run = correct_targets(tmp_path / "t.csv", fit, load_model_document(fit, "fit.json"), 0.5)
+    lines = run.report("out.csv", 1.25, 0.5, closed=[1, 2])
+    assert lines[0].startswith("out.csv: 5 rows in 1.2 s: 4 corrected, largest correction ")
+    assert "left as given: 1 outside the sampled joint range, 0 beyond --max-correction-deg 0.5, 0 without" in lines[0]
+    assert lines[1].startswith(f"  first left as given: {fresh.loc[3, 'point_id']} (line 5): ")
+    assert lines[-1].endswith("; closed loop on their encoders: joints 1 2")

@@ -124,7 +124,8 @@ def test_ur_round_trip_with_nearly_parallel_axes(ur10, tmp_path):
     import yaml
 
     from pipeline.export.chain import folded_chain
-    from pipeline.export.ur import dh_positions, read_calibration_conf, standard_dh, yaml_positions
+    from pipeline.export.ur import dh_positions, standard_dh, yaml_positions
+    from pipeline.robot.campaign.ur import parse_calibration_conf
 
     model, params = synthetic_model(ur10, CHAIN_SPEC, 5)
     lo, hi = np.full(6, -170.0), np.full(6, 170.0)
@@ -139,7 +140,7 @@ def test_ur_round_trip_with_nearly_parallel_axes(ur10, tmp_path):
     assert list(doc) == ["shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3"]
     assert max(abs(v[k]) for v in doc.values() for k in ("x", "y", "z")) < 1.0    # sane origins (m)
     # calibration.conf: UR's nominal DH (the UR10's published values) plus the deltas
-    conf = read_calibration_conf((tmp_path / "ur10.conf").read_text())
+    conf = parse_calibration_conf((tmp_path / "ur10.conf").read_text())
     nominal = {"theta": np.zeros(6), "a": np.array([0, -0.612, -0.5723, 0, 0, 0]),
                "d": np.array([0.1273, 0, 0, 0.163941, 0.1157, 0.0922]),
                "alpha": np.array([np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0])}
@@ -198,3 +199,82 @@ def test_encoder_model_exports_the_same_table(tmp_path):
     t = pd.read_csv(tmp_path / "t.csv", comment="#")
     assert list(t.columns) == ["joint", "angle_deg", "error_arcsec", "correction_arcsec"] and len(t) == 360
     assert np.allclose(t["correction_arcsec"], -t["error_arcsec"]) and t["error_arcsec"].abs().max() > 10.0
+
+
+def test_ur_paths_of_out():
+    from pathlib import Path
+
+    from pipeline.export.run import ur_paths
+
+    assert ur_paths("a/b.yaml") == (Path("a/b.conf"), Path("a/b.yaml"))
+    assert ur_paths("a/b.yml") == (Path("a/b.conf"), Path("a/b.yml"))
+    assert ur_paths("a/b.conf") == (Path("a/b.conf"), Path("a/b.yaml"))
+    assert ur_paths("a/cell") == (Path("a/cell/calibration.conf"), Path("a/cell/kinematics.yaml"))
+
+
+def _loaded(robot, spec_text, seed, lo, hi):
+    from pipeline.robot.model.predict import load_model_document
+
+    _, params = synthetic_model(robot, spec_text, seed)
+    doc = _fit_doc(robot, params, spec_text, lo, hi)
+    return doc, load_model_document(doc, "fit.json")
+
+
+def test_export_robot_texts_carry_the_chain(ur10):
+    """export_robot, the library of `jointcal export`: each format's texts, the URDF's and the UR
+    deltas' chain the model's, the note saying what is left out."""
+    from pipeline.export.run import export_robot
+    from pipeline.export.urdf import urdf_positions
+    from pipeline.robot.campaign.ur import parse_calibration_conf
+
+    lo, hi = np.full(6, -170.0), np.full(6, 170.0)
+    doc, loaded = _loaded(ur10, CHAIN_SPEC, 3, lo, hi)
+    model = loaded[2]
+    q = np.random.default_rng(4).uniform(lo, hi, (30, 6))
+    urdf = export_robot("m.json", doc, loaded, "urdf")
+    assert [k for k, _ in urdf.texts] == ["urdf"]
+    assert np.abs(urdf_positions(urdf.texts[0][1], "smr", q) - _chain_reference(ur10, model, q)).max() < 1e-3
+    assert urdf.note.endswith("the model has nothing else: it is carried whole")
+    assert "jointcal export, format urdf, of m.json" in urdf.texts[0][1]
+    ur = export_robot("m.json", doc, loaded, "ur")
+    assert [k for k, _ in ur.texts] == ["conf", "yaml"]
+    deltas = parse_calibration_conf(ur.texts[0][1])
+    assert np.abs(deltas["delta_theta"]).max() > 1e-6             # a fitted chain, not the nominal one
+    table = export_robot("m.json", doc, loaded, "table")
+    assert "# the model has no effect of a joint's own angle: the table is empty" in table.texts[0][1]
+    # a model with a joint map: the chain cannot carry it, and the note says at what cost
+    lo2 = np.array([-170.0, -150.0, -170.0, -170.0, -120.0, -170.0])
+    hi2 = np.array([170.0, -30.0, 170.0, 170.0, 60.0, 170.0])
+    doc2, loaded2 = _loaded(ur10, TABLE_SPEC, 7, lo2, hi2)
+    full = export_robot("m.json", doc2, loaded2, "urdf")
+    cost = re.search(r"moves by ([0-9.]+) mm RMS", full.note)
+    assert cost and float(cost.group(1)) > 0.0 and "compliance" in full.note
+    assert full.plain_model is not full.tables_model
+
+
+def test_export_robot_refuses_an_unreadable_urdf(ur10, tmp_path):
+    from pipeline.core.errors import InputError
+    from pipeline.export.run import export_robot
+
+    doc, loaded = _loaded(ur10, CHAIN_SPEC, 3, np.full(6, -170.0), np.full(6, 170.0))
+    (tmp_path / "bad.urdf").write_text("<robot name='x'><link name='a'>")
+    with pytest.raises(InputError) as err:
+        export_robot("m.json", doc, loaded, "urdf", urdf=(tmp_path / "bad.urdf", "smr", None))
+    assert err.value.path == str(tmp_path / "bad.urdf") and "not a readable URDF" in err.value.message
+
+
+def test_export_encoder_table_and_refusal(tmp_path):
+    from pipeline.core.errors import InputError
+    from pipeline.export.run import ENCODER_NOTE, export_encoder
+
+    doc = {"terms": [{"order": 1, "C_arcsec": 10.0, "phi_deg": 30.0}]}
+    text, n = export_encoder(doc, 2.0, "enc.json")
+    assert n == 180 and text.startswith(f"# {ENCODER_NOTE}\n")
+    rows = [line.split(",") for line in text.splitlines()[2:]]
+    err = np.array([float(r[2]) for r in rows])
+    theta = np.array([float(r[1]) for r in rows])
+    assert np.allclose(err, 10.0 * np.sin(np.deg2rad(theta + 30.0)), atol=1e-5)    # C sin(theta + phi)
+    assert np.allclose([float(r[3]) for r in rows], -err)
+    with pytest.raises(InputError) as e:
+        export_encoder({"something": 1}, 1.0, "enc.json")
+    assert (e.value.line, e.value.column) == (1, 1) and "neither a fitted robot model" in e.value.message

@@ -80,3 +80,41 @@ def test_nyquist_order_has_no_sine_sources():
     assert rows[18]["cos_from"][:2] == [54, 90]
     assert "not estimable" in rows[18]["equation"]
     assert rows[0]["sin_plus"] == [] and rows[0]["cos_from"][:2] == [36, 72]
+
+
+def test_alias_frame_is_the_table_for_every_resolvable_order():
+    """alias_frame, the library of `jointcal aliasing`: N = 36 resolves orders 0..18; order 1 gathers
+    35, 37, 71, 73 in its cosine, 37 and 73 added to its sine, 35 and 71 subtracted (Eq. 4)."""
+    from pipeline.encoder.aliasing import alias_frame
+
+    t = alias_frame(36, highest=80)
+    assert list(t.columns) == ["N_distinct", "order", "folds_from", "sin_added", "sin_subtracted", "equation"]
+    assert list(t["order"]) == list(range(19)) and set(t["N_distinct"]) == {36}
+    one = t.set_index("order").loc[1]
+    assert one["folds_from"] == "35 37 71 73"
+    assert one["sin_added"] == "37 73" and one["sin_subtracted"] == "35 71"
+    assert t.set_index("order").loc[18, "sin_added"] == ""          # the sine of N/2 vanishes at every sample
+
+
+def test_selection_document_uses_the_specs_explicit_orders(tmp_path):
+    """selection_document, the library of `jointcal select`, on the shipped synthetic module a: the
+    paper rule's and the cross-validated orders beside the ones used, the spec's own when it names them."""
+    from conftest import ROOT
+
+    from pipeline.core.spec import parse_spec
+    from pipeline.encoder.harmonic import analyse_runs
+    from pipeline.encoder.ingest import ingest_encoder
+    from pipeline.encoder.selection import selection_document
+
+    frame = ingest_encoder(ROOT / "raw" / "encoder" / "a")
+    text = (ROOT / "specs" / "encoder_paper.toml").read_text()
+    spec = parse_spec(text, "paper.toml")
+    harmonics = analyse_runs(frame)
+    doc = selection_document(frame, spec, harmonics)
+    assert doc["orders"] == doc["paper_rule_orders"] and doc["rule"] == spec.select.get("rule", "paper")
+    assert doc["cv_path"][0]["added"] is None
+    assert sorted(p["added"] for p in doc["cv_path"][1:]) == sorted(doc["cv_orders"])
+    assert 1 in doc["orders"] and doc["module"] == str(frame["module"].iloc[0])
+    own = selection_document(frame, parse_spec(text.replace('name = "harmonic"\n', 'name = "harmonic"\norders = [4, 1]\n'),
+                                               "own.toml"), harmonics)
+    assert own["orders"] == [1, 4] and own["rule"] == "spec" and own["paper_rule_orders"] == doc["paper_rule_orders"]

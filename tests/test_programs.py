@@ -871,3 +871,50 @@ def test_a_declared_target_used_under_two_tools_is_named(cells, tmp_path):
     assert "payload" in by_line[10]["reason"] and "tool frame" not in by_line[10]["reason"]
     named = [x for x in r.output.splitlines() if "used again" in x]
     assert len(named) == 2 and all("Two.mod:9:" in x or "Two.mod:10:" in x for x in named), r.output
+
+
+def test_played_poses_name_revisits_and_say_what_was_not_played(tmp_path):
+    """played_poses, the library of `jointcal simulate measure --program`: joint targets as written (rad ->
+    deg on a UR), a target visited again named #2, an unreachable one named with its line, the given payload
+    where the program states none."""
+    from pipeline.programs.io import read_program
+    from pipeline.programs.run import played_poses
+    from pipeline.robot.arm.kinematics import load_robot
+
+    (tmp_path / "a.script").write_text(
+        "def demo():\n  p1 = [0.1, -1.5, 1.4, -1.4, -1.6, 0.0]\n  movej(p1)\n"
+        "  movej([0.2, -1.5, 1.4, -1.4, -1.6, 0.0])\n  movej(p1)\n  movel(p[5.0, 5.0, 5.0, 0.0, 0.0, 0.0])\nend\n")
+    p = played_poses(read_program(tmp_path / "a.script"), load_robot(UR10), tool=[0.0] * 6, payload_kg=3.0)
+    assert list(p.point_id) == ["p1", "<inline>@4", "p1#2"]
+    assert np.allclose(p.q_deg[0], np.rad2deg([0.1, -1.5, 1.4, -1.4, -1.6, 0.0]))
+    assert np.allclose(p.q_deg[1, 0], np.rad2deg(0.2)) and np.array_equal(p.q_deg[0], p.q_deg[2])
+    assert list(p.payload_kg) == [3.0, 3.0, 3.0]
+    assert [(t.line, "inverse-kinematics" in why) for t, why in p.not_played] == [(6, True)]
+
+
+def test_filter_with_model_counts_and_payloads(cells, tmp_path):
+    """filter_with_model, the library of `jointcal correct --program`: the identity model changes no text;
+    a fitted one changes some, every motion counted once, each motion's payload from where it is stated."""
+    from pipeline.programs.io import read_program
+    from pipeline.programs.run import filter_with_model
+    from pipeline.robot.model.predict import load_model_document
+
+    program = read_program(DATA / "sample.script")
+    ident = json.loads((cells["tmp"] / "ur10_identity.json").read_text())
+    same = filter_with_model(program, ident, load_model_document(ident, "identity.json"))
+    assert same.texts == [s.text for s in program.sources] and same.largest_arcsec < 1e-3
+    fit = cells["ur10"]["fit"]
+    run = filter_with_model(program, fit, load_model_document(fit, "fit.json"), payload_kg=2.5)
+    assert sum(run.counts.values()) == len(run.filtered.rows) == len(program.targets)
+    assert run.counts.get("ok", 0) > 0 and run.largest_arcsec > 1.0 and run.moved_mm > 0.0
+    assert run.texts != same.texts
+    grouped = [r for rows in run.payloads.values() for r in rows]
+    assert sorted(map(id, grouped)) == sorted(map(id, run.filtered.rows))
+    for (kg, source), rows in run.payloads.items():
+        assert all((r["payload_kg"], r["payload_source"]) == (kg, source) for r in rows)
+        assert kg == 2.5 if source == "--payload" else source.startswith("program:")
+    lines = run.report(["f.script"], 0.0, ["a note"], 2.5)
+    left = [r for r in run.filtered.rows if r["status"] not in ("ok", "same_target")]
+    assert lines[0].startswith(f"f.script: {len(program.targets)} targets in 0.0 s: {run.counts['ok']} filtered")
+    assert len([x for x in lines if " left as given: " in x and x.startswith("  ")]) == len(left)
+    assert "  a note" in lines and "; payload: " in lines[-1]

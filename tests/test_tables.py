@@ -62,3 +62,32 @@ def test_a_table_passed_through_keeps_every_column_and_its_lines(tmp_path):
     path = tmp_path / "t.csv"
     path.write_text("\n point_id , q1\nA,1\n", encoding="utf-8")
     assert csv_header(path) == ["point_id", "q1"]
+
+
+def test_a_repeated_id_is_named_at_its_line_with_the_callers_message(tmp_path):
+    """check_unique_ids: the first row repeating an earlier id, at its own file line (a blank line
+    before it counted), in the caller's words; collected instead of raised when given Problems."""
+    from pipeline.core.tables import check_unique_ids
+
+    path = tmp_path / "poses.csv"
+    path.write_text("point_id,q1,q2\nA,1,2\nB,1,2\n\nC,1,2\nB,3,4\nA,5,6\n", encoding="utf-8")
+    frame = read_table(path, COLUMNS)
+    with pytest.raises(InputError) as err:
+        check_unique_ids(path, frame, "point_id '{id}' again (first on line {first})")
+    e = err.value
+    assert (e.line, e.column) == (6, "point_id")          # B repeats first, on line 6; A only on line 7
+    assert e.message == "point_id 'B' again (first on line 3)"
+    problems = Problems()
+    assert check_unique_ids(path, frame, "duplicate '{id}'", problems=problems) is None
+    assert [(p.line, p.message) for p in problems] == [(6, "duplicate 'B'")]
+    unique = read_table(path, COLUMNS).iloc[:3]
+    check_unique_ids(path, unique, "never raised '{id}'")    # A, B, C: no error
+
+
+def test_seen_ids_remember_the_first_line():
+    from pipeline.core.tables import SeenIds
+
+    seen = SeenIds()
+    assert seen.earlier("P1", 2) is None and seen.earlier("P2", 3) is None
+    assert seen.earlier("P1", 9) == 2 and seen.earlier("P1", 12) == 2      # always the first line
+    assert seen.earlier("p1", 13) is None                                  # ids are case-sensitive

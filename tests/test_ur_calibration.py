@@ -181,11 +181,11 @@ def test_a_ur_comes_back_as_its_own_calibration(imported):
     tracker's noise; its deltas are UR's kind (hundreds of metres on joints 2-3), not a delta against
     the imported robot (which would be near zero)."""
     from pipeline.export.chain import chain_positions, folded_chain
-    from pipeline.export.ur import read_calibration_conf, standard_dh
+    from pipeline.export.ur import standard_dh
     from pipeline.robot.model.predict import load_model_document
 
     tmp, fit = imported["tmp"], imported["fit"]
-    new = read_calibration_conf((tmp / "new.conf").read_text())
+    new = parse_calibration_conf((tmp / "new.conf").read_text())
     old = parse_calibration_conf(imported["conf"])
     assert "published DH of the UR10" in (tmp / "new.conf").read_text()
     assert np.abs(new["delta_d"][1:3]).max() > 100.0

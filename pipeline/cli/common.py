@@ -2,8 +2,8 @@
 
 The commands import the library (and numpy, pandas) inside their bodies, not at the top of
 their modules: the whole library pulls numpy, pandas, scipy, pinocchio, matplotlib and dask,
-2.2 s to import (measured with `python -X importtime`), which ``jointcal --help`` (0.07 s
-without it) and every command would otherwise pay whatever it uses. Each command imports what
+slow to import (docs/speed.md "Measurements behind the code"), which ``jointcal --help`` and
+every command would otherwise pay whatever it uses. Each command imports what
 it runs, which is also what ``make`` reads to know a stage's code (``mk/deps.py``).
 """
 

@@ -169,55 +169,16 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     import time
 
     from ..core.files import write_text
-    from ..correct.robot import ModelKinematics, correct_commands
-    from ..correct.targets import read_targets
-    from ..correct.write import corrected_csv
+    from ..correct.run import correct_targets
 
     _need_file(targets_path, "the targets: point_id, q1 … qN, one row per point")
-    from ..robot.model.rigid import assumptions, model_payload
-
-    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
-    payload = model_payload(doc.get("payloads_kg"))
-    kin = ModelKinematics(robot, model)
+    loaded = _load_robot_model(model_path, doc)
+    closed = _angle_problem(model_path, doc, closed_loop, len(loaded[0].joints))
     t0 = time.perf_counter()
-    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
-                      default_payload_kg=payload or 0.0)
-    from ..robot.model.uncertainty import load_prediction
-
-    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
-                           max_correction_deg, target_R=tg.target_R, stated=load_prediction(doc, model))
-    write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
-    c = res.counts()
-    ok = res.status == "ok"
-    worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
-    if res.u95_mm is not None and ok.any():
-        import numpy as np
-
-        worst += (f"; u95_mm {np.median(res.u95_mm[ok]):.3f} mm (median of the corrected rows, largest "
-                  f"{res.u95_mm[ok].max():.3f} mm)")
-    largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
-    click.echo(f"{out_path}: {len(res.status)} rows in {time.perf_counter() - t0:.1f} s: {c['ok']} corrected{largest}"
-               f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "
-               f"{c['correction_too_large']} beyond --max-correction-deg {max_correction_deg:g}, "
-               f"{c['no_solution']} without a solution", err=True)
-    if (~ok).any():
-        k = int(((~ok).nonzero())[0][0])
-        click.echo(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}", err=True)
-    if ok.any():
-        held_all = int((res.orientation_held[ok] == "all").sum())
-        pos_only = int(sum(r.startswith("orientation not held") for r in res.reason[ok]))
-        click.echo(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
-                   + (f"; {pos_only} corrected in position alone (holding the orientation too needed more than "
-                      f"--max-correction-deg {max_correction_deg:g})" if pos_only else "")
-                   + ("" if held_all + pos_only == ok.sum() else
-                      "; the rest only about the axes the measurements determine"), err=True)
-    missing = int((~tg.payload_given).sum())
-    click.echo(f"  {assumptions(doc, len(robot.joints))}"
-               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
-                  + ("" if payload is not None else " (the model was not fitted at one payload)") if missing else ""),
-               err=True)
+    run = correct_targets(targets_path, doc, loaded, max_correction_deg)
+    write_text(out_path, run.csv)
+    for line in run.report(out_path, time.perf_counter() - t0, max_correction_deg, closed):
+        click.echo(line, err=True)
 
 
 def _frame_option(text, name, fmt):
@@ -239,59 +200,24 @@ def _correct_program(model_path, doc, program_path, out_dir, tool_text, base_tex
     import time
 
     from ..core.files import write_json
-    from ..correct.robot import ModelKinematics
-    from ..programs.filtering import PAYLOAD_EFFECTS, filter_program, payloads
     from ..programs.io import read_program, write_all
-    from ..programs.text import rewrite
-    from ..robot.model.rigid import assumptions, model_payload
+    from ..programs.run import filter_with_model
 
     _need_program(program_path)
-    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    closed = _angle_problem(model_path, doc, closed_loop, len(robot.joints))
+    loaded = _load_robot_model(model_path, doc)
+    closed = _angle_problem(model_path, doc, closed_loop, len(loaded[0].joints))
     t0 = time.perf_counter()
     program = read_program(program_path)
     tool = _frame_option(tool_text, "--tool", program.format)
     base = _frame_option(base_text, "--base", program.format)
-    # the program's own payload, else --payload, else the model's one payload (as for a --targets row)
-    dependent = tuple(sorted({e.name for e in effects} & set(PAYLOAD_EFFECTS)))
-    kg, source = payloads(program, payload_kg, model_payload(doc.get("payloads_kg")), dependent)
-    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, kg,
-                         max_correction_deg, source)
-    texts = rewrite(program.sources, res.changes)
-    written = write_all(out_dir, program, texts)
-    rows = res.rows
-    counts = {}
-    for r in rows:
-        counts[r["status"]] = counts.get(r["status"], 0) + 1
-    ok = [r for r in rows if r["status"] == "ok"]
-    largest = max((r["max_correction_arcsec"] for r in ok), default=0.0)
-    moved = max((r["move_mm"] for r in ok), default=0.0)
-    click.echo(f"{', '.join(map(str, written))}: {len(rows)} targets in {time.perf_counter() - t0:.1f} s: "
-               f"{counts.get('ok', 0)} filtered (largest joint correction {largest:.1f} arcsec, largest target move "
-               f"{moved:.3f} mm), {len(res.changes)} numbers changed; left as given: "
-               + (", ".join(f"{v} {k}" for k, v in sorted(counts.items()) if k != "ok") or "none"), err=True)
-    for r in rows:
-        if r["status"] not in ("ok", "same_target"):
-            click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}", err=True)
-    for r in res.conflicts:
-        click.echo(f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}", err=True)
-    for note in program.notes:
-        click.echo(f"  {note}", err=True)
-    if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
-        click.echo(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it states one, "
-                   "the program's", err=True)
-    used = {}
-    for r in rows:
-        used.setdefault((r["payload_kg"], r["payload_source"]), []).append(r)
-    click.echo(f"  {assumptions(doc, len(robot.joints))}"
-               + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
-               + "; payload: " + "; ".join(f"{v:g} kg ({src}; {len(rs)} target{'s' if len(rs) > 1 else ''}, from "
-                                           f"{rs[0]['file']}:{rs[0]['line']})" for (v, src), rs in used.items()),
-               err=True)
+    run = filter_with_model(program, doc, loaded, tool, base, payload_kg, max_correction_deg)
+    written = write_all(out_dir, program, run.texts)
+    for line in run.report(written, time.perf_counter() - t0, program.notes, payload_kg, closed):
+        click.echo(line, err=True)
     if json_path:
         write_json(json_path, {"program": str(program_path), "format": program.format, "model": str(model_path),
-                               "payload_kg": payload_kg, "counts": counts, "files": [str(w) for w in written],
-                               "targets": rows})
+                               "payload_kg": payload_kg, "counts": run.counts, "files": [str(w) for w in written],
+                               "targets": run.filtered.rows})
 
 
 # ------------------------------------------------------------------------------ simulate measure
@@ -356,19 +282,15 @@ def _write_measured(campaign, robot, cell, point_id, sets, q, dirs, payload, tem
     """Move the cell to the poses q (n, N) deg, measure them, and write the campaign folder; returns the
     joints run closed loop on their gratings."""
     from ..core.files import write_text
-    from ..robot.cell.measure import campaign_tables, measure_poses
+    from ..robot.cell.measure import measured_campaign
 
     closed = _joint_list(closed_loop, len(robot.joints), "--closed-loop-joints")
     try:
-        dirs, xyz, gratings, R = measure_poses(cell, q, dirs, payload, temp, seed, closed, orientation=True)
+        files = measured_campaign(robot, cell, point_id, sets, q, dirs, payload, temp, seed, closed)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--closed-loop-joints") from None
-    poses_csv, tracker_csv = campaign_tables(point_id, sets, q, dirs, payload, temp, xyz,
-                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings, R,
-                                             cell.config.get("probe_sigma_arcsec"))
-    write_text(Path(campaign) / "robot.toml", robot.to_toml())
-    write_text(Path(campaign) / "poses.csv", poses_csv)
-    write_text(Path(campaign) / "tracker.csv", tracker_csv)
+    for name, text in files.items():
+        write_text(Path(campaign) / name, text)
     return closed
 
 
@@ -376,47 +298,27 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
                      closed_loop=()):
     import numpy as np
 
-    from ..programs.filtering import payloads, play
     from ..programs.io import read_program
+    from ..programs.run import played_poses
     from ..robot.cell.measure import measure_cell
 
     _need_program(program_path)
     robot, cell = measure_cell(truth_path, campaign, robot_path)
     program = read_program(program_path)
-    played = play(program, robot, _frame_option(tool_text, "--tool", program.format),
-                  _frame_option(base_text, "--base", program.format))
-    keep = [k for k, r in enumerate(played.reason) if not r]
-    for k, r in enumerate(played.reason):
-        if r:
-            t = program.targets[k]
-            click.echo(f"  {t.file}:{t.line}: {t.name} not played: {r}", err=True)
-    if not keep:
+    p = played_poses(program, robot, _frame_option(tool_text, "--tool", program.format),
+                     _frame_option(base_text, "--base", program.format), payload_kg)
+    for t, r in p.not_played:
+        click.echo(f"  {t.file}:{t.line}: {t.name} not played: {r}", err=True)
+    if not len(p.q_deg):
         raise InputError(program_path, "no motion of the program could be played", None, None)
-    names, seen = [], {}
-    for k in keep:
-        nm = program.targets[k].name
-        seen[nm] = seen.get(nm, 0) + 1
-        names.append(nm if seen[nm] == 1 else f"{nm}#{seen[nm]}")
-    q = played.q_deg[keep]
-    kg, _ = payloads(program, 0.0 if payload_kg is None else payload_kg)     # the program's own, else --payload
-    payload = kg[keep]
-    temp = np.full(len(q), 20.0)
-    _write_measured(campaign, robot, cell, np.array(names), np.full(len(q), "target"), q, None, payload, temp, seed,
-                    closed_loop)
-    click.echo(f"{campaign}: measured {len(q)} motions of {program_path} on the cell of {truth_path} "
-               f"({len(played.reason) - len(keep)} not played)", err=True)
+    n = len(p.q_deg)
+    _write_measured(campaign, robot, cell, p.point_id, np.full(n, "target"), p.q_deg, None, p.payload_kg,
+                    np.full(n, 20.0), seed, closed_loop)
+    click.echo(f"{campaign}: measured {n} motions of {program_path} on the cell of {truth_path} "
+               f"({len(p.not_played)} not played)", err=True)
 
 
 # ------------------------------------------------------------------------------ export
-def _ur_paths(out):
-    out = Path(out)
-    if out.suffix in (".yaml", ".yml"):
-        return out.with_suffix(".conf"), out
-    if out.suffix == ".conf":
-        return out, out.with_suffix(".yaml")
-    return out / "calibration.conf", out / "kinematics.yaml"
-
-
 @click.command("export")
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="A fitted robot model (jointcal fit --campaign); for --format table also an encoder model.")
@@ -458,130 +360,39 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
       jointcal export --model results/real/C_diagnosed.json --format urdf --out ur10_calibrated.urdf
     """
     from ..core.files import write_text
+    from ..export.run import ENCODER_NOTE, export_encoder, export_robot, heldout_export, heldout_line, ur_paths
 
     doc = read_json(model_path)
     if not _is_robot_model(doc):
         if fmt != "table":
             raise InputError(model_path, f"--format {fmt} needs a fitted robot model (jointcal fit --campaign); "
                              "an encoder model exports as --format table", 1, 1)
-        from ..encoder.evaluate import model_from_result
-        from ..export.table import encoder_table, table_csv
-
         try:
-            model = model_from_result(doc)
-            table = encoder_table(model, step_deg, joint=doc.get("module", 1) if isinstance(doc, dict) else 1)
-        except (KeyError, TypeError) as exc:
-            raise InputError(model_path, f"neither a fitted robot model nor an encoder model ({exc})", 1, 1) from None
+            text, n = export_encoder(doc, step_deg, model_path)
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--step-deg") from None
-        note = "harmonic terms of the joint module's encoder model; correction = -error, added to the reading"
-        write_text(out, table_csv(table, [note]))
-        click.echo(f"{out}: {len(table)} angles; {note}", err=True)
-        return
-    from ..export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, export_chain, folded_chain, leftover_cost
-    from ..robot.model.rigid import assumptions
-
-    robot, effects, model, sampled, frame = _load_robot_model(model_path, doc)
-    plain_model, plain_how = export_chain(robot, model, doc, sampled)
-    tables_model, tables_how = export_chain(robot, model, doc, sampled, with_tables=True)
-    chain_model, chain_how = (tables_model, tables_how) if with_tables else (plain_model, plain_how)
-    tabled = with_tables or fmt == "table"
-    carried = CHAIN_EFFECTS + TABLE_EFFECTS if tabled else CHAIN_EFFECTS
-    cost = leftover_cost(robot, model, sampled, carried, chain=tables_model if tabled else chain_model,
-                         payloads=doc.get("payloads_kg"))
-    what = {"urdf": "a URDF holds a rigid chain (geometry, base, tool)",
-            "ur": "UR's DH deltas and the ROS driver's YAML hold a rigid chain (geometry, base, tool)",
-            "table": "joint tables hold what depends on each joint's own angle (joint_map, joint_harmonic, "
-                     "backlash); with the chain `jointcal export --with-tables` writes"}[fmt]
-    if with_tables:
-        what += " for drives that apply the joint tables (--format table)"
-    if cost["left_out"]:
-        what += f"; the chain written is {chain_how}" if fmt != "table" else ""
-        note = (f"{what}; it cannot carry the rest of {', '.join(cost['left_out'])}: the model's prediction moves by "
-                f"{cost['rms_mm']:.4f} mm RMS, {cost['max_mm']:.4f} mm max without it ({cost['n']} poses: "
-                f"{cost['conditions']})")
-    else:
-        note = f"{what}; the model has nothing else: it is carried whole"
-    assumed = assumptions(doc, len(robot.joints))
-    comments = [f"jointcal export, format {fmt}, of {model_path}", note, assumed]
-    if fmt == "urdf":
-        from ..export.urdf import chain_urdf, rewrite_urdf
-
-        chain = folded_chain(robot, chain_model)
-        if urdf_path:
-            if not tip:
-                raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
-            _need_file(urdf_path, "the robot's URDF")
-            try:
-                text = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments, base_link)
-            except ValueError as exc:
-                raise InputError(urdf_path, str(exc), None, None) from None
-            except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)
-                raise InputError(urdf_path, f"not a readable URDF ({exc})", None, None) from None
-        else:
-            text = chain_urdf(robot.name + "_calibrated", chain, comments)
         write_text(out, text)
-        written = [out]
-    elif fmt == "ur":
-        from ..export.ur import calibration_conf, kinematics_yaml, published_reference, standard_dh
-        from ..robot.model.calibrate import RobotErrorModel
-
-        chain = folded_chain(robot, chain_model)
-        nominal = published_reference(robot, effects, doc["parameters"], folded_chain)   # a UR's own calibration
-        if nominal is None:
-            nominal_model = RobotErrorModel.from_parameters(robot, effects,
-                                                            [dict(p, value=0.0) for p in doc["parameters"]])
-            nominal = standard_dh(folded_chain(robot, nominal_model))
-        else:
-            comments.append(f"deltas against UR's published DH of the {robot.ur_model.upper()} (the robot was "
-                            "imported from its calibration.conf): this is its new calibration.conf")
-        fitted = standard_dh(chain, reference=nominal)
-        conf_path, yaml_path = _ur_paths(out)
-        write_text(conf_path, calibration_conf(fitted, nominal, chain["smr"], comments))
-        write_text(yaml_path, kinematics_yaml(chain, comments))
-        written = [conf_path, yaml_path]
-    else:
-        from ..export.table import robot_table, table_csv
-
-        table = robot_table(robot, model, sampled, step_deg)
-        if table.empty:
-            comments.append("the model has no effect of a joint's own angle: the table is empty")
-        write_text(out, table_csv(table, comments))
-        written = [out]
-    click.echo(f"{', '.join(map(str, written))}: written; {note}", err=True)
-    click.echo(f"  {assumed}", err=True)
+        click.echo(f"{out}: {n} angles; {ENCODER_NOTE}", err=True)
+        return
+    loaded = _load_robot_model(model_path, doc)
+    urdf = None
+    if fmt == "urdf" and urdf_path:
+        if not tip:
+            raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
+        _need_file(urdf_path, "the robot's URDF")
+        urdf = (urdf_path, tip, base_link)
+    exported = export_robot(model_path, doc, loaded, fmt, step_deg, with_tables, urdf)
+    paths = {"urdf": [out], "table": [out], "ur": list(ur_paths(out))}[fmt]
+    for path, (_, text) in zip(paths, exported.texts):
+        write_text(path, text)
+    click.echo(f"{', '.join(map(str, paths))}: written; {exported.note}", err=True)
+    click.echo(f"  {exported.assumed}", err=True)
     if heldout_campaign:
         from ..core.files import write_json
-        from ..export.chain import heldout_by_carrier
-        from ..robot.campaign.ingest import robot_data_sets
-        from ..robot.model.predict import same_robot_problem
 
-        from ..robot.model.outliers import describe, find_wild
-
-        other, (sample, target) = robot_data_sets(heldout_campaign, ("sample",), ("target",))
-        problem = same_robot_problem(robot, other)
-        if problem:
-            raise InputError(Path(heldout_campaign) / "robot.toml", problem, 1, 1)
-        if target.n == 0:
-            raise InputError(Path(heldout_campaign) / "poses.csv", "no target poses to measure the held-out error on",
-                             1, "set")
-        # wild measurements are named and left out of the held-out errors, as fit and predict do (contract
-        # section 12); the errors with them are given beside
-        wild = find_wild(robot, effects, sample, target, heldout_campaign)
-        if describe(wild):
-            click.echo(f"jointcal: {heldout_campaign}: {describe(wild)}", err=True)
-        h = heldout_by_carrier(robot, model, wild.clean(sample, target)[1], plain_model, tables_model)
-        if wild.target.any():
-            h["with_outliers"] = {k: v for k, v in heldout_by_carrier(robot, model, target, plain_model,
-                                                                      tables_model).items() if k.endswith("_mm") or k == "n"}
-        h.update(wild.document())
-        h.update({"model": str(model_path), "campaign": str(heldout_campaign), "effects": [e.name for e in effects]})
-        click.echo(f"held-out RMS on {h['n']} target poses of {heldout_campaign}: full model {h['full_rms_mm']:.3f} mm; "
-                   f"what a URDF / UR's parameters carry {h['chain_rms_mm']:.3f} mm (the model's own geometry "
-                   f"alone {h['model_geometry_rms_mm']:.3f} mm; leaves out "
-                   f"{', '.join(h['chain_left_out']) or 'nothing'}); with the joint tables {h['chain_tables_rms_mm']:.3f} mm "
-                   f"(the model's own geometry with them {h['model_geometry_tables_rms_mm']:.3f} mm) "
-                   f"(leaves out {', '.join(h['chain_tables_left_out']) or 'nothing'}); nominal {h['nominal_rms_mm']:.3f} mm",
-                   err=True)
+        h, wild = heldout_export(model_path, loaded, exported, heldout_campaign)
+        if wild:
+            click.echo(f"jointcal: {heldout_campaign}: {wild}", err=True)
+        click.echo(heldout_line(h, heldout_campaign), err=True)
         if json_out:
             write_json(json_out, h)

@@ -86,21 +86,12 @@ def harmonic(interim, out, n_max, grid_tol):
 @click.option("--highest", type=int, default=100, show_default=True, help="Highest order listed as a source.")
 def aliasing(interim, out, highest):
     """Tabulate which higher orders fold into each fitted order (paper 1, Eqs. 3-4)."""
-    import pandas as pd
-
     from ..core.files import write_csv
-    from ..encoder.aliasing import alias_table, max_full_order, max_order
+    from ..encoder.aliasing import alias_frame, max_full_order, max_order
     from ..encoder.effects import EncoderData
 
-    data = EncoderData.from_frame(read_interim(interim))
-    N = data.distinct_angles()
-    rows = alias_table(N, max_order(N), highest)
-    table = pd.DataFrame([{"order": r["order"], "folds_from": " ".join(map(str, r["cos_from"])),
-                           "sin_added": " ".join(map(str, r["sin_plus"])),
-                           "sin_subtracted": " ".join(map(str, r["sin_minus"])), "equation": r["equation"]}
-                          for r in rows])
-    table.insert(0, "N_distinct", N)
-    write_csv(out, table)
+    N = EncoderData.from_frame(read_interim(interim)).distinct_angles()
+    write_csv(out, alias_frame(N, highest))
     click.echo(f"{out}: N = {N} distinct angles, highest order {max_order(N)} "
                f"(both sine and cosine up to {max_full_order(N)})", err=True)
 
@@ -117,34 +108,20 @@ def select(interim, harmonics, spec_path, out):
     amplitude_strong_arcsec, or at least amplitude_min_arcsec with a phase range of at most
     phase_range_max_deg. The CV choice adds orders while the leave-one-run-out RMS falls.
     """
-    import numpy as np
-
     from ..core.files import provenance, write_json
-    from ..encoder.effects import EncoderData
-    from ..encoder.selection import cv_select, select_orders
+    from ..encoder.selection import selection_document
 
     spec = load_spec(spec_path)
     frame = read_interim(interim)
     table = read_interim(harmonics)
     try:
-        paper_orders, model_runs, rule = select_orders(frame, spec, table)
+        doc = selection_document(frame, spec, table)
     except ValueError as exc:
         fail_spec(spec_path, str(exc), r"^\s*(modelling_runs|validation_runs)\s*=")
-    h = spec.effect("harmonic")
-    explicit = h is not None and isinstance(h.params.get("orders"), list)
-    data = EncoderData.from_frame(frame)
-    n_fit = int(table["order"].max())
-    train = data.subset(np.isin(data.run, model_runs))
-    cv_orders, path = cv_select(train, n_fit)
-    chosen = sorted(h.params["orders"]) if explicit else paper_orders
-    write_json(out, {"module": str(frame["module"].iloc[0]), "orders": chosen,
-                     "rule": "spec" if explicit else spec.select.get("rule", "paper"),
-                     "paper_rule_orders": paper_orders, "cv_orders": cv_orders,
-                     "cv_path": [{"added": a, "cv_rms_arcsec": b} for a, b in path],
-                     "thresholds": spec.select, "modelling_runs": model_runs,
-                     "table": rule.to_dict(orient="records"),
-                     "provenance": provenance([interim, harmonics], spec_path)})
-    click.echo(f"{out}: paper rule {paper_orders}; cross-validated {cv_orders}; using {chosen}", err=True)
+    doc["provenance"] = provenance([interim, harmonics], spec_path)
+    write_json(out, doc)
+    click.echo(f"{out}: paper rule {doc['paper_rule_orders']}; cross-validated {doc['cv_orders']}; using {doc['orders']}",
+               err=True)
 
 
 @click.command()

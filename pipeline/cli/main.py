@@ -104,7 +104,7 @@ def main(argv=None):
 
     The command's work done (its files written and renamed, its lines printed), the process ends at once:
     the exit handlers run (temporary files, worker processes) and the streams are flushed, but the
-    interpreter does not tear down its modules and arrays one by one (0.2 s after a large fit). An
+    interpreter does not tear down its modules and arrays one by one (docs/speed.md). An
     exception that is not a command's end (a bug) takes the normal way, with its traceback."""
     try:
         cli.main(args=argv, prog_name="jointcal")

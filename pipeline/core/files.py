@@ -20,9 +20,9 @@ import numpy as np
 from .. import __version__
 from .errors import InputError
 
-# pyarrow and pandas are imported inside the functions that use them: 0.12 s and 0.32 s to import
-# (measured with `python -X importtime`), which everything loading this module would pay (every
-# command, the spec loader, `jointcal summary` that reads and writes only JSON)
+# pyarrow and pandas are imported inside the functions that use them: their import time
+# (docs/speed.md) everything loading this module would pay (every command, the spec loader,
+# `jointcal summary` that reads and writes only JSON)
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)

@@ -1,8 +1,8 @@
-"""Giving freed memory back to the operating system between long stages (issue 32).
+"""Giving freed memory back to the operating system between long stages.
 
-A stage of many medium-sized arrays (a diagnosis round on 7,144 6-DoF poses: candidates' columns, fold fits)
-leaves its freed memory in the C allocator's heap, where it still counts in the process's resident set and in
-every process forked from it: 350 MB of a diagnosis loop's 600 MB between its rounds on the real Series A.
+A stage of many medium-sized arrays (a diagnosis round: candidates' columns, fold fits) leaves its freed
+memory in the C allocator's heap, where it still counts in the process's resident set and in every process
+forked from it (how much: docs/speed.md "Measurements behind the code").
 """
 
 from __future__ import annotations

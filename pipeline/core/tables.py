@@ -33,6 +33,38 @@ class Problems(list):
             raise self[0]
 
 
+class SeenIds:
+    """The ids met so far, each with the line it was first met on: the one check that an id (a
+    ``point_id``) appears once, row by row (:meth:`earlier`) or over a table (:func:`check_unique_ids`)."""
+
+    def __init__(self):
+        self.lines = {}
+
+    def earlier(self, value, line):
+        """The line ``value`` was met on before (None the first time; then it is remembered at ``line``)."""
+        if value in self.lines:
+            return self.lines[value]
+        self.lines[value] = line
+        return None
+
+
+def check_unique_ids(path, frame, message: str, column: str = "point_id", problems: Problems | None = None) -> None:
+    """The first row of a :func:`read_table` frame whose ``column`` repeats an earlier row's: an InputError
+    at its file, line and column, raised (``problems`` None) or collected.
+
+    ``message`` is formatted with ``id`` (the repeated value) and ``first`` (the line it was first on).
+    """
+    seen = SeenIds()
+    for value, line in zip(frame[column].tolist(), frame["_line"].tolist()):
+        first = seen.earlier(value, line)
+        if first is not None:
+            err = InputError(path, message.format(id=value, first=first), int(line), column)
+            if problems is None:
+                raise err
+            problems.append(err)
+            return
+
+
 _JOINT_COLUMN = re.compile(r"(q|dir)(\d+)")
 
 

@@ -2,9 +2,8 @@
 the library so that the commands' ``--help`` can state it (:mod:`pipeline.robot.model.outliers` applies it)."""
 
 #: A pose is wild beyond this many robust standard deviations (per axis) of a flexible model's
-#: residuals. Gaussian noise passes 6 sigma (3-D) once in 10^7 poses; real residuals are heavier
-#: tailed (what no model here has: the real UR10 series' clean poses reach 9.4 sigma), so the
-#: threshold is twice the Gaussian bound: a point 12 sigma off is not the tail of anything smooth.
+#: residuals: twice the Gaussian bound (6 sigma in 3-D, once in 10^7 poses), as real residuals are
+#: heavier tailed (docs/speed.md "Measurements behind the code").
 WILD_SIGMAS = 12.0
 #: The nearest sample poses (joint space, each joint scaled by its sampled range) a wild pose's
 #: residual is compared with.
@@ -12,7 +11,7 @@ NEIGHBOURS = 8
 #: More than this fraction of a campaign's poses wild (and more than :data:`HANDFUL`): refused.
 MAX_WILD_FRACTION = 0.02
 #: Up to this many wild poses are named, never refused, however small the campaign: one wild point in
-#: the 20 poses ``jointcal plan`` proposes is 5 % of them, and an SMR reseated, not a wrong frame (issue 32).
+#: the 20 poses ``jointcal plan`` proposes is 5 % of them, and an SMR reseated, not a wrong frame.
 #: From 150 poses on, 2 % is more than this and decides alone.
 HANDFUL = 3
 #: The flexible model gives a scale when it leaves at least this fraction of its residuals' degrees of

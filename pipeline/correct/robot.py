@@ -408,7 +408,7 @@ def angle_mismatch(sources, closed) -> str:
     ``sources``: the fit JSON's ``joint_angles`` (:func:`pipeline.robot.model.rigid.joint_angle_sources`;
     None: every joint commanded). A joint whose model takes a secondary encoder's angle (a grating)
     has its transmission error, compliance and backlash hidden from the model: open loop they are
-    all there (0.64 mm on the KR210 cell against its model's 0.07 mm held out). A joint whose model
+    all there (docs/speed.md "Measurements behind the code"). A joint whose model
     takes the commanded angle carries those errors in the model: closed loop they are gone.
     """
     sources = list(sources or [])

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.tables import FLOAT, SIGN, STR, csv_header, find_joint_columns, read_table
+from ..core.tables import FLOAT, SIGN, STR, check_unique_ids, csv_header, find_joint_columns, read_table
 from ..core.units import REFERENCE_TEMPERATURE_C
 
 #: A point to reach this far (mm) from the nominal kinematics of its own joint values is not the same
@@ -59,11 +59,7 @@ def read_targets(path, n_joints: int, nominal_xyz=None, default_payload_kg: floa
         raise InputError(path, f"column '{extra[0]}': the model's robot has {n_joints} joints (q1 … q{n_joints})",
                          1, extra[0])
     lines = frame["_line"].to_numpy(int)
-    dup = frame["point_id"].duplicated()
-    if dup.any():
-        k = int(np.argmax(dup.to_numpy()))
-        raise InputError(path, f"point_id '{frame['point_id'].iloc[k]}' appears twice; ids must be unique",
-                         lines[k], "point_id")
+    check_unique_ids(path, frame, "point_id '{id}' appears twice; ids must be unique")
     xyz_cols = [c for c in ("x_mm", "y_mm", "z_mm") if c in frame]
     if xyz_cols and len(xyz_cols) < 3:
         missing = [c for c in ("x_mm", "y_mm", "z_mm") if c not in frame]

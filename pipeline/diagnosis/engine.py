@@ -29,7 +29,7 @@ import multiprocessing as mp
 import os
 
 import numpy as np
-# scipy.special's distribution functions are what scipy.stats' sf calls; importing scipy.stats costs ~2 s a command
+# scipy.special's distribution functions are what scipy.stats' sf calls, without importing scipy.stats (docs/speed.md)
 from scipy import special
 
 from ..core.crossval import CVResult
@@ -373,7 +373,7 @@ def _forward_check(adapter, data, base_effects, base, candidates, objects, p_max
         clash = _overlap_with(objects[id(c)], [(a, objects[id(a)]) for a in accepted], base_effects)
         if clash:
             # one of an overlapping pair at most: their columns model the same thing, and together
-            # the fit trades one against the other (issue 16: 0.06 mm alone, 0.79 mm together)
+            # the fit trades one against the other (docs/speed.md "Measurements behind the code")
             c["meaningful"] = False
             c["overlaps"] = clash
             c["refused"] = (f"overlaps {clash}: both model the same joint's angle error, and a round recommends "

@@ -137,8 +137,8 @@ def _screen_one(k):
 def _screen(robot, trials: list[str], sample, jobs: int | None = None) -> list[tuple[float, float]]:
     """:func:`model_cv` of each spec text in ``trials``, in order; in up to ``jobs`` forked processes
     (default: the CPUs this process may use; Linux, not from inside a worker). Each screen is the same
-    computation as in one process, so the numbers are the same (real Series A of the IPA UR10, 11,911
-    6-DoF poses: round 2 screened 12 swaps, 6-15 s each, a fit of 7,144 x 6 rows and its cross-validation)."""
+    computation as in one process, so the numbers are the same (what a screen costs: docs/speed.md
+    "Measurements behind the code")."""
     global _SCREEN
     import multiprocessing as mp
     import sys

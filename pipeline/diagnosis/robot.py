@@ -32,8 +32,8 @@ def span_weights(J) -> np.ndarray:
     of any X (m, c) in an orthonormal basis of the span are ``W.T @ (J.T @ X)``.
 
     The span is that of J's columns scaled to unit norm, with singular values above 1e-9 of the largest
-    (:func:`pipeline.robot.model.calibrate.scaled_svd`: a 6-DoF baseline's J is 43,000 x 800, and its U would
-    be another 275 MB kept, issue 32)."""
+    (:func:`pipeline.robot.model.calibrate.scaled_svd`: a 6-DoF baseline's U would be as large as J again,
+    docs/speed.md "Measurements behind the code")."""
     m, k = J.shape
     if k == 0 or m == 0:
         return np.zeros((k, 0))
@@ -86,8 +86,8 @@ class RobotAdapter:
 
     def linear_done(self, data) -> None:
         """Diagnosis has measured every candidate on the shared fit; what follows refits (the recommended
-        set, fold by fold). Without ``keep_linear`` the shared fit's dense columns (a 6-DoF baseline's
-        43,000 x 573: 196 MB) and the candidates' are let go here, not held through those refits (issue 32);
+        set, fold by fold). Without ``keep_linear`` the shared fit's dense columns (hundreds of MB for a 6-DoF
+        baseline) and the candidates' are let go here, not held through those refits;
         the orientation weight, the shared fit's, is kept."""
         if self.keep_linear:
             return

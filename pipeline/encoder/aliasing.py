@@ -84,3 +84,23 @@ def alias_table(n_distinct: int, n_fit: int, highest: int = 100) -> list[dict]:
             eq += f";  b{i} not estimable (sin({i} theta) = 0 at every sample)"
         rows.append({"order": i, "cos_from": cos_from, "sin_plus": plus, "sin_minus": minus, "equation": eq})
     return rows
+
+
+def alias_frame(n_distinct: int, highest: int = 100):
+    """``jointcal aliasing``'s table: :func:`alias_table` for every order N distinct angles resolve, one row an
+    order, the folding orders as space-separated text.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``N_distinct``, ``order``, ``folds_from``, ``sin_added``, ``sin_subtracted``, ``equation``.
+    """
+    import pandas as pd
+
+    rows = alias_table(n_distinct, max_order(n_distinct), highest)
+    table = pd.DataFrame([{"order": r["order"], "folds_from": " ".join(map(str, r["cos_from"])),
+                           "sin_added": " ".join(map(str, r["sin_plus"])),
+                           "sin_subtracted": " ".join(map(str, r["sin_minus"])), "equation": r["equation"]}
+                          for r in rows])
+    table.insert(0, "N_distinct", n_distinct)
+    return table

@@ -139,3 +139,42 @@ def select_orders(frame, spec, harmonics=None):
         harmonics = analyse_runs(frame[frame["run"].isin(model_runs)], n_max=h.params.get("n_max") if h else None)
     orders, table = paper_rule(harmonics, model_runs, spec.select)
     return orders, model_runs, table
+
+
+def selection_document(frame, spec, harmonics) -> dict:
+    """``jointcal select``'s result: the paper rule's orders, the cross-validated choice, and the orders used.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        Ingested readings (``jointcal ingest``; angles deg, errors arcsec).
+    spec : Spec
+        An encoder spec with ``[select]`` thresholds; its harmonic effect's explicit ``orders`` win.
+    harmonics : DataFrame
+        Per-run coefficients (``jointcal harmonic``; amplitudes arcsec, phases deg).
+
+    Returns
+    -------
+    dict
+        ``module``, ``orders`` (used), ``rule``, ``paper_rule_orders``, ``cv_orders``, ``cv_path`` (each
+        order added with the leave-one-run-out RMS, arcsec), ``thresholds``, ``modelling_runs``, ``table``.
+
+    Raises
+    ------
+    ValueError
+        The spec's modelling or validation runs do not fit the data (:func:`select_orders`).
+    """
+    paper_orders, model_runs, rule = select_orders(frame, spec, harmonics)
+    h = spec.effect("harmonic")
+    explicit = h is not None and isinstance(h.params.get("orders"), list)
+    data = EncoderData.from_frame(frame)
+    n_fit = int(harmonics["order"].max())
+    train = data.subset(np.isin(data.run, model_runs))
+    cv_orders, path = cv_select(train, n_fit)
+    chosen = sorted(h.params["orders"]) if explicit else paper_orders
+    return {"module": str(frame["module"].iloc[0]), "orders": chosen,
+            "rule": "spec" if explicit else spec.select.get("rule", "paper"),
+            "paper_rule_orders": paper_orders, "cv_orders": cv_orders,
+            "cv_path": [{"added": a, "cv_rms_arcsec": b} for a, b in path],
+            "thresholds": spec.select, "modelling_runs": model_runs,
+            "table": rule.to_dict(orient="records")}

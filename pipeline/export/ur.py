@@ -135,7 +135,10 @@ def _pose_line(M: pin.SE3) -> str:
 
 
 def calibration_conf(fitted: dict, nominal: dict, smr: pin.SE3, comments: list[str]) -> str:
-    """``calibration.conf``-style text: ``[mounting]`` deltas (fitted - nominal DH, rad and m)."""
+    """``calibration.conf``-style text: ``[mounting]`` deltas (fitted - nominal DH, rad and m).
+
+    Read back by :func:`pipeline.robot.campaign.ur.parse_calibration_conf` (the one reader of a
+    ``calibration.conf``, as ``jointcal import`` reads a UR's own)."""
     dtheta = np.angle(np.exp(1j * (fitted["theta"] - nominal["theta"])))
     lines = [f"# {c}" for c in comments]
     lines += ["# Standard DH: T_i = Rz(theta_i + delta_theta_i + q_i) Tz(d_i + delta_d_i) Tx(a_i + delta_a_i) "
@@ -152,17 +155,6 @@ def calibration_conf(fitted: dict, nominal: dict, smr: pin.SE3, comments: list[s
                    ("delta_d", fitted["d"] - nominal["d"]), ("delta_alpha", fitted["alpha"] - nominal["alpha"])):
         lines.append(f"{key} = [" + ", ".join(_num(x) for x in v) + "]")
     return "\n".join(lines) + "\n"
-
-
-def read_calibration_conf(text: str) -> dict:
-    """The four delta lists of a ``[mounting]`` section (for checks)."""
-    out = {}
-    for line in text.splitlines():
-        s = line.split("#")[0].strip()
-        if "=" in s:
-            k, v = (t.strip() for t in s.split("=", 1))
-            out[k] = np.array([float(x) for x in v.strip("[]").split(",")])
-    return out
 
 
 def yaml_origins(chain: dict) -> list[pin.SE3]:

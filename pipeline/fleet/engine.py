@@ -235,9 +235,8 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
             failed += out[-1]["status"] != "ok"
             say(len(out), total, failed)
         return out
-    # imported here, not at the top: dask.distributed takes 0.37 s to import (measured with
-    # `python -X importtime`), which a --serial run and every user of this module's statistics
-    # (fleet.report, the tests) would pay
+    # imported here, not at the top: dask.distributed is slow to import (docs/speed.md), which a --serial
+    # run and every user of this module's statistics (fleet.report, the tests) would pay
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -254,8 +253,8 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
         import dask
         import multiprocessing
 
-        # and without Dask's statistical profiler, which samples the running unit's stack every 10 ms: 2.6 s
-        # of a 20.4 s run of 300 modules on 2 workers (measured; it is for Dask's dashboard, not started here)
+        # and without Dask's statistical profiler, which samples the running unit's stack every 10 ms
+        # (docs/speed.md "Measurements behind the code"; it is for Dask's dashboard, not started here)
         method = "fork" if sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods() \
             else "spawn"
         with dask.config.set({"distributed.worker.multiprocessing-method": method,
@@ -264,8 +263,8 @@ def run_units(campaigns, spec_text, spec_path, diagnose=True, scheduler=None, wo
                                    silence_logs=logging.ERROR)
         client = Client(cluster)
     try:
-        # units go in chunks (CHUNKS_PER_WORKER a worker): a task of 0.1 s paid the scheduler's round trip and
-        # the result's transfer each (0.99x on 2 workers, issue 32); a chunk amortises them, and a worker
+        # units go in chunks (CHUNKS_PER_WORKER a worker): a task a unit pays the scheduler's round trip and
+        # the result's transfer each (docs/speed.md, "Fleet at scale"); a chunk amortises them, and a worker
         # imports the pipeline once (its first chunk), not per task
         n_workers = max(1, len(client.scheduler_info().get("workers", {})) or workers)
         chunks = chunked(range(total), n_workers * CHUNKS_PER_WORKER)

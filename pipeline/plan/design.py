@@ -40,18 +40,16 @@ RIDGE = 1e-9
 #: Joint values closer than this (deg, every joint) are the same pose
 SAME_POSE_DEG = 1e-6
 #: Reveal: ``log det M_full - DS_WEIGHT log det M_model`` = (1 - w) D of the larger model + w Ds of the
-#: effect: pure Ds (w = 1) chose the same few poses twice for backlash (the play told apart, the model
-#: left 1.7 mm uncertain on the real UR10 pool); half of each keeps enough distinct poses to fit the
-#: larger model.
+#: effect: half of each keeps enough distinct poses to fit the larger model, which pure Ds (w = 1) did
+#: not (docs/speed.md "Measurements behind the code").
 DS_WEIGHT = 0.5
 #: Model-robust D-optimality (DuMouchel & Jones 1994, "A simple Bayesian modification of D-optimal
 #: designs to reduce dependence on an assumed model"): the design also gathers information on
 #: *potential terms* - errors the model lacks - held by a prior: the second paper's error transfer
 #: (Chebyshev) terms of this order on every joint, orthogonalised against the model's parameters,
-#: scaled like them, with this prior precision (one pose's worth). On the real UR10 a held-out error
-#: floor of 0.45 mm comes from such errors, not from noise; plain D-optimal poses (extreme postures)
-#: then fitted worse than the median random draw at 30 and 60 poses on Series C. Order 2 and
-#: precision 1 are the method's textbook choice (unit prior on scaled terms); no other was tried.
+#: scaled like them, with this prior precision (one pose's worth); why plain D-optimality was not
+#: enough: docs/speed.md "Measurements behind the code". Order 2 and precision 1 are the method's
+#: textbook choice (unit prior on scaled terms); no other was tried.
 POTENTIAL_ORDER = 2
 POTENTIAL_PRECISION = 1.0
 #: A pool pose within this of a measured one (deg, every joint) is that pose again (--campaign never

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.files import read_text_input
-from ..core.tables import csv_rows, fields_problem, find_joint_columns
+from ..core.tables import SeenIds, csv_rows, fields_problem, find_joint_columns
 
 
 @dataclass
@@ -50,7 +50,7 @@ def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") ->
         raise InputError(path, f"column {dup[0]!r} appears twice in the header", 1, dup[0])
     col = {c: k for k, c in enumerate(header)}
     has_payload = "payload_kg" in col
-    ids, Q, pay, seen = [], [], [], {}
+    ids, Q, pay, seen = [], [], [], SeenIds()
     lower, upper = np.asarray(lower_deg, float), np.asarray(upper_deg, float)
     for ln, row in rows:
         ragged = fields_problem(header, row)
@@ -59,9 +59,9 @@ def parse_pool(text: str, n_joints: int, lower_deg, upper_deg, path="<pool>") ->
         pid = row[col["point_id"]].strip()
         if not pid:
             raise InputError(path, "empty point_id", ln, "point_id")
-        if pid in seen:
-            raise InputError(path, f"point_id {pid!r} already on line {seen[pid]}", ln, "point_id")
-        seen[pid] = ln
+        first = seen.earlier(pid, ln)
+        if first is not None:
+            raise InputError(path, f"point_id {pid!r} already on line {first}", ln, "point_id")
         q = []
         for j in range(1, n_joints + 1):
             name = f"q{j}"

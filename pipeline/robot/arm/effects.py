@@ -740,18 +740,15 @@ class JointHarmonic(RobotEffect):
         error_deg[:, j] += hidden["arcsec"] / 3600 * np.sin(hidden["order"] * q_rad[:, j] + np.deg2rad(hidden["phase_deg"]))
 
 
-#: Beyond the sampled range of its joint a joint map fades to zero over this many degrees: the model
-#: falls back to geometry where it has seen nothing (measured on the real UR10: flat at the edge
-#: value made the other series' max error worse, 1.94 -> 2.13 mm; fading made it better, 1.85 mm).
+#: Beyond its joint's sampled range a joint map fades to zero over this many degrees, back to geometry
+#: where it has seen nothing (the real UR10's other series, docs/speed.md "Measurements behind the code").
 JOINT_MAP_FADE_DEG = 5.0
-#: Default grid step (deg) and curvature penalty (relative to the number of poses) of a joint map:
-#: on the real UR10's Series C, 2 deg and 1e-4 left 0.107 mm held-out RMS, 1 deg / 1e-3 0.104 mm,
-#: 5 deg 0.15 mm, 10 deg 0.39 mm.
+#: Default grid step (deg) and curvature penalty (relative to the number of poses) of a joint map: the
+#: coarsest step as good held out as a finer one on the real UR10 (docs/speed.md "Measurements behind the code").
 JOINT_MAP_STEP_DEG = 2.0
 JOINT_MAP_SMOOTHING = 1e-4
-#: A small pull of every grid value towards zero (relative to the number of poses, like the
-#: smoothing): a stretch of the grid that no pose covers decays to zero within a few knots instead
-#: of continuing the slope of its neighbours (which sent a held-out home pose 0.8 mm off).
+#: A pull of every grid value towards zero (relative to the number of poses): a stretch no pose covers
+#: decays to zero within a few knots instead of continuing its neighbours' slope.
 JOINT_MAP_RIDGE = 1e-4
 
 

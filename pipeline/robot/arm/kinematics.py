@@ -415,7 +415,7 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
     ``jacobian`` its positional frame Jacobian (world-aligned), for models whose joints from the root to
     the frame are 1-dof axis joints (the error model's, :func:`build_error_model`). The same numbers as
     pinocchio's ``forwardKinematics`` / ``getFrameJacobian(LOCAL_WORLD_ALIGNED)`` to rounding (tested),
-    about 20 times faster on 51 joints (issue 32). None for any other model.
+    faster than its loop over the poses (docs/speed.md "Measurements behind the code"). None for any other model.
 
     Parameters
     ----------
@@ -460,8 +460,8 @@ def batch_placements(model: pin.Model, Q: np.ndarray, frame: str = "smr", jacobi
 def batch_frames(model: pin.Model, Q: np.ndarray, frames: list, joints: tuple = (), last: str = "smr"):
     """The placements of several frames (and joints) on the chain from the root to ``last``, for every
     configuration at once: one walk of :func:`batch_placements`' numpy kinematics instead of pinocchio's
-    loop over the poses (issue 32: the frames' deviations cost 0.3 s a fit on 12,000 poses, 5.5 s a
-    diagnosis). None when the chain is not all 1-dof axis joints or a frame is not on it.
+    loop over the poses (docs/speed.md "Measurements behind the code"). None when the chain is not all 1-dof
+    axis joints or a frame is not on it.
 
     Parameters
     ----------
@@ -658,7 +658,7 @@ def directions_from_sequence(q_deg, start_deg=None, start_dir=None):
         return np.empty(q.shape, int)
     # each pose's move from the one before (the first from start_deg; none without it), +1 / -1 / 0 (no
     # move, or not a number), and a 0 carries the last sign before it (start_dir before the first): one
-    # pass for every pose at once (the loop over poses took 0.14 s on 12,000)
+    # pass for every pose at once, not a loop over the poses
     before = np.vstack([q[:1] if start_deg is None else np.asarray(start_deg, float)[None], q[:-1]])
     diff = q - before
     step = (diff > 0).astype(int) - (diff < 0).astype(int)

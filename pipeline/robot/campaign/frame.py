@@ -33,27 +33,19 @@ import numpy as np
 from ..arm.kinematics import build_model, placements
 
 # --------------------------------------------------------------------------- thresholds
-#: Largest RMS (mm) of the residual, over all poses, after the best rigid fit of the nominal SMR
-#: positions onto the measured ones, that a real robot's errors produce. Measured (fit on the
-#: sample poses): a real UR10 (IPA data set, whole workspace, UR's nominal DH and a probe 16 mm
-#: off its nominal tool) leaves 2.9 mm (series B, 1,495 poses) and 5.7 mm (series C, 2,773
-#: poses; with the tool free both leave about 1.0 mm, the probe at 92.9 mm instead of 109 mm);
-#: the simulated KR210 cell 0.34 mm. The corruptions the contract names leave, on the
-#: KR210 campaign, 18 mm (a tool 200 mm off: its orientations span only +-10 deg, so most of the
-#: offset is a translation the fit absorbs) to 380 mm, 23 mm for joint 6's sign (a 72 mm
-#: lever) and 43 mm for joint 4's; on the UR10, 22 mm (tool 200 mm off) to 1,000 mm. 10 mm is
-#: about twice the worst real robot and about half the mildest corruption.
+#: Largest RMS (mm) of the residual after the best rigid fit of the nominal SMR positions onto the
+#: measured ones that a real robot's errors produce: about twice the worst real robot and about half
+#: the mildest corruption the contract names (docs/speed.md "Measurements behind the code").
 MAX_RMS_MM = 10.0
-#: Largest error (mm) of one pose after that fit: the real UR10 reaches 12.2 mm (series C). A
-#: pose 60 mm off is a wrong measurement or a wrong row, not a robot error.
+#: Largest error (mm) of one pose after that fit: five times the worst real pose seen; a pose 60 mm off
+#: is a wrong measurement or a wrong row, not a robot error.
 MAX_POINT_MM = 60.0
 #: When at most this fraction of the poses (at least one) are beyond :data:`MAX_POINT_MM` and the
 #: rest fit, those poses are named as wrong measurements rather than the whole campaign.
 OUTLIER_FRACTION = 0.05
-#: With ``frame = "base"`` the fit itself must be near identity: a robot's base error is a few
-#: mm and a fraction of a degree (the KR210 cell: 0.1 mm, 0.01 deg); a translation beyond
-#: this (mm) or a rotation beyond :data:`MAX_BASE_ROTATION_DEG` (deg) means the points are in
-#: another frame, the tracker's (the UR10's tracker: 3,820 mm and 20 deg from its base).
+#: With ``frame = "base"`` the fit itself must be near identity: a robot's base error is a few mm and a
+#: fraction of a degree, so a translation beyond this (mm) or a rotation beyond :data:`MAX_BASE_ROTATION_DEG`
+#: (deg) means the points are in another frame, the tracker's (docs/speed.md "Measurements behind the code").
 MAX_BASE_TRANSLATION_MM = 100.0
 MAX_BASE_ROTATION_DEG = 3.0
 #: A hypothesis explains the data when its refit's RMS is within :data:`MAX_RMS_MM` and at most

@@ -42,6 +42,7 @@ import numpy as np
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import _UMASK, read_bytes_input, read_text_input
+from ...core.tables import SeenIds
 from .frame import JOINT_UNITS, LENGTH_UNITS, MAX_RMS_MM, other_units, refit, unit_hypotheses
 from .ingest import ingest_robot
 from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
@@ -564,14 +565,14 @@ def build_campaign(source: Source, imap: ImportMap, robot, robot_text: str, prov
     cols.update(imap.columns)
     if "point_id" in imap.columns:
         pid = strings(source, imap.columns["point_id"])
-        seen: dict[str, int] = {}
+        seen = SeenIds()
         for i, p in enumerate(pid):
             if not p:
                 raise InputError(source.path, "empty point id", source.lines[i], imap.columns["point_id"])
-            if p in seen:
-                raise InputError(source.path, f"point id '{p}' repeats line {source.lines[seen[p]]}; ids must be unique",
+            first = seen.earlier(p, source.lines[i])
+            if first is not None:
+                raise InputError(source.path, f"point id '{p}' repeats line {first}; ids must be unique",
                                  source.lines[i], imap.columns["point_id"])
-            seen[p] = i
     else:
         width = max(4, len(str(n)))
         pid = [f"{i + 1:0{width}d}" for i in range(n)]

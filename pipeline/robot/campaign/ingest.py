@@ -39,7 +39,8 @@ import pandas as pd
 
 from ...core.errors import InputError, parse_toml
 from ...core.files import read_text_input
-from ...core.tables import FLOAT, INT, SIGN, STR, TIME, Problems, csv_header, find_joint_columns, read_table
+from ...core.tables import (FLOAT, INT, SIGN, STR, TIME, Problems, check_unique_ids, csv_header, find_joint_columns,
+                            read_table)
 from . import frame as rf
 from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData
 from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, load_robot, positions
@@ -72,16 +73,12 @@ RAW_COLUMNS = ("x_tracker_mm", "y_tracker_mm", "z_tracker_mm")
 
 
 def _dup(path, frame, problems):
-    dup = frame["point_id"].duplicated(keep="first")
-    if dup.any():
-        i = int(np.argmax(dup.to_numpy()))
-        problems.add(path, f"duplicate point_id '{frame['point_id'].iloc[i]}'; each point appears once",
-                     int(frame["_line"].iloc[i]), "point_id")
+    check_unique_ids(path, frame, "duplicate point_id '{id}'; each point appears once", problems=problems)
 
 
 def _member(series, values) -> pd.Series:
-    """``series.isin(values)`` for text columns by a Python set (pandas' isin on its Arrow strings took
-    0.1 s a call on 12,000 rows, issue 32); NaN is no member."""
+    """``series.isin(values)`` for text columns by a Python set (pandas' isin on its Arrow strings is slow
+    at a user's scale: docs/speed.md "Measurements behind the code"); NaN is no member."""
     pool = set(v for v in values if isinstance(v, str))
     return pd.Series([isinstance(v, str) and v in pool for v in series.tolist()], index=series.index, dtype=bool)
 

@@ -21,7 +21,7 @@ import pandas as pd
 
 from ...core.errors import InputError
 from ...core.files import read_json_input
-from ...core.tables import FLOAT, SIGN, STR, read_table
+from ...core.tables import FLOAT, SIGN, STR, check_unique_ids, read_table
 from ...core.units import REFERENCE_TEMPERATURE_C
 from ..arm.kinematics import Robot, directions_from_sequence, load_robot, parse_robot
 from .simulate import VirtualCell, add_orientations, rng_for
@@ -151,6 +151,45 @@ def campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, 
     return poses.to_csv(index=False, lineterminator="\n"), tracker.to_csv(index=False, lineterminator="\n")
 
 
+def measured_campaign(robot: Robot, cell: VirtualCell, point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c,
+                      seed=None, closed_loop_joints=()) -> dict:
+    """A campaign folder's files (contract section 2): the cell moved to commanded poses and measured.
+
+    Parameters
+    ----------
+    robot : Robot
+        The cell's nominal robot (``robot.toml``).
+    cell : VirtualCell
+    point_id, sets : ndarray of str, shape (n,)
+    q_cmd_deg : ndarray, shape (n, N), deg
+        Commanded poses, in visiting order.
+    dirs : ndarray, shape (n, N), int (+1/-1), or None
+        Approach directions (None: from the visiting order).
+    payload_kg : ndarray, shape (n,), kg
+    temperature_c : ndarray, shape (n,), degC
+    seed : int, optional
+        Seed of the jitter and tracker noise (None: the cell's).
+    closed_loop_joints : sequence of int
+        Joints (1-based) run closed loop on their gratings.
+
+    Returns
+    -------
+    dict
+        File name (``robot.toml``, ``poses.csv``, ``tracker.csv``) -> text, in writing order.
+
+    Raises
+    ------
+    ValueError
+        A closed-loop joint the cell has no grating on (:func:`measure_poses`).
+    """
+    dirs, xyz, gratings, R = measure_poses(cell, q_cmd_deg, dirs, payload_kg, temperature_c, seed, closed_loop_joints,
+                                           orientation=True)
+    poses_csv, tracker_csv = campaign_tables(point_id, sets, q_cmd_deg, dirs, payload_kg, temperature_c, xyz,
+                                             float(cell.config.get("tracker_sigma_mm", 0.0)), gratings, R,
+                                             cell.config.get("probe_sigma_arcsec"))
+    return {"robot.toml": robot.to_toml(), "poses.csv": poses_csv, "tracker.csv": tracker_csv}
+
+
 # ------------------------------------------------------------------------ the command's inputs
 _HINT = "run the stage that makes it first, or `make all`"
 
@@ -200,10 +239,7 @@ def read_commanded_poses(path, robot: Robot) -> dict:
                        {"payload_kg": FLOAT, "temperature_c": FLOAT, "set": STR,
                         **{f"dir{j}": SIGN for j in range(1, nj + 1)}})
     lines = frame["_line"].to_numpy(int)
-    dup = frame["point_id"].duplicated().to_numpy()
-    if dup.any():
-        k = int(np.argmax(dup))
-        raise InputError(path, f"point_id '{frame['point_id'].iloc[k]}' appears twice", lines[k], "point_id")
+    check_unique_ids(path, frame, "point_id '{id}' appears twice")
     sets = frame["set"].replace("", "target").to_numpy(str) if "set" in frame else np.full(len(frame), "target")
     bad = ~np.isin(sets, ("sample", "target", "repeat"))
     if bad.any():

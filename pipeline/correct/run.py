@@ -1,0 +1,120 @@
+"""``jointcal correct --targets``: a targets file corrected with a fitted robot model (contract section 8).
+
+:func:`correct_targets` is the whole job between reading the inputs and writing the output: the
+targets read and checked (:func:`pipeline.correct.targets.read_targets`), every row corrected
+(:func:`pipeline.correct.robot.correct_commands`), the corrected program as CSV text
+(:func:`pipeline.correct.write.corrected_csv`). The command (``pipeline.cli.deploy``) reads the model,
+writes the text and prints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..robot.model.rigid import assumptions, model_payload
+from ..robot.model.uncertainty import load_prediction
+from .robot import Correction, ModelKinematics, correct_commands
+from .targets import Targets, read_targets
+from .write import corrected_csv
+
+
+@dataclass
+class CorrectedTargets:
+    """What :func:`correct_targets` returns for n rows of an N-joint robot.
+
+    Attributes
+    ----------
+    targets : Targets
+        The targets file as read (``point_id`` (n,), ``lines`` (n,) 1-based, ``payload_kg`` (n,) kg,
+        ``payload_given`` (n,) bool, ...).
+    result : Correction
+        The corrected commands (``q_deg`` (n, N) deg, ``dq_arcsec`` (n, N) arcsec, ``status`` (n,), ...).
+    csv : str
+        The corrected program (:func:`pipeline.correct.write.corrected_csv`).
+    payload_kg : float or None, kg
+        The one payload the model was fitted at (rows without ``payload_kg`` are corrected at it, or at
+        0 kg when None).
+    assumed : str
+        What the model assumes of the robot, in words (:func:`pipeline.robot.model.rigid.assumptions`).
+    """
+
+    targets: Targets
+    result: Correction
+    csv: str
+    payload_kg: float | None
+    assumed: str
+
+    def report(self, out_path, seconds: float, max_correction_deg: float, closed=()) -> list[str]:
+        """The console's lines: rows corrected and left as given (and the first of them, with its line),
+        the largest correction (arcsec), residual (um) and u95 (mm), the orientation held, what was assumed.
+
+        ``seconds`` the time the correction took; ``closed`` the joints (1-based) run closed loop.
+        """
+        res, tg, payload = self.result, self.targets, self.payload_kg
+        c = res.counts()
+        ok = res.status == "ok"
+        worst = f", largest residual {res.residual_um[ok].max():.2g} um" if ok.any() else ""
+        if res.u95_mm is not None and ok.any():
+            worst += (f"; u95_mm {np.median(res.u95_mm[ok]):.3f} mm (median of the corrected rows, largest "
+                      f"{res.u95_mm[ok].max():.3f} mm)")
+        largest = f", largest correction {abs(res.dq_arcsec[ok]).max():.1f} arcsec" if ok.any() else ""
+        lines = [f"{out_path}: {len(res.status)} rows in {seconds:.1f} s: {c['ok']} corrected{largest}"
+                 f"{worst}; left as given: {c['outside_sampled_range']} outside the sampled joint range, "
+                 f"{c['correction_too_large']} beyond --max-correction-deg {max_correction_deg:g}, "
+                 f"{c['no_solution']} without a solution"]
+        if (~ok).any():
+            k = int(((~ok).nonzero())[0][0])
+            lines.append(f"  first left as given: {tg.point_id[k]} (line {tg.lines[k]}): {res.reason[k]}")
+        if ok.any():
+            held_all = int((res.orientation_held[ok] == "all").sum())
+            pos_only = int(sum(r.startswith("orientation not held") for r in res.reason[ok]))
+            lines.append(f"  orientation held: all of it on {held_all} of {int(ok.sum())} corrected rows"
+                         + (f"; {pos_only} corrected in position alone (holding the orientation too needed more "
+                            f"than --max-correction-deg {max_correction_deg:g})" if pos_only else "")
+                         + ("" if held_all + pos_only == ok.sum() else
+                            "; the rest only about the axes the measurements determine"))
+        missing = int((~tg.payload_given).sum())
+        lines.append(f"  {self.assumed}"
+                     + (f"; closed loop on their encoders: joints {' '.join(map(str, closed))}" if closed else "")
+                     + (f"; {missing} row(s) without payload_kg corrected at {payload or 0.0:g} kg"
+                        + ("" if payload is not None else " (the model was not fitted at one payload)")
+                        if missing else ""))
+        return lines
+
+
+def correct_targets(targets_path, doc: dict, loaded: tuple, max_correction_deg: float) -> CorrectedTargets:
+    """Correct every row of a targets file with a fitted robot model.
+
+    Parameters
+    ----------
+    targets_path : path-like
+        The targets file (:func:`pipeline.correct.targets.read_targets`): ``point_id, q1 … qN`` (deg),
+        optional ``x_mm, y_mm, z_mm`` (mm, base frame), ``payload_kg``, ``dir1 … dirN``, ``temperature_c``.
+    doc : dict
+        The fit JSON (``payloads_kg``, ``joint_angles``, the stated uncertainty).
+    loaded : tuple
+        ``(robot, effects, model, sampled, frame)`` of
+        :func:`pipeline.robot.model.predict.load_model_document` of ``doc``.
+    max_correction_deg : float, deg
+        A row needing a larger correction of any joint is left as given.
+
+    Returns
+    -------
+    CorrectedTargets
+
+    Raises
+    ------
+    InputError
+        The first problem of the targets file (file, line, column).
+    """
+    robot, effects, model, sampled, frame = loaded
+    payload = model_payload(doc.get("payloads_kg"))
+    kin = ModelKinematics(robot, model)
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
+                      default_payload_kg=payload or 0.0)
+    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
+                           max_correction_deg, target_R=tg.target_R, stated=load_prediction(doc, model))
+    text = corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c)
+    return CorrectedTargets(tg, res, text, payload, assumptions(doc, len(robot.joints)))

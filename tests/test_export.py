@@ -325,4 +325,5 @@ def test_user_urdf_export_refuses_another_tool_or_urdf(tmp_path):
     r = cli_invoker()(*base, "--urdf", other, "--tool-mm", *map(str, FANUC_TOOL_MM))
     assert r.exit_code == 2
     assert "joint 'joint_3' of the URDF lies" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"{other}:53:3:" in r.output            # the file, line and column of joint_3
     assert not (tmp_path / "cal.urdf").exists()

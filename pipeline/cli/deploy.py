@@ -510,20 +510,15 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, tool_mm, base_link, heldout
     assumed = assumptions(doc, len(robot.joints))
     comments = [f"jointcal export, format {fmt}, of {model_path}", note, assumed]
     if fmt == "urdf":
-        from ..export.urdf import chain_urdf, rewrite_urdf
+        from ..export.urdf import chain_urdf, rewrite_urdf_file
 
         chain = folded_chain(robot, chain_model)
         if urdf_path:
             if not tip:
                 raise click.UsageError("--urdf needs --tip LINK (the link the SMR is given in, as for jointcal import)")
             _need_file(urdf_path, "the robot's URDF")
-            try:
-                text, _ = rewrite_urdf(Path(urdf_path).read_text(encoding="utf-8"), tip, chain, comments, base_link,
-                                       nominal=folded_chain(robot, chain_model, keep=()), tool_mm=tool_mm)
-            except ValueError as exc:
-                raise InputError(urdf_path, str(exc), None, None) from None
-            except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)
-                raise InputError(urdf_path, f"not a readable URDF ({exc})", None, None) from None
+            text = rewrite_urdf_file(urdf_path, tip, chain, comments, base_link,
+                                     nominal=folded_chain(robot, chain_model, keep=()), tool_mm=tool_mm)
         else:
             text = chain_urdf(robot.name + "_calibrated", chain, comments)
         write_text(out, text)

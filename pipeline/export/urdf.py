@@ -79,13 +79,21 @@ def _chain_joints(root: ET.Element, tip: str) -> list[ET.Element]:
     by_child = {j.find("child").get("link"): j for j in root.findall("joint")}
     links = {l.get("name") for l in root.findall("link")}
     if tip not in links:
-        raise ValueError(f"no link '{tip}' in the URDF (links: {', '.join(sorted(links)[:8])} …)")
+        raise UrdfProblem(f"no link '{tip}' in the URDF (links: {', '.join(sorted(links)[:8])} …)")
     chain, link = [], tip
     while link in by_child:
         j = by_child[link]
         chain.append(j)
         link = j.find("parent").get("link")
     return chain[::-1]
+
+
+class UrdfProblem(ValueError):
+    """A URDF that cannot take the model, with the element it is about (``tag``, ``name``) to locate it."""
+
+    def __init__(self, message: str, tag: str = "robot", name: str | None = None):
+        super().__init__(message)
+        self.tag, self.name = tag, name
 
 
 #: how far (mm, deg) a URDF joint axis may lie from where the model's nominal robot has it
@@ -172,17 +180,18 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
     moving = [j for j in joints if j.get("type") in ("revolute", "continuous")]
     n = len(chain["origins"])
     if len(moving) != n:
-        raise ValueError(f"the URDF's chain to '{tip}' has {len(moving)} revolute joints; the model has {n}")
+        raise UrdfProblem(f"the URDF's chain to '{tip}' has {len(moving)} revolute joints; the model has {n}", "link",
+                          tip)
     pm = pin.buildModelFromXML(text)
     pdata = pm.createData()
     pin.forwardKinematics(pm, pdata, pin.neutral(pm))
     pin.updateFramePlacements(pm, pdata)
     links = {l.get("name") for l in root.findall("link")}
     if base is not None and base not in links:
-        raise ValueError(f"no link '{base}' in the URDF for --base")
+        raise UrdfProblem(f"no link '{base}' in the URDF for --base")
     oMb = pdata.oMf[pm.getFrameId(base)].copy() if base is not None else pin.SE3.Identity()
     if base is not None and pm.frames[pm.getFrameId(base)].parentJoint != 0:
-        raise ValueError(f"base link '{base}' is not on the chain before the first revolute joint")
+        raise UrdfProblem(f"base link '{base}' is not on the chain before the first revolute joint", "link", base)
     cal, nom = _joint_frames(chain, oMb), _joint_frames(nominal, oMb)
     # the user's link frames on the bodies of the model's joint frames (nominal robot, q = 0)
     user = [pdata.oMi[pm.getJointId(j.get("name"))].copy() for j in moving]
@@ -193,9 +202,9 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
         off_deg = np.rad2deg(np.arccos(np.clip(axis_in_J[2], -1.0, 1.0)))
         off_mm = float(np.linalg.norm(Xi.translation[:2])) * 1000.0
         if off_deg > AXIS_TOL_DEG or off_mm > AXIS_TOL_MM:
-            raise ValueError(f"joint '{j.get('name')}' of the URDF lies {off_mm:.4g} mm / {off_deg:.4g} deg from "
+            raise UrdfProblem(f"joint '{j.get('name')}' of the URDF lies {off_mm:.4g} mm / {off_deg:.4g} deg from "
                              f"joint {i + 1} of the model's robot: give the URDF the robot was imported from, with "
-                             "the same --tip and --base as jointcal import")
+                             "the same --tip and --base as jointcal import", "joint", j.get("name"))
         X.append(Xi)
     # D_i: how the calibration moves body i at zero command (root frame); D_0 = identity (the fixed base)
     D = [pin.SE3.Identity()] + [(cal[i] * X[i]) * user[i].inverse() for i in range(n)]
@@ -214,8 +223,8 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
     smr_nom_mm = tip_nom.actInv(nom[-1]).translation * 1000.0
     if np.linalg.norm(smr_nom_mm - given) > AXIS_TOL_MM:
         said = f"--tool-mm {_fmt_mm(given)}" if tool_mm is not None else "its origin (no --tool-mm)"
-        raise ValueError(f"the model's robot has the SMR at {_fmt_mm(smr_nom_mm)} mm in link '{tip}''s frame, not at "
-                         f"{said}: give --tip and --tool-mm as to jointcal import")
+        raise UrdfProblem(f"the model's robot has the SMR at {_fmt_mm(smr_nom_mm)} mm in link '{tip}''s frame, not at "
+                         f"{said}: give --tip and --tool-mm as to jointcal import", "link", tip)
     tip_cal = D[n] * tip_nom
     smr = tip_cal.actInv(cal[-1])
     probe = not (np.allclose(nominal["smr"].rotation, np.eye(3), atol=1e-12)
@@ -231,6 +240,28 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
     return _insert_after_declaration(out, head), info
 
 
+def rewrite_urdf_file(path, tip: str, chain: dict, comments: list[str], base: str | None = None, *, nominal: dict,
+                      tool_mm=None) -> str:
+    """:func:`rewrite_urdf` on the file ``path``; a problem is an :class:`InputError` at the element it is about."""
+    from ..core.errors import InputError
+    from ..core.files import read_text_input
+    from ..robot.campaign.urdf import tag_line
+
+    text = read_text_input(path, "URDF")
+    try:
+        return rewrite_urdf(text, tip, chain, comments, base, nominal=nominal, tool_mm=tool_mm)[0]
+    except UrdfProblem as exc:
+        line, col = tag_line(text, exc.tag, exc.name)
+        if line is None:
+            line, col = tag_line(text, "robot")
+        raise InputError(path, str(exc), line, col) from None
+    except ET.ParseError as exc:
+        line, col = exc.position
+        raise InputError(path, f"not valid XML: {str(exc).split(':')[0]}", line, col + 1) from None
+    except (ValueError, RuntimeError) as exc:
+        raise InputError(path, f"not a URDF jointcal can rewrite ({' '.join(str(exc).split())[:300]})", 1, 1) from None
+
+
 def _free_child_name(root: ET.Element, parent: str, name: str) -> str:
     """``name``, or ``jointcal_<name>`` when the URDF has a link ``name`` that is not a fixed child of ``parent``."""
     for cand in (name, f"jointcal_{name}"):
@@ -239,8 +270,8 @@ def _free_child_name(root: ET.Element, parent: str, name: str) -> str:
         if not exists or (joint is not None and joint.get("type") == "fixed"
                           and joint.find("parent").get("link") == parent):
             return cand
-    raise ValueError(f"the URDF has links '{name}' and 'jointcal_{name}' elsewhere than on '{parent}': rename one, "
-                     "the SMR is written as that link")
+    raise UrdfProblem(f"the URDF has links '{name}' and 'jointcal_{name}' elsewhere than on '{parent}': rename one, "
+                      "the SMR is written as that link", "link", name)
 
 
 def _put_fixed_child(text: str, root: ET.Element, parent: str, child: str, origin: tuple[str, str]) -> str:

@@ -637,3 +637,53 @@ def test_a_timestamp_that_is_not_iso_or_not_the_maps_format_is_named_in_the_sour
                "--robot", ROBOT, "--out", out)
     m = _fails(r, out)
     assert (m["line"], m["col"]) == ("2", "Timestamp"), r.stderr
+
+
+# --------------------------------------------------- a user's URDF: messages in its own terms
+FANUC_LIKE = ROOT / "tests" / "data" / "urdf" / "fanuc_like.urdf"   # synthetic, ROS-Industrial style
+
+
+def _fanuc_like_export(tmp_path, smr_in_link6_mm, n=60, seed=3):
+    """A synthetic tracker export of the FANUC-like URDF's arm (tracker frame, 0.05 mm noise): an SMR
+    at ``smr_in_link6_mm`` in link_6's frame; the source and its map."""
+    import pinocchio as pin
+
+    m = pin.buildModelFromUrdf(str(FANUC_LIKE))
+    d = m.createData()
+    fid = m.getFrameId("link_6")
+    rng = np.random.default_rng(seed)
+    Q = rng.uniform([-150, -50, -60, -180, -110, -180], [150, 60, 80, 180, 110, 180], (n, 6))
+    R = pin.exp3(np.array([0.1, -0.2, 0.7]))
+    P = []
+    for q in np.deg2rad(Q):
+        pin.framesForwardKinematics(m, d, q)
+        P.append(R @ d.oMf[fid].act(np.asarray(smr_in_link6_mm, float) / 1000.0) * 1000.0 + [2500.0, -300.0, 150.0])
+    P = np.array(P) + rng.normal(0.0, 0.05, (n, 3))
+    src = tmp_path / "fanuc.csv"
+    src.write_text("\n".join(["id,j1,j2,j3,j4,j5,j6,x,y,z"] + [
+        ",".join([f"P{i}"] + [f"{v:.6f}" for v in Q[i]] + [f"{v:.4f}" for v in P[i]]) for i in range(n)]) + "\n")
+    mp = tmp_path / "fanuc_map.toml"
+    mp.write_text('[joints]\ncolumns = ["j1", "j2", "j3", "j4", "j5", "j6"]\nunit = "deg"\n'
+                  '[position]\ncolumns = ["x", "y", "z"]\nunit = "mm"\nframe = "tracker"\n'
+                  '[columns]\npoint_id = "id"\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    return src, mp
+
+
+def test_wrong_tool_suggestion_can_be_typed_in_the_tip_links_frame(invoke, tmp_path):
+    """With --tip link_6 and no tool, import suggests the SMR in link_6's frame, as --tool-mm takes it, and
+    the message names the URDF (not robot.toml); typed back, the suggestion imports. (Before: the SMR in
+    the internal DH flange frame, [195.2, 46.6, -204.5], refused again when typed.)"""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2))
+    out = tmp_path / "camp"
+    m = _fails(invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--out", out),
+               out, "fanuc_like.urdf")
+    line = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+                  "--out", out).stderr
+    assert "robot.toml" not in line and "fanuc_like.urdf (--tip link_6)" in line, line
+    typed = re.search(r"\(--tool-mm (\S+) (\S+) (\S+)\)", line)
+    assert typed, line
+    assert np.allclose([float(v) for v in typed.groups()], [204.5, 46.6, 195.2], atol=0.15)
+    assert m["line"] == "31"                     # the <link name="link_6"> element
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+               "--tool-mm", *typed.groups(), "--out", out)
+    assert r.exit_code == 0, r.output

@@ -238,7 +238,8 @@ class Consistency:
     ``err`` every pose's residual (mm), ``worst`` the index of the worst pose. ``cause`` is the
     explanation :func:`diagnose` found (empty when none), ``hypothesis`` its name (``radians``,
     ``metres``, ``sign<j>``, ``swap<j><k>``, ``tool``, ``frame``, ``outlier``), ``file`` the file
-    it points at (``poses``, ``tracker`` or ``robot``) and ``column`` the column.
+    it points at (``poses``, ``tracker`` or ``robot``) and ``column`` the column; ``tool_mm`` the SMR
+    (flange frame, mm) that fits when the cause is the tool.
     """
 
     ok: bool
@@ -256,6 +257,7 @@ class Consistency:
     n_outliers: int = 0
     rest_rms_mm: float = 0.0
     tried: dict = field(default_factory=dict)
+    tool_mm: object = None           # hypothesis "tool": the SMR (3,) mm in the flange frame that fits
 
     @property
     def translation_mm(self) -> float:
@@ -601,6 +603,7 @@ def diagnose(robot, model, q, meas, rows, Rf, pf, out: Consistency) -> Consisten
             out.tried["tool"] = r
             if r <= limit:
                 off = tool - np.asarray(robot.tool_xyz_mm, float)
+                out.tool_mm = tool
                 best = (r, "tool", "robot", "xyz_mm",
                         f"a wrong tool: with the SMR at [{tool[0]:.1f}, {tool[1]:.1f}, {tool[2]:.1f}] mm in the "
                         f"flange frame, {np.linalg.norm(off):.0f} mm from [tool] xyz_mm of robot.toml, the points "

@@ -881,18 +881,49 @@ def _robot_location(exc: InputError, tmpdir: Path, robot_path):
     return None, None
 
 
+def _in_urdf_terms(message: str, robot_path, tip, base, tool_mm, tool_fit) -> str:
+    """A message about the imported robot.toml said in the terms of the URDF the user gave.
+
+    ``robot.toml`` becomes the URDF's name; a wrong tool's suggestion (``tool_fit``, the SMR in the
+    flange frame {N} that fits, mm) is given in the ``--tip`` link's frame, the frame ``--tool-mm`` is
+    read in, as the option to type.
+    """
+    name = Path(robot_path).name
+    if tool_fit is not None:
+        _, info = robot_from_urdf(robot_path, tip, base, tool_mm, checks=0)
+        R, t = info["tip_in_flange"]
+        local = R.T @ (np.asarray(tool_fit, float) - t)
+        given = np.zeros(3) if tool_mm is None else np.asarray(tool_mm, float)
+        said = f"--tool-mm {' '.join(f'{v:g}' for v in given)}" if tool_mm is not None else "its origin (no --tool-mm)"
+        typed = " ".join(f"{v:.1f}" for v in local)
+        message = re.sub(r"a wrong tool: with the SMR at \[[^\]]*\] mm in the flange frame, \d+ mm from \[tool\] "
+                         r"xyz_mm of robot\.toml,",
+                         f"a wrong tool: with the SMR at [{typed.replace(' ', ', ')}] mm in link '{tip}''s frame "
+                         f"(--tool-mm {typed}), {np.linalg.norm(local - given):.0f} mm from {said},", message)
+    message = message.replace("zero offsets (theta_offset_deg) of robot.toml", f"joint zeros of {name}")
+    return message.replace("robot.toml", f"{name} (--tip {tip})", 1).replace("robot.toml", name)
+
+
 def translate(exc: InputError, tmpdir: Path, camp: Campaign, imap: ImportMap, source: Source, robot_path,
-              robot_where=(None, None)) -> InputError:
+              robot_where=(None, None), urdf=None) -> InputError:
     """An error ``ingest_robot`` found in the temporary campaign, named where the user can fix it.
 
     A row's problem is named at the source's line and column; a refusal of the whole campaign
     by the nominal-consistency check at the map line its likely cause points to (frame, unit,
     joint columns); a robot problem in the robot file given (at ``robot_where`` for a URDF).
+    ``urdf``: ``(tip, base, tool_mm)`` of a URDF robot, whose messages are then said in its terms
+    (:func:`_in_urdf_terms`).
     """
     p = Path(exc.path)
     if p.parent.resolve() != Path(tmpdir).resolve():
         return exc
     name = p.name
+    if urdf is not None and is_urdf(robot_path):
+        said = _in_urdf_terms(exc.message, robot_path, *urdf, getattr(exc, "tool_mm", None))
+        if said != exc.message:
+            hyp, kind, tool = (getattr(exc, k, None) for k in ("hypothesis", "kind", "tool_mm"))
+            exc = InputError(exc.path, said, exc.line, exc.column)
+            exc.hypothesis, exc.kind, exc.tool_mm = hyp, kind, tool
     if name in ("poses.csv", "tracker.csv"):
         fix = _map_fix(getattr(exc, "hypothesis", "") or "")
         if fix is not None:
@@ -908,7 +939,10 @@ def translate(exc: InputError, tmpdir: Path, camp: Campaign, imap: ImportMap, so
     if name == "campaign.toml":
         line, col = imap.where.key("position", "frame")
         return InputError(imap.path, f"{exc.message} (in the imported campaign.toml)", line, col)
-    line, col = robot_where if is_urdf(robot_path) else _robot_location(exc, Path(tmpdir), robot_path)
+    if is_urdf(robot_path):
+        return InputError(robot_path, exc.message if urdf is not None else f"{exc.message} (in the imported robot.toml)",
+                          *robot_where)
+    line, col = _robot_location(exc, Path(tmpdir), robot_path)
     return InputError(robot_path, f"{exc.message} (in the imported robot.toml)", line, col)
 
 
@@ -1066,7 +1100,8 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
         try:
             ingest_robot(tmp)
         except InputError as exc:
-            raise translate(exc, Path(tmp), camp, imap, source, robot_path, robot_where) from None
+            raise translate(exc, Path(tmp), camp, imap, source, robot_path, robot_where,
+                            (tip, base, tool_mm) if is_urdf(robot_path) else None) from None
 
     install_campaign(out_dir, camp.files, validate)
     n_s = int((camp.sets == "sample").sum())

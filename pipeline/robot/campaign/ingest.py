@@ -306,7 +306,8 @@ def consistency_error(folder, c: "rf.Consistency", point_ids, poses_lines, track
 
     The error also carries ``hypothesis`` (the cause found: ``radians``, ``metres``, ``sign<j>``,
     ``swap<j><k>``, ``tool``, ``frame``, ``outlier``, or ``""`` when none explains the data) and
-    ``kind`` (``residual``, ``outlier``, ``frame``), for callers that point at their own inputs
+    ``kind`` (``residual``, ``outlier``, ``frame``) and ``tool_mm`` (the SMR in the flange frame that fits,
+    when the cause is the tool), for callers that point at their own inputs
     (``jointcal import``) instead of parsing the message.
 
     Parameters
@@ -322,6 +323,7 @@ def consistency_error(folder, c: "rf.Consistency", point_ids, poses_lines, track
     """
     err = _consistency_error(Path(folder), c, point_ids, poses_lines, tracker_lines, robot)
     err.hypothesis, err.kind = c.hypothesis, c.kind
+    err.tool_mm = c.tool_mm
     return err
 
 

@@ -687,3 +687,45 @@ def test_wrong_tool_suggestion_can_be_typed_in_the_tip_links_frame(invoke, tmp_p
     r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
                "--tool-mm", *typed.groups(), "--out", out)
     assert r.exit_code == 0, r.output
+
+
+def test_headerless_space_separated_export(invoke, tmp_path):
+    """[source] header = false with columns by number (and delimiter = " ": runs of spaces) imports the same
+    campaign as the file with a header; a headerless file read as headed, or a column number beyond its
+    fields, is named as a file without a header. (Before: "column '16' is not in the header (line 1)".)"""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=30)
+    rows = src.read_text().splitlines()[1:]
+    bare = tmp_path / "bare.txt"
+    bare.write_text("".join("  ".join(r.split(",")) + " \n" for r in rows))
+    numbered = tmp_path / "numbered.toml"
+    numbered.write_text('[source]\ndelimiter = " "\nheader = false\n'
+                        '[joints]\ncolumns = [2, 3, 4, 5, 6, 7]\nunit = "deg"\n'
+                        '[position]\ncolumns = [8, 9, 10]\nunit = "mm"\nframe = "tracker"\n'
+                        '[columns]\npoint_id = 1\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    robot = ("--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert invoke("import", "--source", src, "--map", mp, *robot, "--out", a).exit_code == 0
+    r = invoke("import", "--source", bare, "--map", numbered, *robot, "--out", b)
+    assert r.exit_code == 0, r.output
+    for f in ("poses.csv", "tracker.csv"):
+        assert (a / f).read_bytes() == (b / f).read_bytes()
+    # the map of the headed file on the headerless one: named as a file without a header
+    headed = tmp_path / "headed.toml"
+    headed.write_text(mp.read_text().replace("[joints]", '[source]\ndelimiter = " "\n[joints]'))
+    out = tmp_path / "c"
+    m = _fails(invoke("import", "--source", bare, "--map", headed, *robot, "--out", out), out, "headed.toml")
+    line = invoke("import", "--source", bare, "--map", headed, *robot, "--out", out).stderr
+    assert ("line 1 is numbers (9 of its 10 fields), not column names: a file without a header; set [source] "
+            "header = false" in line), line
+    assert m["line"] == "4"                          # [joints] columns, at "j1"
+    # a column number beyond the fields
+    beyond = tmp_path / "beyond.toml"
+    beyond.write_text(numbered.read_text().replace("[8, 9, 10]", "[8, 9, 16]"))
+    m = _fails(invoke("import", "--source", bare, "--map", beyond, *robot, "--out", out), out, "beyond.toml")
+    line = invoke("import", "--source", bare, "--map", beyond, *robot, "--out", out).stderr
+    assert "column 16 is beyond the 10 fields of line 1 of bare.txt (a file without a header" in line, line
+    assert (m["line"], m["col"]) == ("8", "18")      # the 16 in [position] columns
+    # a name where the file has none
+    named = tmp_path / "named.toml"
+    named.write_text(numbered.read_text().replace("[8, 9, 10]", '[8, "y", 10]'))
+    _fails(invoke("import", "--source", bare, "--map", named, *robot, "--out", out), out, "named.toml")

@@ -48,7 +48,7 @@ from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "orientation", "uncertainty", "columns", "split")
-KEYS = {"source": ("delimiter", "decimal", "timestamp_format"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
+KEYS = {"source": ("delimiter", "decimal", "timestamp_format", "header"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
         "split": ("sample_fraction", "seed", "column"), "orientation": ("columns", "kind", "sequence", "unit"),
         "uncertainty": ("position_columns", "orientation_columns")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
@@ -98,6 +98,10 @@ class _Locator:
                 at = text.find(q + item + q, col - 1 if k == line - 1 else 0)
                 if at >= 0:
                     return k + 1, at + 1
+            if item.isdigit():            # a column given by number: [1, 2, 3]
+                m = re.search(r"(?<![\w.])" + item + r"(?![\w.])", text[(col - 1 if k == line - 1 else 0):])
+                if m:
+                    return k + 1, m.start() + (col if k == line - 1 else 1)
         return line, col
 
 
@@ -124,6 +128,8 @@ class ImportMap:
     uncertainty: dict | None = None
     #: strptime format of the source's timestamp column, or None (ISO-8601)
     timestamp_format: str | None = None
+    #: False: the source has no header line; its columns are named by number ("1" = the first)
+    header: bool = True
 
     def locate_column(self, name: str):
         """Line and column in the map where the source column ``name`` is named."""
@@ -163,6 +169,17 @@ def _unknown(path, where, found, known, section=None):
                 raise InputError(path, f"unknown section [{k}] in the map{hint}", line, col)
             line, col = where.key(section, k)
             raise InputError(path, f"unknown key '{k}' in [{section}]{hint}", line, col)
+
+
+def _numbered(doc, section: str, key: str) -> None:
+    """A headerless source's column numbers (1-based integers) in ``doc[section][key]`` as the strings
+    ``"1"``, ``"2"`` ... its columns are named by; anything else is left for the checks that follow."""
+    v = doc.get(section, {}).get(key)
+    ok = lambda x: isinstance(x, int) and not isinstance(x, bool) and x >= 1  # noqa: E731
+    if isinstance(v, list):
+        doc[section][key] = [str(x) if ok(x) else x for x in v]
+    elif ok(v):
+        doc[section][key] = str(v)
 
 
 def _string_list(path, where, doc, section, key, n, what):
@@ -220,6 +237,17 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
     if decimal == delimiter:
         _fail(path, where, "source", "decimal",
               f"[source] decimal and delimiter are both {delimiter!r}; a decimal comma needs another delimiter (\";\")")
+    header = src.get("header", True)
+    if not isinstance(header, bool):
+        _fail(path, where, "source", "header", f"[source] header = {header!r} must be true (the first line names the "
+              "columns) or false (no header: columns by number, 1 = the first)")
+    if not header:
+        for section, key in (("joints", "columns"), ("position", "columns"), ("orientation", "columns"),
+                             ("uncertainty", "position_columns"), ("uncertainty", "orientation_columns"),
+                             ("split", "column")):
+            _numbered(doc, section, key)
+        for key in list(doc.get("columns", {})):
+            _numbered(doc, "columns", key)
     tformat = src.get("timestamp_format")
     if tformat is not None:
         if not isinstance(tformat, str) or "%" not in tformat:
@@ -281,8 +309,17 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
         if uncertainty["position_columns"] and "sigma_mm" in columns:
             _fail(path, where, "uncertainty", "position_columns",
                   "[uncertainty] position_columns and [columns] sigma_mm both give the position's uncertainty: keep one")
+    if not header:
+        for name in joints + pos + list(columns.values()) + ([column] if column else []) + \
+                (orientation["columns"] if orientation else []) + \
+                [c for v in (uncertainty or {}).values() for c in (v or [])]:
+            if not name.isdigit():
+                line, col = ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns,
+                                      fraction, 0, column, where, orientation, uncertainty).locate_column(name)
+                raise InputError(path, f"column '{name}' is a name, but [source] header = false: the file has no header "
+                                 "to name it; give the column's number (1 = the first), unquoted", line, col)
     return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
-                     int(seed or 0), column, where, orientation, uncertainty, tformat)
+                     int(seed or 0), column, where, orientation, uncertainty, tformat, header)
 
 
 def _orientation_section(path, where, doc):
@@ -339,22 +376,32 @@ def decode(data: bytes) -> str:
 
 
 def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") -> Source:
-    """Split the export into header and rows; every mapped column must be in the header."""
-    reader = csv.reader(io.StringIO(text, newline=""), delimiter=imap.delimiter)
+    """Split the export into header and rows; every mapped column must be in the header.
+
+    ``delimiter = " "`` splits on runs of spaces and tabs; ``header = false``: no header line, the
+    columns are named ``"1"``, ``"2"`` ... (the fields of the first row).
+    """
     header, hline, rows, lines = None, None, [], []
+    name = Path(path).name
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=imap.delimiter, skipinitialspace=imap.delimiter == " ")
     try:
         for rec in reader:
+            if imap.delimiter == " ":
+                rec = [f for f in rec if f != ""] if rec else rec
             if not rec or all(not f.strip() for f in rec):
                 continue
-            if header is None:
+            if header is None and imap.header:
                 header, hline = [h.strip() for h in rec], reader.line_num
                 continue
+            if header is None:
+                header, hline = [str(k) for k in range(1, len(rec) + 1)], reader.line_num
             rows.append(rec)
             lines.append(reader.line_num)
     except csv.Error as exc:
         raise InputError(path, f"not readable as delimited text ({exc})", reader.line_num, None) from None
     if header is None:
-        raise InputError(path, "file is empty; expected a header line and one row per pose", 1, None)
+        raise InputError(path, "file is empty; expected " + ("a header line and " if imap.header else "")
+                         + "one row per pose", 1, None)
     counts: dict[str, int] = {}
     for h in header:
         counts[h] = counts.get(h, 0) + 1
@@ -362,6 +409,18 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
               + ([imap.split_column] if imap.split_column else [])
               + (imap.orientation["columns"] if imap.orientation else [])
               + [c for v in (imap.uncertainty or {}).values() for c in (v or [])]]
+    for col_name in needed:
+        if col_name not in counts and not imap.header:
+            line, col = imap.locate_column(col_name)
+            raise InputError(imap.path, f"column {col_name} is beyond the {len(header)} fields of line {hline} of {name} "
+                             f"(a file without a header, [source] header = false: columns are numbered from 1; "
+                             f"delimiter {imap.delimiter!r})", line, col)
+        numeric = sum(bool(NUMBER.match(h.replace(",", ".") if imap.decimal == "," else h)) for h in header)
+        if col_name not in counts and numeric > len(header) / 2:
+            line, col = imap.locate_column(col_name)
+            raise InputError(imap.path, f"column '{col_name}' is not in the header of {name}: line {hline} is numbers "
+                             f"({numeric} of its {len(header)} fields), not column names: a file without a header; set "
+                             "[source] header = false and give the columns by number (1 = the first)", line, col)
     for name in needed:
         if name not in counts:
             line, col = imap.locate_column(name)
@@ -381,7 +440,8 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
         raise InputError(path, "header only, no data rows", hline, None)
     for rec, ln in zip(rows, lines):
         if len(rec) != len(header):
-            raise InputError(path, f"{len(rec)} fields, the header has {len(header)} (delimiter {imap.delimiter!r}, "
+            first = "the header has" if imap.header else f"line {hline} (the first; no header) has"
+            raise InputError(path, f"{len(rec)} fields, {first} {len(header)} (delimiter {imap.delimiter!r}, "
                              f"decimal {imap.decimal!r})", ln, None)
     return Source(str(path), header, rows, lines, sha256)
 

@@ -352,3 +352,29 @@ def test_a_large_fit_by_cholesky_steps_is_the_fit_by_eigen_steps(monkeypatch, tm
     np.testing.assert_allclose(fast.coef_, slow.coef_, rtol=1e-7, atol=1e-9 * np.abs(slow.coef_).max())
     assert fast.rms_mm_ == pytest.approx(slow.rms_mm_, rel=1e-9)
     assert fast.dof_ == pytest.approx(slow.dof_, rel=1e-8)
+
+
+def test_compliance_of_a_robot_without_masses_says_why_and_plans_nothing(tmp_path):
+    """A robot whose links have no mass (a URDF without <inertial>) and no payload: compliance is not
+    revealable because nothing loads the joints, said as such, and no `plan --reveal` is suggested (no
+    poses could help). (Before: "gravity torque below 0 N m" and a plan line.)"""
+    robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
+    for i in range(robot.n_joints):
+        robot = robot.replace_joint(i, mass_kg=0.0)
+    poses, tracker, _ = simulate_robot(robot, dict(clean_config(3), n_sample=40), None)
+    folder = tmp_path / "massless"
+    folder.mkdir()
+    (folder / "robot.toml").write_text(robot.to_toml())
+    poses = poses.drop(columns=[c for c in poses.columns if c.startswith("grating")])
+    poses["payload_kg"] = 0.0
+    (folder / "poses.csv").write_text(format_poses_csv(poses))
+    (folder / "tracker.csv").write_text(format_tracker_csv(tracker))
+    robot, data = robot_data_from_campaign(folder)
+    assert not np.any(data.torque_nm)
+    result = diagnose(RobotAdapter(robot), SPEC, data)
+    comp = [u for u in result["not_revealable"] if u["effect"] == "compliance"]
+    assert comp and all("no masses" in u["reason"] and "plan" not in u for u in comp), comp
+    # a robot with masses: the reason stays about the poses, and a plan is suggested where one could help
+    from pipeline.robot.arm.effects import Compliance
+
+    assert Compliance().poses_can_help(type("D", (), {"torque_nm": np.ones((2, 6))})())

@@ -729,3 +729,19 @@ def test_headerless_space_separated_export(invoke, tmp_path):
     named = tmp_path / "named.toml"
     named.write_text(numbered.read_text().replace("[8, 9, 10]", '[8, "y", 10]'))
     _fails(invoke("import", "--source", bare, "--map", named, *robot, "--out", out), out, "named.toml")
+
+
+def test_a_urdf_without_inertials_is_warned_about(invoke, tmp_path):
+    """A URDF without <inertial> on the arm's links imports with every mass 0, and says so: no gravity
+    torque, so compliance can be neither fitted nor revealed. With them, no warning."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=30)
+    bare = tmp_path / "no_inertia.urdf"
+    bare.write_text(re.sub(r"\s*<inertial>.*?</inertial>", "", FANUC_LIKE.read_text(), flags=re.S))
+    assert "<inertial>" not in bare.read_text()
+    args = ("--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    r = invoke("import", "--source", src, "--map", mp, "--robot", bare, *args, "--out", tmp_path / "a")
+    assert r.exit_code == 0, r.output
+    assert "warning: no_inertia.urdf has no <inertial> on the arm's links: every mass is 0" in r.stderr, r.stderr
+    assert all(j.mass_kg == 0 for j in load_robot(tmp_path / "a" / "robot.toml").joints)
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, *args, "--out", tmp_path / "b")
+    assert r.exit_code == 0 and "warning" not in r.stderr, r.stderr

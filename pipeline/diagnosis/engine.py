@@ -129,8 +129,10 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
         if ok:
             revealable.append(cand)
         else:
+            helps = getattr(cand, "poses_can_help", None)
             unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
-                                 "explanation": cand.explanation, **_plan_hint(cand, spec)})
+                                 "explanation": cand.explanation,
+                                 **(_plan_hint(cand, spec) if helps is None or helps(data) else {})})
     if regional:
         say(f"{len(revealable)} candidates, each a linear correction to the shared baseline fit")
         evaluated = adapter.evaluate(base_effects, revealable, data, say)

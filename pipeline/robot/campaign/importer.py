@@ -1166,4 +1166,23 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     install_campaign(out_dir, camp.files, validate)
     n_s = int((camp.sets == "sample").sum())
     return {"n": len(camp.sets), "sample": n_s, "target": len(camp.sets) - n_s, "frame": imap.frame,
-            "nominal_rms_mm": rms, "orientation": oriented}
+            "nominal_rms_mm": rms, "orientation": oriented, "warnings": mass_warnings(robot, robot_path)}
+
+
+def mass_warnings(robot, robot_path) -> list[str]:
+    """What the robot's masses leave out, for the console: a URDF without ``<inertial>`` on the arm's
+    links gives every mass 0 (no gravity torque: compliance can be neither fitted nor revealed by any
+    poses); some links without one, those joints' links."""
+    if not is_urdf(robot_path):
+        return []
+    name = Path(robot_path).name
+    massless = [i + 1 for i, j in enumerate(robot.joints) if j.mass_kg <= 0.0]
+    if len(massless) == robot.n_joints:
+        return [f"{name} has no <inertial> on the arm's links: every mass is 0, so every gravity torque is 0 and "
+                "compliance can be neither fitted nor revealed by any choice of poses (only a payload would load the "
+                "joints); give the links' <inertial> (mass, origin) in the URDF and import again, or mass_kg and "
+                "com_mm in the campaign's robot.toml"]
+    if massless:
+        return [f"{name} gives no mass (no <inertial>) to the links of joint {', '.join(map(str, massless))}: the "
+                "gravity torques leave them out"]
+    return []

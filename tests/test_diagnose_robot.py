@@ -378,3 +378,22 @@ def test_compliance_of_a_robot_without_masses_says_why_and_plans_nothing(tmp_pat
     from pipeline.robot.arm.effects import Compliance
 
     assert Compliance().poses_can_help(type("D", (), {"torque_nm": np.ones((2, 6))})())
+
+
+def test_a_region_fold_that_blows_up_is_not_a_gain_of_minus_1e137_percent():
+    """A candidate whose fit, with a region held out, is undetermined (held-out RMS ~1e135 mm) is said as
+    such: its region gain is bounded and flagged, the table and the refusal say 'more than 100 times'.
+    (Before: "-1.75e137 %" on the console and in the PDF.)"""
+    from pipeline.diagnosis.engine import BLOWUP, format_table, region_gain_text, relative_gain
+
+    gain, blown = relative_gain(1.75e135, 1.0)
+    assert blown and gain == 1.0 - BLOWUP
+    assert relative_gain(0.8, 1.0) == (pytest.approx(0.2), False)
+    assert relative_gain(float("nan"), 1.0)[1] and relative_gain(1.0, 0.0) == (0.0, False)
+    c = {"effect": "joint_map", "target": 3, "cv_rms_with": 0.4, "gain": 0.1, "p": 1e-5, "meaningful": False,
+         "cv_rms_region": 1.75e135, "gain_region": gain, "region_undetermined": True, "refused": "x"}
+    result = {"baseline": {"effects": ["geometry"], "cv_rms": 0.45, "cv_rms_region": 0.5, "unit": "mm"},
+              "candidates": [c], "not_revealable": []}
+    table = format_table(result)
+    assert "e+" not in table and ">100x" in table, table
+    assert region_gain_text(c) == "more than 100 times the baseline's RMS"

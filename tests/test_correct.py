@@ -214,3 +214,22 @@ def test_step_reaches_the_point_for_any_joint_count(n_joints):
         # smallest: no motion of the self-motion direction (null space of the full 6-row Jacobian) is in it
         null = np.linalg.svd(J)[2][-1]
         assert abs(null @ (q - q0)) < 1e-6 * np.linalg.norm(q - q0) + 1e-9
+
+
+def test_a_row_at_the_wrist_singularity_says_so():
+    """At joint 5 = 0 the correction a 6-DoF hold would need is large; the row's reason names the wrist
+    singularity (joints 4 and 6 about one axis), not only "joint 4 would need ... deg". Away from it, no
+    singularity is named."""
+    from test_export import synthetic_model
+
+    from pipeline.correct.robot import ModelKinematics, correct_commands, singularity
+    from pipeline.robot.arm.kinematics import load_robot
+
+    robot = load_robot(ROOT / "raw/robot/kr210/robot.toml")
+    spec = '[model]\nkind = "robot"\n[[effect]]\nname = "geometry"\n[[effect]]\nname = "base"\n'
+    model, _ = synthetic_model(robot, spec, 5)
+    q = np.array([[10.0, -80.0, 90.0, 30.0, 0.0, 20.0], [10.0, -80.0, 90.0, 30.0, 40.0, 20.0]])
+    res = correct_commands(ModelKinematics(robot, model), q, max_correction_deg=0.5)
+    assert "would need" in res.reason[0] and "the wrist singularity: at joint 5 = +0.000 deg joints 4 and 6" \
+        in res.reason[0], res.reason[0]
+    assert "singularity" not in res.reason[1] and singularity(robot, q[1]) == ""

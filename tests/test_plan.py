@@ -219,3 +219,34 @@ def test_exchange_ends_where_no_single_swap_improves(kind):
             trial = list(chosen)
             trial[p] = i
             assert value(trial) <= best + 1e-9 * abs(best)
+
+
+def test_structural_parameters_are_not_blamed_on_the_pool(cell, tmp_path, invoke):
+    """Parameters no poses can identify (structural, e.g. combinations one SMR never tells apart) are not
+    called the pool's, nor "left at nominal" when jointcal fit fits them as their share; those a frozen
+    wrist takes away are the pool's. (Before: all of them "not identifiable from any poses of this pool
+    (left at nominal by jointcal fit)".)"""
+    robot, c = cell
+    Q = _pool(robot, c, 200, 8)
+    Qf = Q.copy()
+    Qf[:, 3:] = Qf[0, 3:]
+    out = {}
+    for name, q in (("full", Q), ("frozen", Qf)):
+        _write_pool(tmp_path / f"{name}.csv", q)
+        res = invoke("plan", "--robot", KR210, "--spec", SPEC, "--pool", tmp_path / f"{name}.csv", "--n", 20,
+                     "--out", tmp_path / f"{name}.plan.csv", "--json", tmp_path / f"{name}.json")
+        assert res.exit_code == 0, res.output
+        out[name] = (json.loads((tmp_path / f"{name}.json").read_text()), res.stderr)
+    full, frozen = out["full"][0], out["frozen"][0]
+    structural = set(full["not_identifiable_structural"])
+    assert structural and structural == set(full["not_identifiable_on_pool"])     # a broad pool: all structural
+    assert set(frozen["not_identifiable_structural"]) == structural                # the same robot, the same
+    lost = set(frozen["not_identifiable_on_pool"]) - structural
+    assert lost                                                                    # the frozen wrist's
+    console = out["frozen"][1]
+    pools = [ln for ln in console.splitlines() if "of this pool" in ln]
+    assert pools and all(nm in pools[0] for nm in lost) and not any(nm in pools[0] for nm in structural), console
+    redundant = [nm for nm, why in full["not_identifiable_on_pool"].items() if why.startswith("redundant")]
+    if redundant:
+        line = next(ln for ln in out["full"][1].splitlines() if "structural" in ln and "their share" in ln)
+        assert all(nm in line for nm in redundant) and "left at nominal" not in line

@@ -745,3 +745,16 @@ def test_a_urdf_without_inertials_is_warned_about(invoke, tmp_path):
     assert all(j.mass_kg == 0 for j in load_robot(tmp_path / "a" / "robot.toml").joints)
     r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, *args, "--out", tmp_path / "b")
     assert r.exit_code == 0 and "warning" not in r.stderr, r.stderr
+
+
+def test_fit_headline_says_the_rank_not_only_what_is_left_at_nominal(invoke, tmp_path):
+    """On a URDF robot with one SMR, geometry + base + tool has 12 combinations of parameters the SMR never
+    sees: fit's headline says the rank (27 of 39) beside "0 parameter(s) left at nominal"."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=60)
+    camp = tmp_path / "camp"
+    assert invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+                  "204.5", "46.6", "195.2", "--out", camp).exit_code == 0
+    r = invoke("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    head = next(ln for ln in r.stderr.splitlines() if "left at nominal" in ln)
+    assert "rank 27 of 39 parameters: 12 combination(s)" in head, head

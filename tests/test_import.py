@@ -758,3 +758,45 @@ def test_fit_headline_says_the_rank_not_only_what_is_left_at_nominal(invoke, tmp
     assert r.exit_code == 0, r.output
     head = next(ln for ln in r.stderr.splitlines() if "left at nominal" in ln)
     assert "rank 27 of 39 parameters: 12 combination(s)" in head, head
+
+
+def _coupled_export(tmp_path, coupling_line=""):
+    """The FANUC-like export with joint 3 as a FANUC pendant records it (J3 = q3 - q2: the arm's joint 3
+    turns by J2 + J3), and its map (``coupling_line`` added to [joints])."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=60)
+    rows = src.read_text().splitlines()
+    out = [rows[0]]
+    for r in rows[1:]:
+        f = r.split(",")
+        f[3] = f"{float(f[3]) - float(f[2]):.6f}"
+        out.append(",".join(f))
+    src.write_text("\n".join(out) + "\n")
+    mp.write_text(mp.read_text().replace('unit = "deg"\n', 'unit = "deg"\n' + coupling_line, 1))
+    return src, mp
+
+
+def test_coupled_joints_are_named_as_a_cause_and_imported_as_stated(invoke, tmp_path):
+    """J3 recorded as a FANUC pendant shows it (the J2/J3 interaction): import names the coupling as the likely
+    cause, with the line to write; with [joints] coupling the campaign imports, poses.csv keeps the recorded
+    angles, robot.toml carries [coupling] and the campaign's nominal check passes on the coupled angles.
+    (Before: refused at ~700 mm with no coupling among the causes tried.)"""
+    args = ("--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    src, mp = _coupled_export(tmp_path)
+    out = tmp_path / "camp"
+    _fails(invoke("import", "--source", src, "--map", mp, *args, "--out", out), out, mp.name)
+    line = invoke("import", "--source", src, "--map", mp, *args, "--out", out).stderr
+    assert "joint 3's recorded angle looks coupled to joint 2's (q3 + q2 fits" in line, line
+    assert "[joints] coupling = { q3 = { q2 = 1, q3 = 1 } }" in line, line
+    src, mp = _coupled_export(tmp_path, "coupling = { q3 = { q2 = 1, q3 = 1 } }\n")
+    r = invoke("import", "--source", src, "--map", mp, *args, "--out", out)
+    assert r.exit_code == 0, r.output
+    robot = load_robot(out / "robot.toml")
+    assert robot.coupling == ((2, (0.0, 1.0, 1.0, 0.0, 0.0, 0.0)),)
+    poses, _ = _read(out)
+    given = pd.read_csv(src)
+    assert np.allclose(poses["q3"], given["j3"])                 # the recorded angle, as recorded
+    from pipeline.robot.campaign.ingest import robot_data_from_campaign
+
+    _, data = robot_data_from_campaign(out, sets=("sample", "target"))
+    ids = list(poses["point_id"])
+    assert np.allclose(data.q_deg[:, 2], (given["j3"] + given["j2"]).to_numpy()[[ids.index(p) for p in data.point_id]])

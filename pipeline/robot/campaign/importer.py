@@ -48,7 +48,7 @@ from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "orientation", "uncertainty", "columns", "split")
-KEYS = {"source": ("delimiter", "decimal", "timestamp_format", "header"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
+KEYS = {"source": ("delimiter", "decimal", "timestamp_format", "header"), "joints": ("columns", "unit", "coupling"), "position": ("columns", "unit", "frame"),
         "split": ("sample_fraction", "seed", "column"), "orientation": ("columns", "kind", "sequence", "unit"),
         "uncertainty": ("position_columns", "orientation_columns")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
@@ -130,6 +130,8 @@ class ImportMap:
     timestamp_format: str | None = None
     #: False: the source has no header line; its columns are named by number ("1" = the first)
     header: bool = True
+    #: ``[joints] coupling``: coupled joints as :attr:`pipeline.robot.arm.kinematics.Robot.coupling` (() none)
+    coupling: tuple = ()
 
     def locate_column(self, name: str):
         """Line and column in the map where the source column ``name`` is named."""
@@ -318,8 +320,17 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
                                       fraction, 0, column, where, orientation, uncertainty).locate_column(name)
                 raise InputError(path, f"column '{name}' is a name, but [source] header = false: the file has no header "
                                  "to name it; give the column's number (1 = the first), unquoted", line, col)
+    coupling = ()
+    if "coupling" in doc.get("joints", {}):
+        from ..arm.kinematics import parse_coupling
+
+        try:
+            coupling = parse_coupling(doc["joints"]["coupling"], len(joints), path, text, "joints")
+        except InputError as exc:
+            line, col = where.key("joints", "coupling")
+            raise InputError(path, exc.message.replace("[joints]", "[joints] coupling"), line, col) from None
     return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
-                     int(seed or 0), column, where, orientation, uncertainty, tformat, header)
+                     int(seed or 0), column, where, orientation, uncertainty, tformat, header, coupling)
 
 
 def _orientation_section(path, where, doc):
@@ -903,12 +914,13 @@ _MAP_FIXES = {"frame": ("position", "frame", "[position] frame in the map"),
               "radians": ("joints", "unit", "[joints] unit in the map"),
               "metres": ("position", "unit", "[position] unit in the map"),
               "swap": ("joints", "columns", "the order of [joints] columns in the map"),
-              "sign": ("joints", "columns", "the joint columns of the map (a joint's sign)")}
+              "sign": ("joints", "columns", "the joint columns of the map (a joint's sign)"),
+              "coupling": ("joints", "columns", "the map's [joints]")}
 
 
 def _map_fix(hypothesis: str):
     for key, fix in _MAP_FIXES.items():
-        if hypothesis == key or (key in ("swap", "sign") and hypothesis.startswith(key)):
+        if hypothesis == key or (key in ("swap", "sign", "coupling") and hypothesis.startswith(key)):
             return fix
     return None
 
@@ -961,6 +973,7 @@ def _in_urdf_terms(message: str, robot_path, tip, base, tool_mm, tool_fit) -> st
                          f"a wrong tool: with the SMR at [{typed.replace(' ', ', ')}] mm in link '{tip}''s frame "
                          f"(--tool-mm {typed}), {np.linalg.norm(local - given):.0f} mm from {said},", message)
     message = message.replace("zero offsets (theta_offset_deg) of robot.toml", f"joint zeros of {name}")
+    message = re.sub(r"say so with \[coupling\] .*? in robot\.toml, or ", "say so with ", message)
     return message.replace("robot.toml", f"{name} (--tip {tip})", 1).replace("robot.toml", name)
 
 
@@ -1141,16 +1154,26 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     imap = parse_map(map_text, str(map_path))
     robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm, ur_model)
     check_joint_count(imap, robot, robot_path)
+    if imap.coupling:
+        if robot.coupling and robot.coupling != imap.coupling:
+            line, col = imap.where.key("joints", "coupling")
+            raise InputError(imap.path, f"[joints] coupling differs from the [coupling] of {Path(robot_path).name}: "
+                             "state it once", line, col)
+        if not robot.coupling:
+            robot = replace(robot, coupling=imap.coupling)
+            robot_text = robot_text.rstrip("\n") + "\n\n" + "\n".join(robot.coupling_lines()) + "\n"
     source = read_source_file(source_path, imap)
     prov = [f"# source: {Path(source_path).name} (sha256 {source.sha256})",
             f"# map: {Path(map_path).name} (sha256 {_sha(map_path)})", robot_line]
     camp = build_campaign(source, imap, robot, robot_text, prov)
-    check_limits(camp, imap, robot, source)
-    rms = check_units(camp, imap, robot, source)
+    # the checks see the angles the kinematics take (coupled joints combined); poses.csv keeps the recorded ones
+    seen = replace(camp, q_deg=robot.kinematic_angles(camp.q_deg)) if robot.coupling else camp
+    check_limits(seen, imap, robot, source)
+    rms = check_units(seen, imap, robot, source)
     oriented = None
     if imap.orientation and rms <= MAX_RMS_MM:
         # (positions that do not fit the robot are refused below, with their likely cause, first)
-        robot, robot_text, oriented = check_orientation(camp, imap, robot, robot_text, source)
+        robot, robot_text, oriented = check_orientation(seen, imap, robot, robot_text, source)
         camp.files["robot.toml"] = robot_text
     robot_where = (None, None)
     if is_urdf(robot_path):

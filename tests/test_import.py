@@ -800,3 +800,37 @@ def test_coupled_joints_are_named_as_a_cause_and_imported_as_stated(invoke, tmp_
     _, data = robot_data_from_campaign(out, sets=("sample", "target"))
     ids = list(poses["point_id"])
     assert np.allclose(data.q_deg[:, 2], (given["j3"] + given["j2"]).to_numpy()[[ids.index(p) for p in data.point_id]])
+
+
+def test_coupled_robot_is_corrected_in_the_controllers_angles(invoke, tmp_path):
+    """correct --targets on a coupled robot (FANUC J2/J3): targets and corrected commands are the controller's
+    angles; the fitted model, at the angles the corrected commands give the arm (J2 + J3 for joint 3), puts
+    the SMR where the nominal robot put the given ones."""
+    src, mp = _coupled_export(tmp_path, "coupling = { q3 = { q2 = 1, q3 = 1 } }\n")
+    camp = tmp_path / "camp"
+    assert invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+                  "204.5", "46.6", "195.2", "--out", camp).exit_code == 0
+    fit = tmp_path / "fit.json"
+    r = invoke("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", fit)
+    assert r.exit_code == 0, r.output
+    poses, _ = _read(camp)
+    given = poses[poses["set"] == "sample"].head(8)[["point_id"] + [f"q{j}" for j in range(1, 7)]]
+    given.to_csv(tmp_path / "targets.csv", index=False)
+    r = invoke("correct", "--model", fit, "--targets", tmp_path / "targets.csv", "--out", tmp_path / "out.csv")
+    assert r.exit_code == 0, r.output
+    out = pd.read_csv(tmp_path / "out.csv")
+    assert (out["status"] == "ok").all(), out["status"].tolist()
+    import json
+
+    from pipeline.correct.robot import ModelKinematics
+    from pipeline.robot.model.predict import load_model_document
+
+    robot, _, model, _, _ = load_model_document(json.loads(fit.read_text()), str(fit))
+    kin = ModelKinematics(robot, model)
+    qg = given[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    qc = out[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    n = len(qg)
+    meant = kin.nominal(robot.kinematic_angles(qg))[1]
+    lands = kin.predict(robot.kinematic_angles(qc), np.ones((n, 6), int), np.zeros(n), np.full(n, 20.0))
+    assert np.abs(lands - meant).max() < 1e-3                      # mm
+    assert np.allclose(out[[f"dq{j}_arcsec" for j in range(1, 7)]].to_numpy(), (qc - qg) * 3600.0, atol=1e-3)

@@ -169,7 +169,7 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     import time
 
     from ..core.files import write_text
-    from ..correct.robot import ModelKinematics, correct_commands
+    from ..correct.robot import ModelKinematics, correct_recorded
     from ..correct.targets import read_targets
     from ..correct.write import corrected_csv
 
@@ -181,11 +181,11 @@ def correct(ctx, model_path, targets_path, out_path, program_path, tool_text, ba
     payload = model_payload(doc.get("payloads_kg"))
     kin = ModelKinematics(robot, model)
     t0 = time.perf_counter()
-    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(robot.kinematic_angles(q))[1],
                       default_payload_kg=payload or 0.0)
     from ..robot.model.uncertainty import load_prediction
 
-    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
+    res = correct_recorded(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
                            max_correction_deg, target_R=tg.target_R, stated=load_prediction(doc, model))
     write_text(out_path, corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c))
     c = res.counts()

@@ -294,6 +294,29 @@ def singularity(robot, q_deg) -> str:
     return ""
 
 
+def correct_recorded(kin: ModelKinematics, q_deg, *args, **kwargs) -> Correction:
+    """:func:`correct_commands` on the controller's own angles: a robot with coupled joints (robot.toml's
+    ``[coupling]``, a FANUC's J2/J3 interaction) is corrected on the angles its kinematics take, and the
+    corrected commands (``q_deg``, ``dq_arcsec``) are written back in the controller's angles; without
+    coupling it is :func:`correct_commands`.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+        The program's joint values as the controller takes them.
+    """
+    robot = kin.robot
+    if not robot.coupling:
+        return correct_commands(kin, q_deg, *args, **kwargs)
+    given = np.atleast_2d(np.asarray(q_deg, float))
+    res = correct_commands(kin, robot.kinematic_angles(given), *args, **kwargs)
+    q = robot.recorded_angles(res.q_deg)
+    left = res.status != OK
+    q[left] = given[left]
+    res.q_deg, res.dq_arcsec = q, (q - given) * 3600.0
+    return res
+
+
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
                      sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
                      tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None,

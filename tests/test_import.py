@@ -834,3 +834,56 @@ def test_coupled_robot_is_corrected_in_the_controllers_angles(invoke, tmp_path):
     lands = kin.predict(robot.kinematic_angles(qc), np.ones((n, 6), int), np.zeros(n), np.full(n, 20.0))
     assert np.abs(lands - meant).max() < 1e-3                      # mm
     assert np.allclose(out[[f"dq{j}_arcsec" for j in range(1, 7)]].to_numpy(), (qc - qg) * 3600.0, atol=1e-3)
+
+
+def _nest_export(tmp_path, n=60, seed=5, wild=None):
+    """A synthetic export of the FANUC-like arm measured as three SMRs on a nest on link_6 (tracker frame,
+    0.02 mm noise): SMR 1 at (204.5, 46.6, 195.2) mm in link_6's frame, SMR 2 100 mm along its y, SMR 3
+    80 mm along its -z. ``wild``: (row, mm) moves SMR 2 of that row along x."""
+    import pinocchio as pin
+
+    m = pin.buildModelFromUrdf(str(FANUC_LIKE))
+    d = m.createData()
+    fid = m.getFrameId("link_6")
+    rng = np.random.default_rng(seed)
+    Q = rng.uniform([-150, -50, -60, -180, -110, -180], [150, 60, 80, 180, 110, 180], (n, 6))
+    s1 = np.array([204.5, 46.6, 195.2])
+    smrs = [s1, s1 + [0.0, 100.0, 0.0], s1 + [0.0, 0.0, -80.0]]
+    Rt, tt = pin.exp3(np.array([0.1, -0.2, 0.7])), np.array([2500.0, -300.0, 150.0])
+    rows = []
+    for i, q in enumerate(np.deg2rad(Q)):
+        pin.framesForwardKinematics(m, d, q)
+        pts = [Rt @ d.oMf[fid].act(s / 1000.0) * 1000.0 + tt + rng.normal(0, 0.02, 3) for s in smrs]
+        if wild is not None and i == wild[0]:
+            pts[1] = pts[1] + [wild[1], 0.0, 0.0]
+        rows.append(",".join([f"P{i}"] + [f"{v:.6f}" for v in Q[i]] + [f"{v:.4f}" for p in pts for v in p]))
+    src = tmp_path / "nest.csv"
+    src.write_text("\n".join(["id,j1,j2,j3,j4,j5,j6,x1,y1,z1,x2,y2,z2,x3,y3,z3"] + rows) + "\n")
+    mp = tmp_path / "nest_map.toml"
+    mp.write_text('[joints]\ncolumns = ["j1", "j2", "j3", "j4", "j5", "j6"]\nunit = "deg"\n'
+                  '[position]\ncolumns = ["x1", "y1", "z1"]\nunit = "mm"\nframe = "tracker"\n'
+                  '[orientation]\nkind = "nest"\ncolumns = ["x2", "y2", "z2", "x3", "y3", "z3"]\n'
+                  '[columns]\npoint_id = "id"\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    return src, mp
+
+
+def test_a_nest_of_three_smrs_is_read_as_position_and_orientation(invoke, tmp_path):
+    """[orientation] kind = "nest": SMR 1 is the position, SMRs 2 and 3 give the probe frame's orientation;
+    the campaign imports as a 6-DoF campaign whose orientations fit the nominal flange frames (the nest's
+    mounting estimated); an SMR off its nest at one pose is refused at that row."""
+    src, mp = _nest_export(tmp_path)
+    out = tmp_path / "camp"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+               "204.5", "46.6", "195.2", "--out", out)
+    assert r.exit_code == 0, r.output
+    tracker = pd.read_csv(out / "tracker.csv")
+    assert {"qw", "qx", "qy", "qz"} <= set(tracker.columns)
+    rms = float(re.search(r"miss the measured probe frames by ([\d.]+) deg", r.stderr).group(1))
+    assert rms < 0.05, r.stderr                     # 0.02 mm on a 100 mm nest: hundredths of a degree
+    robot = load_robot(out / "robot.toml")
+    assert any(v != 0 for v in robot.tool_rpy_deg)  # the nest's mounting, estimated from the data
+    src, mp = _nest_export(tmp_path, wild=(7, 3.0))
+    m = _fails(invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+                      "--tool-mm", "204.5", "46.6", "195.2", "--out", out.with_name("c2")), out.with_name("c2"),
+               "nest.csv")
+    assert m["line"] == "9" and m["col"] == "x2"

@@ -340,9 +340,10 @@ def _orientation_section(path, where, doc):
     if "orientation" not in doc:
         return None
     kind = _choice(path, where, doc, "orientation", "kind", KINDS)
-    n = 4 if kind == "quaternion" else 3
+    n = {"quaternion": 4, "nest": 6}.get(kind, 3)
     what = {"euler": "three Euler angles, in the order of the sequence", "quaternion": "w, x, y, z",
-            "rotvec": "a rotation vector's x, y, z"}[kind]
+            "rotvec": "a rotation vector's x, y, z",
+            "nest": "SMR 2's x, y, z then SMR 3's, in [position]'s unit; [position] is SMR 1"}[kind]
     cols = _string_list(path, where, doc, "orientation", "columns", n, what)
     sec = doc["orientation"]
     sequence = None
@@ -359,10 +360,14 @@ def _orientation_section(path, where, doc):
     elif "sequence" in sec:
         _fail(path, where, "orientation", "sequence", f"[orientation] sequence is for kind = \"euler\"; kind is {kind!r}")
     unit = None
-    if kind != "quaternion":
+    if kind not in ("quaternion", "nest"):
         unit = _choice(path, where, doc, "orientation", "unit", ORIENTATION_UNITS)
     elif "unit" in sec:
-        _fail(path, where, "orientation", "unit", "[orientation] a quaternion has no unit")
+        _fail(path, where, "orientation", "unit", f"[orientation] a {kind} has no unit"
+              + (" of its own: its SMRs are in [position]'s" if kind == "nest" else ""))
+    if kind == "nest" and "orientation_columns" in doc.get("uncertainty", {}):
+        _fail(path, where, "uncertainty", "orientation_columns", "[uncertainty] orientation_columns: a nest's "
+              "orientation has no columns of its own (its SMRs' position_columns weigh it)")
     return {"columns": cols, "kind": kind, "sequence": sequence, "unit": unit}
 
 
@@ -576,6 +581,19 @@ def read_orientations(source: Source, imap: ImportMap) -> np.ndarray:
 
     o = imap.orientation
     v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
+    if o["kind"] == "nest":
+        scale = LENGTH_UNITS[imap.position_unit]
+        p1 = np.column_stack([numbers(source, imap, c) for c in imap.position_columns]) * scale
+        R, spread, worst = ro.nest_frames(p1, v[:, :3] * scale, v[:, 3:] * scale)
+        if len(spread) and spread[worst] > ro.NEST_TOL_MM:
+            raise InputError(source.path, f"the nest's SMRs are {spread[worst]:.3g} mm off their distances at the other "
+                             f"poses here (limit {ro.NEST_TOL_MM:g} mm): an SMR reseated, swapped or mistaken?",
+                             source.lines[worst], o["columns"][0])
+        if not np.all(np.isfinite(R)):
+            i = int(np.argmax(~np.isfinite(R).all(axis=(1, 2))))
+            raise InputError(source.path, "the nest's three SMRs lie on one line here: they give no orientation",
+                             source.lines[i], o["columns"][0])
+        return R
     if o["kind"] == "quaternion":
         norm = np.linalg.norm(v, axis=1)
         bad = ~(np.abs(norm - 1.0) <= ro.QUATERNION_NORM_TOL)
@@ -596,6 +614,8 @@ def orientation_readings(source: Source, imap: ImportMap) -> dict:
     from . import orientation as ro
 
     o = imap.orientation
+    if o["kind"] == "nest":
+        return {"a nest of three SMRs": read_orientations(source, imap)}
     v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
     out = {}
     if o["kind"] == "euler":
@@ -619,6 +639,8 @@ def stated_reading(imap: ImportMap) -> str:
         return f'sequence = "{o["sequence"]}", unit = "{o["unit"]}"'
     if o["kind"] == "rotvec":
         return f'unit = "{o["unit"]}"'
+    if o["kind"] == "nest":
+        return "a nest of three SMRs"
     return "columns in the order w, x, y, z"
 
 
@@ -845,7 +867,7 @@ def check_orientation(camp: Campaign, imap: ImportMap, robot, robot_text: str, s
     rms, M = by[stated]
     best_label, best_rms, _ = hyps[0]
     o = imap.orientation
-    key = {"euler": "sequence", "rotvec": "unit", "quaternion": "columns"}[o["kind"]]
+    key = {"euler": "sequence", "rotvec": "unit", "quaternion": "columns", "nest": "columns"}[o["kind"]]
     if best_label != stated and rms > ro.STATED_BAD_DEG and best_rms * ro.BETTER_FACTOR < rms:
         fix = best_label if o["kind"] != "quaternion" else "columns = [w, x, y, z] in that order"
         if o["kind"] == "euler" and best_label.split(",")[1].strip() == f'unit = "{o["unit"]}"':

@@ -5,13 +5,18 @@ Contract section 6. The map (``map.toml``) says how to read the export::
     [source]    delimiter = ";"  decimal = ","            (defaults "," and ".")
                 timestamp_format = "%Y%m%d%H%M%S"        (optional: how [columns] timestamp is written,
                                                           strptime's directives; default ISO-8601)
+                delimiter = " "                          (runs of spaces and tabs)
+                header = false                           (no header line: columns by number, 1 = the first)
     [joints]    columns = [N source columns, one per joint]  unit = "rad" | "deg"
+                coupling = { q3 = { q2 = 1.0, q3 = 1.0 } }  (optional: coupled joints, as robot.toml's
+                                                          [coupling]; written into the campaign's robot.toml)
     [position]  columns = [3 source columns]  unit = "mm" | "m"  frame = "tracker" | "base"
     [columns]   contract column = source column          (optional: point_id, temperature_c,
                 payload_kg, timestamp, sigma_mm, dir1..dirN)
     [split]     sample_fraction = 0.6  seed = 1          (seeded random split; default seed 0)
                 or column = "set"                        (values sample / target)
-    [orientation]  columns = [3 or 4 source columns]  kind = "euler" | "quaternion" | "rotvec"
+    [orientation]  columns = [3, 4 or 6 source columns]  kind = "euler" | "quaternion" | "rotvec" | "nest"
+                (nest: SMRs 2 and 3 of a nest of three, [position] being SMR 1)
                 sequence = "XYZ" (euler: upper case intrinsic, lower case extrinsic)  unit = "deg" | "rad"
                                                          (optional: a 6-DoF probe, contract section 13)
     [uncertainty]  position_columns = [3]  orientation_columns = [3]   (optional: per-pose 1-sigma,

@@ -295,3 +295,62 @@ def test_correct_targets_report_names_the_first_row_left_as_given(loop, tmp_path
     assert "left as given: 1 outside the sampled joint range, 0 beyond --max-correction-deg 0.5, 0 without" in lines[0]
     assert lines[1].startswith(f"  first left as given: {fresh.loc[3, 'point_id']} (line 5): ")
     assert lines[-1].endswith("; closed loop on their encoders: joints 1 2")
+
+
+def test_a_row_at_the_wrist_singularity_says_so():
+    """At joint 5 = 0 the correction a 6-DoF hold would need is large; the row's reason names the wrist
+    singularity (joints 4 and 6 about one axis), not only "joint 4 would need ... deg". Away from it, no
+    singularity is named."""
+    from test_export import synthetic_model
+
+    from pipeline.correct.robot import ModelKinematics, correct_commands, singularity
+    from pipeline.robot.arm.kinematics import load_robot
+
+    robot = load_robot(ROOT / "raw/robot/kr210/robot.toml")
+    spec = '[model]\nkind = "robot"\n[[effect]]\nname = "geometry"\n[[effect]]\nname = "base"\n'
+    model, _ = synthetic_model(robot, spec, 5)
+    q = np.array([[10.0, -80.0, 90.0, 30.0, 0.0, 20.0], [10.0, -80.0, 90.0, 30.0, 40.0, 20.0]])
+    res = correct_commands(ModelKinematics(robot, model), q, max_correction_deg=0.5)
+    assert "would need" in res.reason[0] and "the wrist singularity: at joint 5 = +0.000 deg joints 4 and 6" \
+        in res.reason[0], res.reason[0]
+    assert "singularity" not in res.reason[1] and singularity(robot, q[1]) == ""
+
+
+def test_a_coupled_robots_ls_joint_targets_are_read_and_written_as_the_pendant_has_them(tmp_path):
+    """A FANUC .ls joint target holds the pendant's angles (J3 counting J2): on a robot whose robot.toml says
+    [coupling] q3 = { q2 = 1, q3 = 1 }, correct --program corrects the arm's angles and writes the pendant's,
+    so that the model, at the arm's angles of what is written, lands where the nominal robot put the given
+    target. (Before: J3 was read as the arm's own angle, silently.)"""
+    import re
+
+    from test_export import CHAIN_SPEC, _fit_doc, synthetic_model
+
+    from pipeline.correct.robot import ModelKinematics
+    from pipeline.robot.arm.kinematics import parse_robot
+    from pipeline.robot.campaign.urdf import robot_from_urdf
+
+    base, _ = robot_from_urdf(ROOT / "tests/data/urdf/fanuc_like.urdf", "link_6", tool_mm=(204.5, 46.6, 195.2))
+    robot = parse_robot(base.to_toml() + "\n[coupling]\nq3 = { q2 = 1.0, q3 = 1.0 }\n", "robot.toml")
+    model, params = synthetic_model(robot, CHAIN_SPEC, 21)
+    lo, hi = np.maximum(robot.lower_deg, -170.0), np.minimum(robot.upper_deg, 170.0)
+    (tmp_path / "fit.json").write_text(json.dumps(_fit_doc(robot, params, CHAIN_SPEC, lo, hi)))
+    given = np.array([[10.0, -10.0, 30.0, 20.0, -40.0, 15.0], [-35.0, 20.0, -5.0, -60.0, 50.0, -90.0]])
+    pos = []
+    for k, q in enumerate(given, 1):
+        pos += [f"P[{k}]{{", "   GP1:", "\tUF : 0, UT : 1,\t",
+                f"\tJ1= {q[0]:9.3f} deg,\tJ2= {q[1]:9.3f} deg,\tJ3= {q[2]:9.3f} deg,",
+                f"\tJ4= {q[3]:9.3f} deg,\tJ5= {q[4]:9.3f} deg,\tJ6= {q[5]:9.3f} deg", "};"]
+    lines = ["/PROG  CPL", "/ATTR", "/APPL", "/MN", "   1:J P[1] 100% FINE    ;", "   2:J P[2] 100% FINE    ;",
+             "/POS"] + pos + ["/END"]
+    (tmp_path / "cpl.ls").write_text("\n".join(lines) + "\n")
+    r = cli_invoker()("correct", "--model", tmp_path / "fit.json", "--program", tmp_path / "cpl.ls",
+                      "--out", tmp_path / "out")
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "out" / "cpl.ls").read_text()
+    written = np.array([[float(v) for v in re.findall(r"J\d=\s*(-?[\d.]+) deg", block)]
+                        for block in re.findall(r"P\[\d\]\{.*?\};", text, flags=re.S)])
+    assert written.shape == (2, 6) and np.abs(written - given).max() > 0.001     # corrected
+    kin = ModelKinematics(robot, model)
+    meant = kin.nominal(robot.kinematic_angles(given))[1]
+    lands = kin.predict(robot.kinematic_angles(written), np.ones((2, 6), int), np.zeros(2), np.full(2, 20.0))
+    assert np.abs(lands - meant).max() < 0.02          # mm: the .ls keeps 3 decimals of a degree (~0.01 mm here)

@@ -352,3 +352,48 @@ def test_a_large_fit_by_cholesky_steps_is_the_fit_by_eigen_steps(monkeypatch, tm
     np.testing.assert_allclose(fast.coef_, slow.coef_, rtol=1e-7, atol=1e-9 * np.abs(slow.coef_).max())
     assert fast.rms_mm_ == pytest.approx(slow.rms_mm_, rel=1e-9)
     assert fast.dof_ == pytest.approx(slow.dof_, rel=1e-8)
+
+
+def test_compliance_of_a_robot_without_masses_says_why_and_plans_nothing(tmp_path):
+    """A robot whose links have no mass (a URDF without <inertial>) and no payload: compliance is not
+    revealable because nothing loads the joints, said as such, and no `plan --reveal` is suggested (no
+    poses could help). (Before: "gravity torque below 0 N m" and a plan line.)"""
+    robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
+    for i in range(robot.n_joints):
+        robot = robot.replace_joint(i, mass_kg=0.0)
+    poses, tracker, _ = simulate_robot(robot, dict(clean_config(3), n_sample=40), None)
+    folder = tmp_path / "massless"
+    folder.mkdir()
+    (folder / "robot.toml").write_text(robot.to_toml())
+    poses = poses.drop(columns=[c for c in poses.columns if c.startswith("grating")])
+    poses["payload_kg"] = 0.0
+    (folder / "poses.csv").write_text(format_poses_csv(poses))
+    (folder / "tracker.csv").write_text(format_tracker_csv(tracker))
+    robot, data = robot_data_from_campaign(folder)
+    assert not np.any(data.torque_nm)
+    result = diagnose(RobotAdapter(robot), SPEC, data)
+    comp = [u for u in result["not_revealable"] if u["effect"] == "compliance"]
+    assert comp and all("no masses" in u["reason"] and "plan" not in u for u in comp), comp
+    # a robot with masses: the reason stays about the poses, and a plan is suggested where one could help
+    from pipeline.robot.arm.effects import Compliance
+
+    assert Compliance().poses_can_help(type("D", (), {"torque_nm": np.ones((2, 6))})())
+
+
+def test_a_region_fold_that_blows_up_is_not_a_gain_of_minus_1e137_percent():
+    """A candidate whose fit, with a region held out, is undetermined (held-out RMS ~1e135 mm) is said as
+    such: its region gain is bounded and flagged, the table and the refusal say 'more than 100 times'.
+    (Before: "-1.75e137 %" on the console and in the PDF.)"""
+    from pipeline.diagnosis.engine import BLOWUP, format_table, region_gain_text, relative_gain
+
+    gain, blown = relative_gain(1.75e135, 1.0)
+    assert blown and gain == 1.0 - BLOWUP
+    assert relative_gain(0.8, 1.0) == (pytest.approx(0.2), False)
+    assert relative_gain(float("nan"), 1.0)[1] and relative_gain(1.0, 0.0) == (0.0, False)
+    c = {"effect": "joint_map", "target": 3, "cv_rms_with": 0.4, "gain": 0.1, "p": 1e-5, "meaningful": False,
+         "cv_rms_region": 1.75e135, "gain_region": gain, "region_undetermined": True, "refused": "x"}
+    result = {"baseline": {"effects": ["geometry"], "cv_rms": 0.45, "cv_rms_region": 0.5, "unit": "mm"},
+              "candidates": [c], "not_revealable": []}
+    table = format_table(result)
+    assert "e+" not in table and ">100x" in table, table
+    assert region_gain_text(c) == "more than 100 times the baseline's RMS"

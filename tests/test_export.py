@@ -103,7 +103,8 @@ def test_urdf_rewrite_changes_only_origins(tmp_path):
     robot, _ = robot_from_urdf(UR10E_URDF, "tool0", base="base_link")
     model, _ = synthetic_model(robot, CHAIN_SPEC, 3)
     original = open(UR10E_URDF, encoding="utf-8").read()
-    text = rewrite_urdf(original, "tool0", folded_chain(robot, model), ["a comment"], base="base_link")
+    text, _ = rewrite_urdf(original, "tool0", folded_chain(robot, model), ["a comment"], base="base_link",
+                           nominal=folded_chain(robot, model, keep=()))
     q = np.random.default_rng(4).uniform(-170, 170, (30, 6))
     # pinocchio's model of the whole file: base_link's pose in the root frame maps the model's base frame
     import pinocchio as pin
@@ -113,10 +114,12 @@ def test_urdf_rewrite_changes_only_origins(tmp_path):
     pin.forwardKinematics(pm, pd_, pin.neutral(pm))
     pin.updateFramePlacements(pm, pd_)
     oMb = pd_.oMf[pm.getFrameId("base_link")]
-    got = (urdf_positions(text, "tool0", q) / 1000.0 - oMb.translation) @ oMb.rotation * 1000.0
+    got = (urdf_positions(text, "smr", q) / 1000.0 - oMb.translation) @ oMb.rotation * 1000.0
     assert np.abs(got - _chain_reference(robot, model, q)).max() < 1e-3
     strip = lambda t: re.sub(r"<origin\b[^>]*/>", "<origin/>", re.sub(r"<!--.*?-->\n?", "", t, flags=re.S))  # noqa: E731
-    assert strip(text) == strip(original)
+    added = re.compile(r'[ \t]*<link name="smr"/>\r?\n[ \t]*<joint name="tool0-smr".*?</joint>\r?\n', re.S)
+    assert len(added.findall(text)) == 1
+    assert strip(added.sub("", text)) == strip(original)
     assert text != original
 
 
@@ -259,8 +262,9 @@ def test_export_robot_refuses_an_unreadable_urdf(ur10, tmp_path):
     doc, loaded = _loaded(ur10, CHAIN_SPEC, 3, np.full(6, -170.0), np.full(6, 170.0))
     (tmp_path / "bad.urdf").write_text("<robot name='x'><link name='a'>")
     with pytest.raises(InputError) as err:
-        export_robot("m.json", doc, loaded, "urdf", urdf=(tmp_path / "bad.urdf", "smr", None))
-    assert err.value.path == str(tmp_path / "bad.urdf") and "not a readable URDF" in err.value.message
+        export_robot("m.json", doc, loaded, "urdf", urdf=(tmp_path / "bad.urdf", "smr", None, None))
+    assert err.value.path == str(tmp_path / "bad.urdf") and "not valid XML" in err.value.message
+    assert err.value.line == 1
 
 
 def test_export_encoder_table_and_refusal(tmp_path):
@@ -278,3 +282,129 @@ def test_export_encoder_table_and_refusal(tmp_path):
     with pytest.raises(InputError) as e:
         export_encoder({"something": 1}, 1.0, "enc.json")
     assert (e.value.line, e.value.column) == (1, 1) and "neither a fitted robot model" in e.value.message
+
+
+FANUC_LIKE_URDF = ROOT / "tests/data/urdf/fanuc_like.urdf"     # synthetic, ROS-Industrial style (see its header)
+FANUC_TOOL_MM = (204.5, 46.6, 195.2)                             # the SMR in link_6's frame, as given to import
+
+
+def _body_frames(text: str, q_rad) -> dict:
+    """pinocchio's placement (root frame) of every link of a URDF text at joint angles ``q_rad`` (rad)."""
+    import pinocchio as pin
+
+    m = pin.buildModelFromXML(text)
+    d = m.createData()
+    pin.framesForwardKinematics(m, d, np.asarray(q_rad, float))
+    return {f.name: d.oMf[k].copy() for k, f in enumerate(m.frames) if f.type == pin.FrameType.BODY}
+
+
+def _apart(A, B) -> tuple[float, float]:
+    """Distance (mm) and angle (arcsec) between two SE3 placements."""
+    import pinocchio as pin
+
+    d = A.actInv(B)
+    return float(np.linalg.norm(d.translation)) * 1000.0, float(np.rad2deg(np.linalg.norm(pin.log3(d.rotation)))) * 3600
+
+
+#: the user's own SMR link on link_6 (case "own SMR link": --tip my_smr, no --tool-mm)
+MY_SMR = """  <link name="my_smr"/>
+  <joint name="link_6-my_smr" type="fixed">
+    <origin xyz="0.2045 0.0466 0.1952" rpy="0 0 0"/>
+    <parent link="link_6"/>
+    <child link="my_smr"/>
+  </joint>
+</robot>"""
+
+
+@pytest.mark.parametrize("case", ["tip link_6 --tool-mm", "own SMR link"])
+def test_user_urdf_keeps_its_link_frames(tmp_path, case):
+    """export --urdf on a user's ROS-Industrial-style URDF: every link frame (link_1..link_6, flange,
+    tool0, a camera, the fixed base) stays on its body, moved only by the calibration's amounts at random
+    joint angles; the SMR is a fixed child of --tip where the model predicts it; the file is the user's
+    but for the revolute joints' origins and the SMR link. (Before: link_6, flange and tool0 moved
+    215 mm to the wrist centre, links 2, 3 and 5 turned by 90 deg; --tip link_6 was refused.)"""
+    import pinocchio as pin
+
+    from pipeline.robot.arm.kinematics import build_error_model, placements
+    from pipeline.robot.campaign.urdf import robot_from_urdf
+
+    original = FANUC_LIKE_URDF.read_text(encoding="utf-8")
+    if case == "own SMR link":
+        original = original.replace("</robot>", MY_SMR)
+        tip, tool = "my_smr", ()
+    else:
+        tip, tool = "link_6", ("--tool-mm", *map(str, FANUC_TOOL_MM))
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(original, encoding="utf-8")
+    robot, _ = robot_from_urdf(urdf, tip, tool_mm=FANUC_TOOL_MM if tool else None)
+    model, params = synthetic_model(robot, CHAIN_SPEC, 11)
+    lo, hi = np.maximum(robot.lower_deg, -170.0), np.minimum(robot.upper_deg, 170.0)
+    (tmp_path / "fit.json").write_text(json.dumps(_fit_doc(robot, params, CHAIN_SPEC, lo, hi)))
+    r = cli_invoker()("export", "--model", tmp_path / "fit.json", "--format", "urdf", "--urdf", urdf,
+                      "--tip", tip, *tool, "--out", tmp_path / "cal.urdf")
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "cal.urdf").read_text(encoding="utf-8")
+    q = np.random.default_rng(12).uniform(lo, hi, (60, 6))
+    # the calibration's size: how far the model moves its own frames (every link's, the flange, the SMR)
+    from pipeline.export.chain import model_data
+    from pipeline.robot.model.calibrate import Design
+
+    emodel, idx = build_error_model(robot)
+    d = Design(robot, list(model.effects), model_data(robot, q, np.ones(q.shape, int), np.zeros(len(q)),
+                                                      np.full(len(q), 20.0)), (emodel, idx))
+    size_mm, size_arcsec = 0.0, 0.0
+    for frame in [f"link{i + 1}" for i in range(6)] + ["flange", "smr"]:
+        Rc, pc = placements(emodel, d.configurations(model.coef_), frame)
+        Rn, pn = placements(emodel, d.configurations(np.zeros_like(model.coef_)), frame)
+        size_mm = max(size_mm, float(np.linalg.norm(pc - pn, axis=1).max()))
+        ang = [np.linalg.norm(pin.log3(a.T @ b)) for a, b in zip(Rn, Rc)]
+        size_arcsec = max(size_arcsec, float(np.rad2deg(max(ang))) * 3600)
+    assert 0.3 < size_mm < 10.0 and size_arcsec > 30.0        # a calibration of realistic size, not zero
+    worst_mm, worst_arcsec = 0.0, 0.0
+    for qk in np.deg2rad(q):
+        before, after = _body_frames(original, qk), _body_frames(text, qk)
+        assert set(before) <= set(after)
+        for name in before:
+            mm, arcsec = _apart(before[name], after[name])
+            worst_mm, worst_arcsec = max(worst_mm, mm), max(worst_arcsec, arcsec)
+    assert worst_mm < 1.5 * size_mm, worst_mm
+    assert worst_arcsec < size_arcsec + 1e-3, worst_arcsec
+    # tool0 hangs from the flange exactly as in the user's file, at every pose
+    for qk in np.deg2rad(q[:5]):
+        after, before = _body_frames(text, qk), _body_frames(original, qk)
+        rel_after = after["link_6"].actInv(after["tool0"])
+        rel_before = before["link_6"].actInv(before["tool0"])
+        assert _apart(rel_after, rel_before)[0] < 1e-9
+    # the SMR: a fixed child of the tip, where the model predicts it
+    from pipeline.export.urdf import urdf_positions
+
+    assert re.search(f'<joint name="{tip}-smr" type="fixed">\\s*<parent link="{tip}"/>', text)
+    assert np.abs(urdf_positions(text, "smr", q) - _chain_reference(robot, model, q)).max() < 1e-3
+    # every byte of the user's file is kept but the six revolute joints' origins, the SMR link and the comments
+    revolute = lambda t: re.sub(r'(<joint name="joint_\d" type="revolute">\s*)<origin\b[^>]*/>', r"\1<origin/>", t)  # noqa: E731
+    no_smr = re.sub(f'  <link name="smr"/>\n  <joint name="{tip}-smr".*?</joint>\n', "", text, flags=re.S)
+    assert revolute(re.sub(r"<!--.*?-->\n?", "", no_smr, flags=re.S)) == revolute(re.sub(r"<!--.*?-->\n?", "",
+                                                                                            original, flags=re.S))
+
+
+def test_user_urdf_export_refuses_another_tool_or_urdf(tmp_path):
+    """--tool-mm other than the import's, or a URDF that is not the robot's, is refused in one line."""
+    from pipeline.robot.campaign.urdf import robot_from_urdf
+
+    robot, _ = robot_from_urdf(FANUC_LIKE_URDF, "link_6", tool_mm=FANUC_TOOL_MM)
+    model, params = synthetic_model(robot, CHAIN_SPEC, 13)
+    lo, hi = np.full(6, -120.0), np.full(6, 120.0)
+    (tmp_path / "fit.json").write_text(json.dumps(_fit_doc(robot, params, CHAIN_SPEC, lo, hi)))
+    base = ("export", "--model", tmp_path / "fit.json", "--format", "urdf", "--tip", "link_6", "--out",
+            tmp_path / "cal.urdf")
+    r = cli_invoker()(*base, "--urdf", FANUC_LIKE_URDF)
+    assert r.exit_code == 2
+    assert "[204.5000, 46.6000, 195.2000] mm in link 'link_6''s frame" in r.output, r.output
+    other = tmp_path / "other.urdf"
+    other.write_text(FANUC_LIKE_URDF.read_text().replace('<origin xyz="0 0 1.075" rpy="0 0 0"/>',
+                                                         '<origin xyz="0 0 1.085" rpy="0 0 0"/>'))
+    r = cli_invoker()(*base, "--urdf", other, "--tool-mm", *map(str, FANUC_TOOL_MM))
+    assert r.exit_code == 2
+    assert "joint 'joint_3' of the URDF lies" in r.output and len(r.output.strip().splitlines()) == 1, r.output
+    assert f"{other}:53:3:" in r.output            # the file, line and column of joint_3
+    assert not (tmp_path / "cal.urdf").exists()

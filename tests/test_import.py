@@ -637,3 +637,253 @@ def test_a_timestamp_that_is_not_iso_or_not_the_maps_format_is_named_in_the_sour
                "--robot", ROBOT, "--out", out)
     m = _fails(r, out)
     assert (m["line"], m["col"]) == ("2", "Timestamp"), r.stderr
+
+
+# --------------------------------------------------- a user's URDF: messages in its own terms
+FANUC_LIKE = ROOT / "tests" / "data" / "urdf" / "fanuc_like.urdf"   # synthetic, ROS-Industrial style
+
+
+def _fanuc_like_export(tmp_path, smr_in_link6_mm, n=60, seed=3):
+    """A synthetic tracker export of the FANUC-like URDF's arm (tracker frame, 0.05 mm noise): an SMR
+    at ``smr_in_link6_mm`` in link_6's frame; the source and its map."""
+    import pinocchio as pin
+
+    m = pin.buildModelFromUrdf(str(FANUC_LIKE))
+    d = m.createData()
+    fid = m.getFrameId("link_6")
+    rng = np.random.default_rng(seed)
+    Q = rng.uniform([-150, -50, -60, -180, -110, -180], [150, 60, 80, 180, 110, 180], (n, 6))
+    R = pin.exp3(np.array([0.1, -0.2, 0.7]))
+    P = []
+    for q in np.deg2rad(Q):
+        pin.framesForwardKinematics(m, d, q)
+        P.append(R @ d.oMf[fid].act(np.asarray(smr_in_link6_mm, float) / 1000.0) * 1000.0 + [2500.0, -300.0, 150.0])
+    P = np.array(P) + rng.normal(0.0, 0.05, (n, 3))
+    src = tmp_path / "fanuc.csv"
+    src.write_text("\n".join(["id,j1,j2,j3,j4,j5,j6,x,y,z"] + [
+        ",".join([f"P{i}"] + [f"{v:.6f}" for v in Q[i]] + [f"{v:.4f}" for v in P[i]]) for i in range(n)]) + "\n")
+    mp = tmp_path / "fanuc_map.toml"
+    mp.write_text('[joints]\ncolumns = ["j1", "j2", "j3", "j4", "j5", "j6"]\nunit = "deg"\n'
+                  '[position]\ncolumns = ["x", "y", "z"]\nunit = "mm"\nframe = "tracker"\n'
+                  '[columns]\npoint_id = "id"\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    return src, mp
+
+
+def test_wrong_tool_suggestion_can_be_typed_in_the_tip_links_frame(invoke, tmp_path):
+    """With --tip link_6 and no tool, import suggests the SMR in link_6's frame, as --tool-mm takes it, and
+    the message names the URDF (not robot.toml); typed back, the suggestion imports. (Before: the SMR in
+    the internal DH flange frame, [195.2, 46.6, -204.5], refused again when typed.)"""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2))
+    out = tmp_path / "camp"
+    m = _fails(invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--out", out),
+               out, "fanuc_like.urdf")
+    line = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+                  "--out", out).stderr
+    assert "robot.toml" not in line and "fanuc_like.urdf (--tip link_6)" in line, line
+    typed = re.search(r"\(--tool-mm (\S+) (\S+) (\S+)\)", line)
+    assert typed, line
+    assert np.allclose([float(v) for v in typed.groups()], [204.5, 46.6, 195.2], atol=0.15)
+    assert m["line"] == "31"                     # the <link name="link_6"> element
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+               "--tool-mm", *typed.groups(), "--out", out)
+    assert r.exit_code == 0, r.output
+
+
+def test_headerless_space_separated_export(invoke, tmp_path):
+    """[source] header = false with columns by number (and delimiter = " ": runs of spaces) imports the same
+    campaign as the file with a header; a headerless file read as headed, or a column number beyond its
+    fields, is named as a file without a header. (Before: "column '16' is not in the header (line 1)".)"""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=30)
+    rows = src.read_text().splitlines()[1:]
+    bare = tmp_path / "bare.txt"
+    bare.write_text("".join("  ".join(r.split(",")) + " \n" for r in rows))
+    numbered = tmp_path / "numbered.toml"
+    numbered.write_text('[source]\ndelimiter = " "\nheader = false\n'
+                        '[joints]\ncolumns = [2, 3, 4, 5, 6, 7]\nunit = "deg"\n'
+                        '[position]\ncolumns = [8, 9, 10]\nunit = "mm"\nframe = "tracker"\n'
+                        '[columns]\npoint_id = 1\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    robot = ("--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert invoke("import", "--source", src, "--map", mp, *robot, "--out", a).exit_code == 0
+    r = invoke("import", "--source", bare, "--map", numbered, *robot, "--out", b)
+    assert r.exit_code == 0, r.output
+    for f in ("poses.csv", "tracker.csv"):
+        assert (a / f).read_bytes() == (b / f).read_bytes()
+    # the map of the headed file on the headerless one: named as a file without a header
+    headed = tmp_path / "headed.toml"
+    headed.write_text(mp.read_text().replace("[joints]", '[source]\ndelimiter = " "\n[joints]'))
+    out = tmp_path / "c"
+    m = _fails(invoke("import", "--source", bare, "--map", headed, *robot, "--out", out), out, "headed.toml")
+    line = invoke("import", "--source", bare, "--map", headed, *robot, "--out", out).stderr
+    assert ("line 1 is numbers (9 of its 10 fields), not column names: a file without a header; set [source] "
+            "header = false" in line), line
+    assert m["line"] == "4"                          # [joints] columns, at "j1"
+    # a column number beyond the fields
+    beyond = tmp_path / "beyond.toml"
+    beyond.write_text(numbered.read_text().replace("[8, 9, 10]", "[8, 9, 16]"))
+    m = _fails(invoke("import", "--source", bare, "--map", beyond, *robot, "--out", out), out, "beyond.toml")
+    line = invoke("import", "--source", bare, "--map", beyond, *robot, "--out", out).stderr
+    assert "column 16 is beyond the 10 fields of line 1 of bare.txt (a file without a header" in line, line
+    assert (m["line"], m["col"]) == ("8", "18")      # the 16 in [position] columns
+    # a name where the file has none
+    named = tmp_path / "named.toml"
+    named.write_text(numbered.read_text().replace("[8, 9, 10]", '[8, "y", 10]'))
+    _fails(invoke("import", "--source", bare, "--map", named, *robot, "--out", out), out, "named.toml")
+
+
+def test_a_urdf_without_inertials_is_warned_about(invoke, tmp_path):
+    """A URDF without <inertial> on the arm's links imports with every mass 0, and says so: no gravity
+    torque, so compliance can be neither fitted nor revealed. With them, no warning."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=30)
+    bare = tmp_path / "no_inertia.urdf"
+    bare.write_text(re.sub(r"\s*<inertial>.*?</inertial>", "", FANUC_LIKE.read_text(), flags=re.S))
+    assert "<inertial>" not in bare.read_text()
+    args = ("--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    r = invoke("import", "--source", src, "--map", mp, "--robot", bare, *args, "--out", tmp_path / "a")
+    assert r.exit_code == 0, r.output
+    assert "warning: no_inertia.urdf has no <inertial> on the arm's links: every mass is 0" in r.stderr, r.stderr
+    assert all(j.mass_kg == 0 for j in load_robot(tmp_path / "a" / "robot.toml").joints)
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, *args, "--out", tmp_path / "b")
+    assert r.exit_code == 0 and "warning" not in r.stderr, r.stderr
+
+
+def test_fit_headline_says_the_rank_not_only_what_is_left_at_nominal(invoke, tmp_path):
+    """On a URDF robot with one SMR, geometry + base + tool has 12 combinations of parameters the SMR never
+    sees: fit's headline says the rank (27 of 39) beside "0 parameter(s) left at nominal"."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=60)
+    camp = tmp_path / "camp"
+    assert invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+                  "204.5", "46.6", "195.2", "--out", camp).exit_code == 0
+    r = invoke("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", tmp_path / "f.json")
+    assert r.exit_code == 0, r.output
+    head = next(ln for ln in r.stderr.splitlines() if "left at nominal" in ln)
+    assert "rank 27 of 39 parameters: 12 combination(s)" in head, head
+
+
+def _coupled_export(tmp_path, coupling_line=""):
+    """The FANUC-like export with joint 3 as a FANUC pendant records it (J3 = q3 - q2: the arm's joint 3
+    turns by J2 + J3), and its map (``coupling_line`` added to [joints])."""
+    src, mp = _fanuc_like_export(tmp_path, (204.5, 46.6, 195.2), n=60)
+    rows = src.read_text().splitlines()
+    out = [rows[0]]
+    for r in rows[1:]:
+        f = r.split(",")
+        f[3] = f"{float(f[3]) - float(f[2]):.6f}"
+        out.append(",".join(f))
+    src.write_text("\n".join(out) + "\n")
+    mp.write_text(mp.read_text().replace('unit = "deg"\n', 'unit = "deg"\n' + coupling_line, 1))
+    return src, mp
+
+
+def test_coupled_joints_are_named_as_a_cause_and_imported_as_stated(invoke, tmp_path):
+    """J3 recorded as a FANUC pendant shows it (the J2/J3 interaction): import names the coupling as the likely
+    cause, with the line to write; with [joints] coupling the campaign imports, poses.csv keeps the recorded
+    angles, robot.toml carries [coupling] and the campaign's nominal check passes on the coupled angles.
+    (Before: refused at ~700 mm with no coupling among the causes tried.)"""
+    args = ("--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm", "204.5", "46.6", "195.2")
+    src, mp = _coupled_export(tmp_path)
+    out = tmp_path / "camp"
+    _fails(invoke("import", "--source", src, "--map", mp, *args, "--out", out), out, mp.name)
+    line = invoke("import", "--source", src, "--map", mp, *args, "--out", out).stderr
+    assert "joint 3's recorded angle looks coupled to joint 2's (q3 + q2 fits" in line, line
+    assert "[joints] coupling = { q3 = { q2 = 1, q3 = 1 } }" in line, line
+    src, mp = _coupled_export(tmp_path, "coupling = { q3 = { q2 = 1, q3 = 1 } }\n")
+    r = invoke("import", "--source", src, "--map", mp, *args, "--out", out)
+    assert r.exit_code == 0, r.output
+    robot = load_robot(out / "robot.toml")
+    assert robot.coupling == ((2, (0.0, 1.0, 1.0, 0.0, 0.0, 0.0)),)
+    poses, _ = _read(out)
+    given = pd.read_csv(src)
+    assert np.allclose(poses["q3"], given["j3"])                 # the recorded angle, as recorded
+    from pipeline.robot.campaign.ingest import robot_data_from_campaign
+
+    _, data = robot_data_from_campaign(out, sets=("sample", "target"))
+    ids = list(poses["point_id"])
+    assert np.allclose(data.q_deg[:, 2], (given["j3"] + given["j2"]).to_numpy()[[ids.index(p) for p in data.point_id]])
+
+
+def test_coupled_robot_is_corrected_in_the_controllers_angles(invoke, tmp_path):
+    """correct --targets on a coupled robot (FANUC J2/J3): targets and corrected commands are the controller's
+    angles; the fitted model, at the angles the corrected commands give the arm (J2 + J3 for joint 3), puts
+    the SMR where the nominal robot put the given ones."""
+    src, mp = _coupled_export(tmp_path, "coupling = { q3 = { q2 = 1, q3 = 1 } }\n")
+    camp = tmp_path / "camp"
+    assert invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+                  "204.5", "46.6", "195.2", "--out", camp).exit_code == 0
+    fit = tmp_path / "fit.json"
+    r = invoke("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", fit)
+    assert r.exit_code == 0, r.output
+    poses, _ = _read(camp)
+    given = poses[poses["set"] == "sample"].head(8)[["point_id"] + [f"q{j}" for j in range(1, 7)]]
+    given.to_csv(tmp_path / "targets.csv", index=False)
+    r = invoke("correct", "--model", fit, "--targets", tmp_path / "targets.csv", "--out", tmp_path / "out.csv")
+    assert r.exit_code == 0, r.output
+    out = pd.read_csv(tmp_path / "out.csv")
+    assert (out["status"] == "ok").all(), out["status"].tolist()
+    import json
+
+    from pipeline.correct.robot import ModelKinematics
+    from pipeline.robot.model.predict import load_model_document
+
+    robot, _, model, _, _ = load_model_document(json.loads(fit.read_text()), str(fit))
+    kin = ModelKinematics(robot, model)
+    qg = given[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    qc = out[[f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    n = len(qg)
+    meant = kin.nominal(robot.kinematic_angles(qg))[1]
+    lands = kin.predict(robot.kinematic_angles(qc), np.ones((n, 6), int), np.zeros(n), np.full(n, 20.0))
+    assert np.abs(lands - meant).max() < 1e-3                      # mm
+    assert np.allclose(out[[f"dq{j}_arcsec" for j in range(1, 7)]].to_numpy(), (qc - qg) * 3600.0, atol=1e-3)
+
+
+def _nest_export(tmp_path, n=60, seed=5, wild=None):
+    """A synthetic export of the FANUC-like arm measured as three SMRs on a nest on link_6 (tracker frame,
+    0.02 mm noise): SMR 1 at (204.5, 46.6, 195.2) mm in link_6's frame, SMR 2 100 mm along its y, SMR 3
+    80 mm along its -z. ``wild``: (row, mm) moves SMR 2 of that row along x."""
+    import pinocchio as pin
+
+    m = pin.buildModelFromUrdf(str(FANUC_LIKE))
+    d = m.createData()
+    fid = m.getFrameId("link_6")
+    rng = np.random.default_rng(seed)
+    Q = rng.uniform([-150, -50, -60, -180, -110, -180], [150, 60, 80, 180, 110, 180], (n, 6))
+    s1 = np.array([204.5, 46.6, 195.2])
+    smrs = [s1, s1 + [0.0, 100.0, 0.0], s1 + [0.0, 0.0, -80.0]]
+    Rt, tt = pin.exp3(np.array([0.1, -0.2, 0.7])), np.array([2500.0, -300.0, 150.0])
+    rows = []
+    for i, q in enumerate(np.deg2rad(Q)):
+        pin.framesForwardKinematics(m, d, q)
+        pts = [Rt @ d.oMf[fid].act(s / 1000.0) * 1000.0 + tt + rng.normal(0, 0.02, 3) for s in smrs]
+        if wild is not None and i == wild[0]:
+            pts[1] = pts[1] + [wild[1], 0.0, 0.0]
+        rows.append(",".join([f"P{i}"] + [f"{v:.6f}" for v in Q[i]] + [f"{v:.4f}" for p in pts for v in p]))
+    src = tmp_path / "nest.csv"
+    src.write_text("\n".join(["id,j1,j2,j3,j4,j5,j6,x1,y1,z1,x2,y2,z2,x3,y3,z3"] + rows) + "\n")
+    mp = tmp_path / "nest_map.toml"
+    mp.write_text('[joints]\ncolumns = ["j1", "j2", "j3", "j4", "j5", "j6"]\nunit = "deg"\n'
+                  '[position]\ncolumns = ["x1", "y1", "z1"]\nunit = "mm"\nframe = "tracker"\n'
+                  '[orientation]\nkind = "nest"\ncolumns = ["x2", "y2", "z2", "x3", "y3", "z3"]\n'
+                  '[columns]\npoint_id = "id"\n[split]\nsample_fraction = 0.6\nseed = 1\n')
+    return src, mp
+
+
+def test_a_nest_of_three_smrs_is_read_as_position_and_orientation(invoke, tmp_path):
+    """[orientation] kind = "nest": SMR 1 is the position, SMRs 2 and 3 give the probe frame's orientation;
+    the campaign imports as a 6-DoF campaign whose orientations fit the nominal flange frames (the nest's
+    mounting estimated); an SMR off its nest at one pose is refused at that row."""
+    src, mp = _nest_export(tmp_path)
+    out = tmp_path / "camp"
+    r = invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6", "--tool-mm",
+               "204.5", "46.6", "195.2", "--out", out)
+    assert r.exit_code == 0, r.output
+    tracker = pd.read_csv(out / "tracker.csv")
+    assert {"qw", "qx", "qy", "qz"} <= set(tracker.columns)
+    rms = float(re.search(r"miss the measured probe frames by ([\d.]+) deg", r.stderr).group(1))
+    assert rms < 0.05, r.stderr                     # 0.02 mm on a 100 mm nest: hundredths of a degree
+    robot = load_robot(out / "robot.toml")
+    assert any(v != 0 for v in robot.tool_rpy_deg)  # the nest's mounting, estimated from the data
+    src, mp = _nest_export(tmp_path, wild=(7, 3.0))
+    m = _fails(invoke("import", "--source", src, "--map", mp, "--robot", FANUC_LIKE, "--tip", "link_6",
+                      "--tool-mm", "204.5", "46.6", "195.2", "--out", out.with_name("c2")), out.with_name("c2"),
+               "nest.csv")
+    assert m["line"] == "9" and m["col"] == "x2"

@@ -219,3 +219,57 @@ def test_exchange_ends_where_no_single_swap_improves(kind):
             trial = list(chosen)
             trial[p] = i
             assert value(trial) <= best + 1e-9 * abs(best)
+
+
+def test_structural_parameters_are_not_blamed_on_the_pool(cell, tmp_path, invoke):
+    """Parameters no poses can identify (structural, e.g. combinations one SMR never tells apart) are not
+    called the pool's, nor "left at nominal" when jointcal fit fits them as their share; those a frozen
+    wrist takes away are the pool's. (Before: all of them "not identifiable from any poses of this pool
+    (left at nominal by jointcal fit)".)"""
+    robot, c = cell
+    Q = _pool(robot, c, 200, 8)
+    Qf = Q.copy()
+    Qf[:, 3:] = Qf[0, 3:]
+    out = {}
+    for name, q in (("full", Q), ("frozen", Qf)):
+        _write_pool(tmp_path / f"{name}.csv", q)
+        res = invoke("plan", "--robot", KR210, "--spec", SPEC, "--pool", tmp_path / f"{name}.csv", "--n", 20,
+                     "--out", tmp_path / f"{name}.plan.csv", "--json", tmp_path / f"{name}.json")
+        assert res.exit_code == 0, res.output
+        out[name] = (json.loads((tmp_path / f"{name}.json").read_text()), res.stderr)
+    full, frozen = out["full"][0], out["frozen"][0]
+    structural = set(full["not_identifiable_structural"])
+    assert structural and structural == set(full["not_identifiable_on_pool"])     # a broad pool: all structural
+    assert set(frozen["not_identifiable_structural"]) == structural                # the same robot, the same
+    lost = set(frozen["not_identifiable_on_pool"]) - structural
+    assert lost                                                                    # the frozen wrist's
+    console = out["frozen"][1]
+    pools = [ln for ln in console.splitlines() if "of this pool" in ln]
+    assert pools and all(nm in pools[0] for nm in lost) and not any(nm in pools[0] for nm in structural), console
+    redundant = [nm for nm, why in full["not_identifiable_on_pool"].items() if why.startswith("redundant")]
+    if redundant:
+        line = next(ln for ln in out["full"][1].splitlines() if "structural" in ln and "their share" in ln)
+        assert all(nm in line for nm in redundant) and "left at nominal" not in line
+
+
+def test_a_coupled_robots_pool_is_planned_on_the_arms_angles(cell, tmp_path, invoke):
+    """With robot.toml's [coupling] (q3 = q2 + q3 of the controller's angles), the pool and the plan are the
+    controller's angles and the choice is made on the arm's: the same poses as for the uncoupled robot given
+    the combined pool, written as the pool has them."""
+    robot, c = cell
+    Q = _pool(robot, c, 150, 9)
+    rec = Q.copy()
+    rec[:, 2] = Q[:, 2] - Q[:, 1]                 # what a FANUC-style controller records for joint 3
+    coupled = tmp_path / "coupled.toml"
+    coupled.write_text(KR210.read_text() + "\n[coupling]\nq3 = { q2 = 1.0, q3 = 1.0 }\n")
+    _write_pool(tmp_path / "arm.csv", Q)
+    _write_pool(tmp_path / "rec.csv", rec)
+    for name, rob, pool in (("arm", KR210, "arm.csv"), ("rec", coupled, "rec.csv")):
+        r = invoke("plan", "--robot", rob, "--spec", SPEC, "--pool", tmp_path / pool, "--n", 15,
+                   "--out", tmp_path / f"{name}.plan.csv")
+        assert r.exit_code == 0, r.output
+    a, b = pd.read_csv(tmp_path / "arm.plan.csv"), pd.read_csv(tmp_path / "rec.plan.csv")
+    assert list(a["point_id"]) == list(b["point_id"])
+    pool = pd.read_csv(tmp_path / "rec.csv").set_index("point_id")
+    cols = [f"q{j}" for j in range(1, 7)]
+    assert np.allclose(b[cols].to_numpy(), pool.loc[b["point_id"], cols].to_numpy(), atol=1e-6)

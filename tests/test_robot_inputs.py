@@ -77,6 +77,18 @@ def toml_missing_a(lines):
     return lines[:k] + lines[k + 1:]
 
 
+def coupling_unknown_joint(lines):
+    return lines + ["\n[coupling]\n", "q9 = { q2 = 1.0, q3 = 1.0 }\n"]
+
+
+def coupling_singular(lines):
+    return lines + ["\n[coupling]\n", "q3 = { q2 = 1.0 }\n"]
+
+
+def coupling_bad_factor(lines):
+    return lines + ["\n[coupling]\n", "q3 = { q2 = \"one\", q3 = 1.0 }\n"]
+
+
 CASES = [
     ("poses.csv", rename_col, "poses.csv:1:q3", "misspelled"),
     ("poses.csv", nan_q2, "poses.csv:6:q2", "NaN"),
@@ -87,6 +99,9 @@ CASES = [
     ("tracker.csv", drop_tracker, "poses.csv:", "no tracker point"),
     ("tracker.csv", metres, "tracker.csv:2:x_mm", "metres"),
     ("robot.toml", toml_missing_a, "robot.toml:", "missing field 'a_mm'"),
+    ("robot.toml", coupling_unknown_joint, "robot.toml:", "[coupling] 'q9' is not a joint q1..q6"),
+    ("robot.toml", coupling_singular, "robot.toml:", "cannot be recovered"),
+    ("robot.toml", coupling_bad_factor, "robot.toml:", "must be a recorded joint q1..q6 with a finite factor"),
 ]
 
 
@@ -103,10 +118,11 @@ def test_bad_input_exit_2_one_line(tmp_path, fname, edit, where, what):
     assert "Traceback" not in r.stderr
     assert not (tmp_path / "p.parquet").exists()
     if fname == "robot.toml":
-        # the line of the [[joint]] table that lacks the field
+        # the line of the [[joint]] table that lacks the field, or of the [coupling] key / section at fault
         text = (camp / "robot.toml").read_text().splitlines()
         line = int(re.search(r"robot\.toml:(\d+):", lines[0]).group(1))
-        assert text[line - 1].startswith("[[joint]]")
+        assert text[line - 1].startswith("[coupling]" if edit is coupling_singular else
+                                          "q" if "coupling" in edit.__name__ else "[[joint]]"), text[line - 1]
 
 
 def test_targets_outside_the_sampled_range_warn_and_strict_refuses(tmp_path):

@@ -329,8 +329,12 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
 @click.option("--out", required=True, type=click.Path(),
               help="File to write (ur: a .yaml or .conf path, the other file beside it, or a folder for both).")
 @click.option("--urdf", "urdf_path", default=None, type=click.Path(dir_okay=False),
-              help="urdf: rewrite this URDF of the robot instead, changing only <origin> elements (with --tip).")
-@click.option("--tip", default=None, help="urdf with --urdf: the link whose origin is the SMR (as for jointcal import).")
+              help="urdf: rewrite this URDF of the robot (the one it was imported from) instead: only its revolute "
+                   "joints' <origin> elements change, by the calibration's amounts; every link keeps its frame, "
+                   "tool0, the flange and every fixed child stay; the SMR is added as a fixed child 'smr' of --tip.")
+@click.option("--tip", default=None, help="urdf with --urdf: the link the SMR is given in (as for jointcal import).")
+@click.option("--tool-mm", "tool_mm", nargs=3, type=float, default=None, metavar="X Y Z",
+              help="urdf with --urdf: the SMR in the --tip link's frame, mm (as for jointcal import; default its origin).")
 @click.option("--base", "base_link", default=None,
               help="urdf with --urdf: the link whose frame is the model's base frame (as for jointcal import; "
                    "default the URDF's root).")
@@ -344,7 +348,8 @@ def _measure_program(truth_path, program_path, campaign, robot_path, seed, tool_
 @click.option("--with-tables", is_flag=True,
               help="urdf, ur: write the chain for a robot whose drives also apply the model's joint tables "
                    "(--format table): fitted with the tables applied. Default: the chain alone, nearest the whole model.")
-def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign, json_out, step_deg, with_tables):
+def export_cmd(model_path, fmt, out, urdf_path, tip, tool_mm, base_link, heldout_campaign, json_out, step_deg,
+               with_tables):
     """Write a fitted model in a form a robot or its drives take (contract section 8).
 
     \b
@@ -378,9 +383,9 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
     urdf = None
     if fmt == "urdf" and urdf_path:
         if not tip:
-            raise click.UsageError("--urdf needs --tip LINK (the link whose origin is the SMR)")
+            raise click.UsageError("--urdf needs --tip LINK (the link the SMR is given in, as for jointcal import)")
         _need_file(urdf_path, "the robot's URDF")
-        urdf = (urdf_path, tip, base_link)
+        urdf = (urdf_path, tip, base_link, tool_mm)
     exported = export_robot(model_path, doc, loaded, fmt, step_deg, with_tables, urdf)
     paths = {"urdf": [out], "table": [out], "ur": list(ur_paths(out))}[fmt]
     for path, (_, text) in zip(paths, exported.texts):

@@ -49,6 +49,8 @@ def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm, u
     how = "after a rigid fit of the tracker frame" if s["frame"] == "tracker" else "in the base frame"
     click.echo(f"{out_dir}: {s['n']} poses ({s['sample']} sample, {s['target']} target) from {source_path}; "
                f"nominal kinematics miss them by {s['nominal_rms_mm']:.3f} mm RMS {how}", err=True)
+    for w in s.get("warnings", []):
+        click.echo(f"  warning: {w}", err=True)
     o = s.get("orientation")
     if o:
         rpy = ", ".join(f"{v:.3f}" for v in o["mounting_rpy_deg"])

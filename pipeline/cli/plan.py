@@ -109,8 +109,9 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
                + (f" (u95_mm {summary['predicted_u95_mm']:.3f} mm with the noise)"
                   if summary.get("predicted_u95_mm") is not None else "")
                + f"; path {summary['path_deg']:.0f} deg", err=True)
-    if summary["not_identifiable_on_pool"]:
-        click.echo(f"not identifiable from any poses of this pool (left at nominal by jointcal fit): "
-                   f"{', '.join(summary['not_identifiable_on_pool'])}", err=True)
+    from ..plan.design import parameter_notes
+
+    for line in parameter_notes(summary):
+        click.echo(line, err=True)
     for note in summary["notes"]:
         click.echo(f"note: {note}", err=True)

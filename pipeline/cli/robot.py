@@ -527,8 +527,15 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
         held += f"{wt['method']}; "
     fixed = result["not_identified"]
     weak = [n for n, why in fixed.items() if why.startswith("weakly")]
+    groups = (result.get("identification") or {}).get("redundant") or []
+    unseen = sum(int(g.get("unseen", 0)) for g in groups if isinstance(g, dict))
+    n_par = len(result.get("parameters") or [])
     click.echo(f"{out}: {' + '.join(result['effects'])}; {held}cross-validated RMS {result['cv_rms_mm']:.4f} mm "
-               f"({result['cv_folds']}); {len(fixed)} parameter(s) left at nominal"
+               f"({result['cv_folds']}); "
+               + (f"rank {n_par - unseen - len(fixed)} of {n_par} parameters: {unseen} combination(s) of "
+                  f"{sum(len(g.get('parameters', [])) for g in groups)} parameters the measurements cannot see, held "
+                  "nearest the nominal robot (identification.redundant), " if unseen and n_par else "")
+               + f"{len(fixed)} parameter(s) left at nominal"
                + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
                err=True)
     if result.get("largest_relative_uncertainty"):

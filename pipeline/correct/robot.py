@@ -253,6 +253,70 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
     return dq1 + np.einsum("nij,nj->ni", Np, z)
 
 
+#: two joint axes closer than this (deg apart, and their lines this close, mm) make a singularity
+SINGULAR_DEG = 2.0
+SINGULAR_MM = 1.0
+
+
+def singularity(robot, q_deg) -> str:
+    """What singularity the nominal arm is at or near at ``q_deg`` (N,) deg: two joints turning about
+    (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; "" when none.
+
+    Parameters
+    ----------
+    robot : Robot
+    q_deg : array_like, shape (N,), deg
+    """
+    import pinocchio as pin
+
+    model = build_model(robot)
+    data = model.createData()
+    pin.forwardKinematics(model, data, np.deg2rad(np.asarray(q_deg, float)))
+    n = robot.n_joints
+    axes = [(data.oMi[i + 1].translation * 1000.0, data.oMi[i + 1].rotation[:, 2]) for i in range(n)]
+    for i in range(n):
+        for j in range(i + 1, n):
+            (p, u), (r, v) = axes[i], axes[j]
+            c = np.cross(u, v)
+            apart = float(np.rad2deg(np.arcsin(min(1.0, np.linalg.norm(c)))))
+            if apart > SINGULAR_DEG:
+                continue
+            w = r - p
+            dist = (abs(w @ c) / np.linalg.norm(c) if np.linalg.norm(c) > 1e-9
+                    else float(np.linalg.norm(w - (w @ u) * u)))
+            if dist > SINGULAR_MM:
+                continue
+            pair = f"joints {i + 1} and {j + 1} turn about nearly the same axis ({apart:.3f} deg apart)"
+            if i == n - 3 and j == n - 1:
+                return (f"the wrist singularity: at joint {j} = {float(q_deg[j - 1]):+.3f} deg {pair}, so a turn about "
+                        "it is split between them arbitrarily")
+            return f"a singularity: {pair}, so a turn about it is split between them arbitrarily"
+    return ""
+
+
+def correct_recorded(kin: ModelKinematics, q_deg, *args, **kwargs) -> Correction:
+    """:func:`correct_commands` on the controller's own angles: a robot with coupled joints (robot.toml's
+    ``[coupling]``, a FANUC's J2/J3 interaction) is corrected on the angles its kinematics take, and the
+    corrected commands (``q_deg``, ``dq_arcsec``) are written back in the controller's angles; without
+    coupling it is :func:`correct_commands`.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+        The program's joint values as the controller takes them.
+    """
+    robot = kin.robot
+    if not robot.coupling:
+        return correct_commands(kin, q_deg, *args, **kwargs)
+    given = np.atleast_2d(np.asarray(q_deg, float))
+    res = correct_commands(kin, robot.kinematic_angles(given), *args, **kwargs)
+    q = robot.recorded_angles(res.q_deg)
+    left = res.status != OK
+    q[left] = given[left]
+    res.q_deg, res.dq_arcsec = q, (q - given) * 3600.0
+    return res
+
+
 def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, payload_kg=None, temperature_c=None,
                      sampled: dict | None = None, max_correction_deg: float = MAX_CORRECTION_DEG,
                      tol_um: float = RESIDUAL_TOL_UM, max_iter: int = MAX_ITER, target_R=None,
@@ -363,11 +427,17 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
             status[k] = NO_SOLUTION
             reason[k] = (f"the model does not reach the point: {res[k]:.3g} um left after {iters[k]} iterations "
                          f"(limit {tol_um:g} um)")
+            near = singularity(kin.robot, q0[k])
+            if near:
+                reason[k] += f" ({near})"
         elif np.abs(dq[k]).max() > max_correction_deg:
             j = int(np.argmax(np.abs(dq[k])))
             status[k] = TOO_LARGE
             reason[k] = (f"joint {j + 1} would need {dq[k, j]:+.3f} deg, beyond --max-correction-deg "
                          f"{max_correction_deg:g}")
+            near = singularity(kin.robot, q0[k])
+            if near:
+                reason[k] += f" ({near})"
     big = np.flatnonzero((status == TOO_LARGE) & (held != "none"))
     if hold_orientation and big.size:
         # the position alone, where holding the orientation too would take more than the limit

@@ -2,7 +2,7 @@
 
 :func:`correct_targets` is the whole job between reading the inputs and writing the output: the
 targets read and checked (:func:`pipeline.correct.targets.read_targets`), every row corrected
-(:func:`pipeline.correct.robot.correct_commands`), the corrected program as CSV text
+(:func:`pipeline.correct.robot.correct_recorded`, on the controller's angles), the corrected program as CSV text
 (:func:`pipeline.correct.write.corrected_csv`). The command (``pipeline.cli.deploy``) reads the model,
 writes the text and prints.
 """
@@ -15,7 +15,7 @@ import numpy as np
 
 from ..robot.model.rigid import assumptions, model_payload
 from ..robot.model.uncertainty import load_prediction
-from .robot import Correction, ModelKinematics, correct_commands
+from .robot import Correction, ModelKinematics, correct_recorded
 from .targets import Targets, read_targets
 from .write import corrected_csv
 
@@ -112,9 +112,9 @@ def correct_targets(targets_path, doc: dict, loaded: tuple, max_correction_deg: 
     robot, effects, model, sampled, frame = loaded
     payload = model_payload(doc.get("payloads_kg"))
     kin = ModelKinematics(robot, model)
-    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(q)[1],
+    tg = read_targets(targets_path, len(robot.joints), nominal_xyz=lambda q: kin.nominal(robot.kinematic_angles(q))[1],
                       default_payload_kg=payload or 0.0)
-    res = correct_commands(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
+    res = correct_recorded(kin, tg.q_deg, tg.target_mm, tg.dirs, tg.payload_kg, tg.temperature_c, sampled,
                            max_correction_deg, target_R=tg.target_R, stated=load_prediction(doc, model))
     text = corrected_csv(tg.point_id, res, res.dirs, tg.payload_kg, tg.temperature_c)
     return CorrectedTargets(tg, res, text, payload, assumptions(doc, len(robot.joints)))

@@ -36,6 +36,19 @@ from ..core.crossval import CVResult
 
 ALPHA = 0.01
 MIN_GAIN = 0.01
+#: a held-out RMS more than this many times the baseline's is a fit the held-out rows do not determine
+#: (a region left out takes the only poses that fix a parameter): its gain is given as 1 - this, flagged
+BLOWUP = 100.0
+
+
+def relative_gain(with_rms: float, base_rms: float) -> tuple[float, bool]:
+    """``1 - with_rms / base_rms`` and whether the held-out fit blew up (a non-finite RMS, or beyond
+    :data:`BLOWUP` times the baseline's: then the gain is ``1 - BLOWUP``, not a ratio of ~0 and ~1e135)."""
+    if not (np.isfinite(base_rms) and base_rms > 0):
+        return 0.0, False
+    if not np.isfinite(with_rms) or with_rms > BLOWUP * base_rms:
+        return 1.0 - BLOWUP, True
+    return 1.0 - with_rms / base_rms, False
 
 
 def paired_test(base: CVResult, other: CVResult) -> dict:
@@ -129,8 +142,10 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
         if ok:
             revealable.append(cand)
         else:
+            helps = getattr(cand, "poses_can_help", None)
             unrevealable.append({"effect": cand.name, "target": cand.target(), "reason": why,
-                                 "explanation": cand.explanation, **_plan_hint(cand, spec)})
+                                 "explanation": cand.explanation,
+                                 **(_plan_hint(cand, spec) if helps is None or helps(data) else {})})
     if regional:
         say(f"{len(revealable)} candidates, each a linear correction to the shared baseline fit")
         evaluated = adapter.evaluate(base_effects, revealable, data, say)
@@ -146,7 +161,7 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             unrevealable.append({"effect": cand.name, "target": cand.target(),
                                  "reason": "the fit with this effect is singular on these data", "explanation": cand.explanation})
             continue
-        gain = 1.0 - with_cv.rms / base.rms if base.rms > 0 else 0.0
+        gain = 1.0 - with_cv.rms / base.rms if base.rms > 0 else 0.0     # the contract's gain, as it is
         test = adapter.significance(cand, base, with_cv, data)
         candidates.append({
             "effect": cand.name, "target": cand.target(), "cv_rms_with": with_cv.rms, "gain": gain,
@@ -158,7 +173,9 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             candidates[-1]["order"] = cand.orders()[0] if len(cand.orders()) == 1 else cand.orders()
         if ev.get("region") is not None:
             candidates[-1]["cv_rms_region"] = ev["region"].rms
-            candidates[-1]["gain_region"] = 1.0 - ev["region"].rms / base_region.rms if base_region.rms > 0 else 0.0
+            candidates[-1]["gain_region"], blown = relative_gain(ev["region"].rms, base_region.rms)
+            if blown:
+                candidates[-1]["region_undetermined"] = True
         if ev.get("refused"):
             candidates[-1]["refused"] = ev["refused"]
         split = _components(adapter, base, with_cv, data)
@@ -175,7 +192,9 @@ def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GA
             c["meaningful"] = False
             c["refused"] = (f"does not carry over to poses away from those it was fitted on: held out region by "
                             f"region of joint space, the RMS goes from {base_region.rms:.4g} to "
-                            f"{c['cv_rms_region']:.4g} {adapter.unit} ({100 * c['gain_region']:+.1f} %)")
+                            f"{c['cv_rms_region']:.4g} {adapter.unit} ({region_gain_text(c)})"
+                            + ("; with a region held out the other regions' poses do not determine the effect"
+                               if c.get("region_undetermined") else ""))
         elif c["meaningful"] and c.get("refused"):
             c["meaningful"] = False
     candidates.sort(key=lambda c: (not c["meaningful"], -c["gain"]))
@@ -318,7 +337,7 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, 
     ok = gain >= min_gain and sr.rms < br.rms and gain >= best_alone - min_gain and not trade
     out = {"members": [label(c) for c in members], "checked": True, "baseline_cv_rms": b.rms,
            "baseline_cv_rms_region": br.rms, "cv_rms": s.rms, "cv_rms_region": sr.rms, "gain": gain,
-           "gain_region": 1.0 - sr.rms / br.rms if br.rms > 0 else 0.0, "passed": bool(ok), "dropped": [],
+           "gain_region": relative_gain(sr.rms, br.rms)[0], "passed": bool(ok), "dropped": [],
            "method": "each fold refitted (nonlinear least squares from the start), by pose and by region"}
     split_b = adapter.components(b, data) if hasattr(adapter, "components") else None
     if split_b:
@@ -353,7 +372,7 @@ def verify_set(adapter, data, base_effects, candidates, objects, min_gain, say, 
             say(f"  + {label(c)}: dropped ({t.rms:.4g} by pose, {tr.rms:.4g} by region)")
     out.update(members=[label(c) for c in kept], cv_rms=cur.rms, cv_rms_region=cur_r.rms,
                gain=1.0 - cur.rms / b.rms if b.rms > 0 else 0.0,
-               gain_region=1.0 - cur_r.rms / br.rms if br.rms > 0 else 0.0, passed=bool(kept), first_try=first)
+               gain_region=relative_gain(cur_r.rms, br.rms)[0], passed=bool(kept), first_try=first)
     return out
 
 
@@ -423,6 +442,13 @@ def label(c: dict) -> str:
     return text
 
 
+def region_gain_text(c: dict) -> str:
+    """A candidate's gain held out by region, in per cent; a fit that blew up is said as such."""
+    if c.get("region_undetermined"):
+        return f"more than {BLOWUP:g} times the baseline's RMS"
+    return f"{100 * c.get('gain_region', 0.0):+.1f} %"
+
+
 def target_text(c: dict) -> str:
     """The target column: the joint, with the order of a joint harmonic (``3/k8``)."""
     if c.get("target") is None:
@@ -448,7 +474,8 @@ def format_table(result: dict, width: int = 110) -> str:
                    f"no (explained by {_names(c['explained_by'])})" if c.get("explained_by") else
                    "no (refused: see below)" if c.get("refused") else "no (within noise)")
         lines.append(f"{k:>2}  {c['effect']:<15}{target_text(c):>7}  {c['cv_rms_with']:>11.4g}  {100 * c['gain']:>6.1f}%"
-                     + (f"  {100 * c.get('gain_region', 0.0):>7.1f}%" if region else "")
+                     + ((f"  {'>' + format(BLOWUP, 'g') + 'x':>8}" if c.get("region_undetermined") else
+                         f"  {100 * c.get('gain_region', 0.0):>7.1f}%") if region else "")
                      + f"  {c['p']:>8.1e}  {verdict}")
     best = [c for c in result["candidates"] if c["meaningful"]]
     lines.append("")

@@ -145,8 +145,10 @@ def export_chain(robot, model, doc: dict, sampled: dict, with_tables: bool = Fal
     return chain, how
 
 
-def folded_chain(robot, model) -> dict:
+def folded_chain(robot, model, keep=CHAIN_EFFECTS) -> dict:
     """The model's rigid chain (geometry, base and tool) as joint origins (metres, radians).
+
+    ``keep=()``: the nominal robot's chain (every parameter at zero).
 
     Returns
     -------
@@ -161,7 +163,7 @@ def folded_chain(robot, model) -> dict:
     data = model_data(robot, np.zeros((1, nj)), np.ones((1, nj), int), np.zeros(1),
                       np.full(1, REFERENCE_TEMPERATURE_C))
     d = Design(robot, list(getattr(model, "effects_", model.effects)), data, (emodel, idx))
-    Q = d.configurations(masked_coef(robot, model, CHAIN_EFFECTS))[0]
+    Q = d.configurations(masked_coef(robot, model, keep))[0]
     ed = emodel.createData()
     pin.forwardKinematics(emodel, ed, Q)
     pin.updateFramePlacements(emodel, ed)

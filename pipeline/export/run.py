@@ -118,10 +118,12 @@ def export_robot(model_path, doc: dict, loaded: tuple, fmt: str, step_deg: float
         ``table``: angle step over each joint's sampled range.
     with_tables : bool
         ``urdf``, ``ur``: the chain for drives that also apply the joint tables.
-    urdf : (path-like, str, str or None), optional
-        ``urdf``: ``(path, tip, base_link)`` of a URDF file of the robot to rewrite (only its ``<origin>``
-        elements change; ``tip`` the link whose origin is the SMR, ``base_link`` the link whose frame is
-        the model's base frame, None: the URDF's root); None: a URDF of the chain alone.
+    urdf : (path-like, str, str or None, array_like or None), optional
+        ``urdf``: ``(path, tip, base_link, tool_mm)`` of the URDF file the robot was imported from, to
+        rewrite (only its revolute joints' ``<origin>`` elements change, by the calibration's amounts; the
+        SMR is added as a fixed child of ``tip``, the link the SMR is given in; ``base_link`` the link whose
+        frame is the model's base frame, None: the URDF's root; ``tool_mm`` (3,) mm the SMR in ``tip``'s
+        frame as given to ``jointcal import``, None: ``tip``'s origin); None: a URDF of the chain alone.
 
     Returns
     -------
@@ -155,7 +157,7 @@ def export_robot(model_path, doc: dict, loaded: tuple, fmt: str, step_deg: float
     assumed = assumptions(doc, len(robot.joints))
     comments = [f"jointcal export, format {fmt}, of {model_path}", note, assumed]
     if fmt == "urdf":
-        texts = [("urdf", _urdf_text(robot, folded_chain(robot, chain_model), comments, urdf))]
+        texts = [("urdf", _urdf_text(robot, chain_model, comments, urdf))]
     elif fmt == "ur":
         texts = _ur_texts(robot, effects, doc, folded_chain(robot, chain_model), comments)
     else:
@@ -168,19 +170,17 @@ def export_robot(model_path, doc: dict, loaded: tuple, fmt: str, step_deg: float
     return RobotExport(texts, note, assumed, plain_model, tables_model)
 
 
-def _urdf_text(robot, chain: dict, comments: list[str], urdf) -> str:
-    """The URDF: the given one with the chain's origins, or the chain alone."""
-    from .urdf import chain_urdf, rewrite_urdf
+def _urdf_text(robot, chain_model, comments: list[str], urdf) -> str:
+    """The URDF: the given one with the calibration folded into its revolute joints' origins
+    (:func:`pipeline.export.urdf.rewrite_urdf_file`), or the chain alone."""
+    from .urdf import chain_urdf, rewrite_urdf_file
 
+    chain = folded_chain(robot, chain_model)
     if urdf is None:
         return chain_urdf(robot.name + "_calibrated", chain, comments)
-    path, tip, base_link = urdf
-    try:
-        return rewrite_urdf(Path(path).read_text(encoding="utf-8"), tip, chain, comments, base_link)
-    except ValueError as exc:
-        raise InputError(path, str(exc), None, None) from None
-    except Exception as exc:  # noqa: BLE001  (ElementTree.ParseError and friends)
-        raise InputError(path, f"not a readable URDF ({exc})", None, None) from None
+    path, tip, base_link, tool_mm = urdf
+    return rewrite_urdf_file(path, tip, chain, comments, base_link,
+                             nominal=folded_chain(robot, chain_model, keep=()), tool_mm=tool_mm)
 
 
 def _ur_texts(robot, effects, doc: dict, chain: dict, comments: list[str]) -> list[tuple[str, str]]:

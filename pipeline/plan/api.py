@@ -33,13 +33,16 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
         information too (see :func:`pipeline.plan.design.plan_poses`); None: an SMR.
     """
     backlash = reveal is not None and reveal.name == "backlash"
+    # the pool holds the controller's angles: coupled joints (robot.toml [coupling]) are combined into the
+    # arm's for the model, and the plan is written back in the controller's
+    pool_q = robot.kinematic_angles(pool.q_deg)
     if backlash:
-        q, pay, dirs, back = doubled_for_backlash(pool.q_deg, pool.payload_kg, reveal.joints(robot))
+        q, pay, dirs, back = doubled_for_backlash(pool_q, pool.payload_kg, reveal.joints(robot))
         data = pool_data(robot, q, pay, dirs)
         data.point_id = np.array([f"{pool.point_id[b]}{'@dir+' if k < pool.q_deg.shape[0] else '@dir-'}"
                                   for k, b in enumerate(back)], dtype=object)
     else:
-        data = pool_data(robot, pool.q_deg, pool.payload_kg)
+        data = pool_data(robot, pool_q, pool.payload_kg)
         data.point_id = np.asarray(pool.point_id, object)
     plan = plan_poses(robot, effects, data, n, measured=measured, reveal=reveal, noise_mm=noise_mm, say=say,
                       criterion=criterion, noise_arcsec=noise_arcsec)
@@ -67,6 +70,6 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     if measured is not None:
         summary["campaign_poses"] = int(measured.n)
     summary["point_ids"] = [str(p) for p in ids]
-    text = format_plan_csv(ids, q, pool.payload_kg[chosen % pool.q_deg.shape[0]] if pool.has_payload else None,
-                           directions)
+    text = format_plan_csv(ids, robot.recorded_angles(q),
+                           pool.payload_kg[chosen % pool.q_deg.shape[0]] if pool.has_payload else None, directions)
     return text, summary

@@ -57,6 +57,9 @@ POTENTIAL_PRECISION = 1.0
 MEASURED_POSE_DEG = 1e-4
 #: Exchange passes at most (each pass tries every chosen pose once)
 MAX_PASSES = 20
+#: poses uniform over the robot's joint ranges on which a parameter the pool cannot identify is checked:
+#: not identifiable there either, it is structural (no poses would), not the pool's
+BROAD_POSES = 400
 
 
 def pool_data(robot: Robot, q_deg, payload_kg=None, directions=None) -> RobotData:
@@ -385,6 +388,8 @@ class Plan:
     reveal: dict | None = None
     directions: np.ndarray | None = None
     predicted_u95_mm: float | None = None
+    #: of ``not_identifiable_on_pool``, those no poses identify (not on poses over the whole joint ranges)
+    structural: list = field(default_factory=list)
 
     def summary(self) -> dict:
         ident = self.identification
@@ -394,6 +399,7 @@ class Plan:
                 "not_identified": ident["not_identifiable"],
                 "not_identified_reasons": ident["fixed_reasons"],
                 "not_identifiable_on_pool": self.not_identifiable_on_pool,
+                "not_identifiable_structural": list(self.structural),
                 "condition_number": ident["condition_number"],
                 "predicted_rms_mm": self.predicted_rms_mm, "noise_mm": self.noise_mm,
                 "predicted_rms_note": ("RMS position error over the pool that the fitted parameters' scatter leaves "
@@ -664,4 +670,48 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
                 not_on_pool, ident, pred, float(noise_mm), curve,
                 path_cost(qc, order, start), path_cost(qc, np.arange(len(qc)), start), notes)
     plan.predicted_u95_mm = u95_pred
+    if not_on_pool:
+        broad_est = effects_estimator(robot, full_effects)      # a fresh one: its effects prepared on other poses
+        broad_est.orientation_weight = weight
+        plan.structural = structural_parameters(robot, broad_est, union, weight, list(not_on_pool))
     return plan
+
+
+def structural_parameters(robot: Robot, est, union: RobotData, weight, names: list) -> list:
+    """Which of ``names`` (parameters the pool cannot identify) no poses identify: not identifiable on
+    :data:`BROAD_POSES` poses uniform over the robot's joint ranges either (seeded; both approach
+    directions, the pool's payloads at random), e.g. combinations of others that one SMR never tells
+    apart. The rest are the pool's: other poses would identify them."""
+    rng = np.random.default_rng(0)
+    lo, hi = np.asarray(robot.lower_deg, float), np.asarray(robot.upper_deg, float)
+    q = rng.uniform(lo, hi, (BROAD_POSES, len(lo)))
+    payloads = np.unique(np.asarray(union.payload_kg, float))
+    broad = pool_data(robot, q, payloads[rng.integers(0, len(payloads), BROAD_POSES)],
+                      rng.choice([-1, 1], q.shape))
+    if weight is not None:
+        broad = with_probe(broad, weight)
+    d, *_, ident = est.identification(broad)
+    keep = dict(zip(d.names, np.asarray(ident["keep"], bool)))
+    return [nm for nm in names if nm in keep and not keep[nm]]
+
+
+def parameter_notes(summary: dict) -> list[str]:
+    """The console's lines on the parameters a plan's pool cannot identify, by why: structural (no poses
+    would) or the pool's; redundant ones (combinations of others) are fitted by ``jointcal fit`` as its
+    share nearest the nominal robot, the others left at nominal."""
+    reasons = summary.get("not_identifiable_on_pool") or {}
+    structural = set(summary.get("not_identifiable_structural") or ())
+    groups = {}
+    for nm, why in reasons.items():
+        groups.setdefault((nm in structural, str(why).startswith("redundant")), []).append(nm)
+    text = {
+        (True, True): "combinations of other parameters on any poses (structural, e.g. what one SMR cannot tell "
+                      "apart): jointcal fit gives them their share, nearest the nominal robot, and reports their "
+                      "values; no poses separate them",
+        (True, False): "not identifiable from any poses (structural): left at nominal by jointcal fit",
+        (False, True): "combinations of other parameters on the poses of this pool (poses elsewhere in the joint "
+                       "ranges would separate them): jointcal fit gives them their share, nearest the nominal robot",
+        (False, False): "not identifiable from any poses of this pool (poses elsewhere in the joint ranges would "
+                        "identify them): left at nominal by jointcal fit",
+    }
+    return [f"{text[key]}: {', '.join(groups[key])}" for key in sorted(groups, reverse=True)]

@@ -92,9 +92,13 @@ def _number(text, path, line, column, unit):
 
 
 def read_pool(path, robot) -> Pool:
-    """:func:`parse_pool` of a file, for ``robot``'s joint count and ranges."""
+    """:func:`parse_pool` of a file, for ``robot``'s joint count and ranges (a coupled joint's range is the
+    arm's angle's, not the recorded one's: not checked per value)."""
     text = read_text_input(path, "pool")
-    return parse_pool(text, len(robot.joints), robot.lower_deg, robot.upper_deg, str(path))
+    lo, hi = robot.lower_deg.copy(), robot.upper_deg.copy()
+    for j, _ in getattr(robot, "coupling", ()):
+        lo[j], hi[j] = -np.inf, np.inf
+    return parse_pool(text, len(robot.joints), lo, hi, str(path))
 
 
 def format_plan_csv(point_id, q_deg, payload_kg=None, directions=None) -> str:

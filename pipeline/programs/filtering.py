@@ -137,15 +137,18 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     # pass 1: frames, flange poses and the branch each Cartesian target is wanted on (flags propagate)
     prev_flags = ik.arm_flags(chain, start[None])[0]
     joint_k = [k for k, t in enumerate(targets) if t.kind == JOINT and not t.runtime]
-    joint_flags = dict(zip(joint_k, ik.arm_flags(chain, np.array([fm.joints_deg(fmt, targets[k].values)
-                                                                  for k in joint_k])))) if joint_k else {}
+    # a joint target holds the controller's angles: coupled joints (robot.toml [coupling], a FANUC's J2/J3)
+    # are combined into the angles the kinematics take
+    joint_q = {k: robot.kinematic_angles(np.asarray(fm.joints_deg(fmt, targets[k].values), float)[None])[0]
+               for k in joint_k}
+    joint_flags = dict(zip(joint_k, ik.arm_flags(chain, np.array([joint_q[k] for k in joint_k])))) if joint_k else {}
     want, T_fl, cart = {}, {}, []
     for k, t in enumerate(targets):
         if t.runtime:
             reason[k] = t.runtime
             continue
         if t.kind == JOINT:
-            qj = fm.joints_deg(fmt, t.values)
+            qj = joint_q[k]
             q[k] = qj
             prev_flags = joint_flags[k]
             continue
@@ -310,7 +313,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             new = fm.pose_values(fmt, new_pose, old)
             move = float(np.linalg.norm(new_pose[:3, 3] - fm.pose(fmt, old)[:3, 3]))
         else:
-            new = fm.joint_values(fmt, qb)
+            new = fm.joint_values(fmt, robot.recorded_angles(np.asarray(qb, float)[None])[0])  # the controller's
             move = float(np.linalg.norm((fl_b[k] @ smr - fl_a[k] @ smr)[:3]))
         for num, v in zip(t.numbers, new):
             s = num.respell(float(v))

@@ -545,8 +545,17 @@ class Compliance(RobotEffect):
     def basis(self, robot, idx, data):
         return [[(idx.joints[i - 1], 1e-3 * data.torque_nm[:, i - 1] / 1000.0)] for i in self.joints(robot)]
 
+    def poses_can_help(self, data) -> bool:
+        """Whether other poses could reveal it: not when no joint carries any gravity torque (a robot
+        without masses, no payload)."""
+        return bool(np.any(np.asarray(data.torque_nm) != 0.0))
+
     def can_reveal(self, data):
         cols = [i - 1 for i in self.joints(data)]
+        if not self.poses_can_help(data):
+            return False, ("every gravity torque is 0: the robot has no masses (mass_kg = 0 on every link of "
+                           "robot.toml; a URDF without <inertial> gives none) and the poses no payload; no choice of "
+                           "poses can reveal it: give the links' mass_kg and com_mm (or the URDF's <inertial>)")
         spread = np.ptp(data.torque_nm[:, cols], axis=0)
         if np.all(spread < MIN_TORQUE_SPREAD_NM):
             tau = np.abs(data.torque_nm[:, cols]).max()

@@ -76,6 +76,38 @@ class Robot:
     #: orientation of the probe frame (a 6-DoF probe) in the flange frame, URDF's rpy in deg:
     #: R = Rz(yaw) Ry(pitch) Rx(roll) (``[tool] rpy_deg``; 0, 0, 0 when not given)
     tool_rpy_deg: tuple = (0.0, 0.0, 0.0)
+    #: coupled joints (``[coupling]``): rows ``(j, (c_1 .. c_N))`` saying that joint j's angle (0-based j)
+    #: is ``sum_k c_k q_k`` of the recorded (controller's) angles q, e.g. a FANUC's J2/J3 interaction;
+    #: every other joint's angle is its recorded one. Empty: none.
+    coupling: tuple = ()
+
+    @property
+    def coupling_matrix(self) -> np.ndarray:
+        """C (N, N): the joint angles the kinematics take = C @ the recorded angles (identity without coupling)."""
+        C = np.eye(self.n_joints)
+        for j, row in self.coupling:
+            C[j] = np.asarray(row, float)
+        return C
+
+    def kinematic_angles(self, q_recorded_deg) -> np.ndarray:
+        """The angles the kinematics take (n, N) deg from the recorded (controller's) angles (n, N) deg."""
+        q = np.asarray(q_recorded_deg, float)
+        return q if not self.coupling else q @ self.coupling_matrix.T
+
+    def recorded_angles(self, q_kinematic_deg) -> np.ndarray:
+        """The controller's angles (n, N) deg that give the kinematic angles (n, N) deg (C's inverse)."""
+        q = np.asarray(q_kinematic_deg, float)
+        return q if not self.coupling else np.linalg.solve(self.coupling_matrix, q.T).T
+
+    def coupling_lines(self) -> list[str]:
+        """The ``[coupling]`` section of robot.toml (no lines without coupling)."""
+        if not self.coupling:
+            return []
+        out = ["[coupling]   # the joint's angle = this combination of the recorded angles"]
+        for j, row in self.coupling:
+            terms = ", ".join(f"q{k + 1} = {_num(c)}" for k, c in enumerate(row) if c != 0.0)
+            out.append(f"q{j + 1} = {{ {terms} }}")
+        return out
 
     @property
     def n_joints(self) -> int:
@@ -106,6 +138,8 @@ class Robot:
         lines += ["", "[tool]", f"xyz_mm = [{', '.join(_num(v) for v in self.tool_xyz_mm)}]"]
         if any(float(v) != 0.0 for v in self.tool_rpy_deg):
             lines.append(f"rpy_deg = [{', '.join(_num(v) for v in self.tool_rpy_deg)}]")
+        if self.coupling:
+            lines += ["", *self.coupling_lines()]
         for j in self.joints:
             lines += ["", "[[joint]]"]
             for f in JOINT_FIELDS + ("mass_kg",):
@@ -207,8 +241,46 @@ def parse_robot(text: str, path="<robot.toml>") -> Robot:
         raise InputError(path, "bad [tool] rpy_deg = [roll, pitch, yaw] (the probe frame in the flange frame, deg, "
                          "R = Rz(yaw) Ry(pitch) Rx(roll))", line, col)
     name = str(doc.get("name", Path(str(path)).parent.name or "robot"))
+    coupling = parse_coupling(doc.get("coupling"), len(joints), path, text)
     return Robot(name, tuple(joints), tuple(float(c) for c in tool), str(path), str(doc.get("ur_model", "")),
-                 tuple(float(c) for c in rpy))
+                 tuple(float(c) for c in rpy), coupling)
+
+
+def parse_coupling(table, n: int, path, text: str, section: str = "coupling") -> tuple:
+    """``[coupling]`` (``q3 = { q2 = 1.0, q3 = 1.0 }``: joint 3's angle is q2 + q3 of the recorded angles) as
+    :attr:`Robot.coupling`; None or empty: no coupling. Problems are located InputErrors."""
+    if table is None:
+        return ()
+    start = next((k + 1 for k, s in enumerate(text.splitlines()) if re.match(r"^\s*\[" + section + r"\]", s)), 1)
+    if not isinstance(table, dict):
+        raise InputError(path, f"[{section}] must be a table: q3 = {{ q2 = 1.0, q3 = 1.0 }} (joint 3's angle is q2 + q3 "
+                         "of the recorded angles)", start, 1)
+    rows = []
+    for key, terms in table.items():
+        line, col = _key_line(text, start, key)
+        m = re.fullmatch(r"q(\d+)", key)
+        if not m or not 1 <= int(m.group(1)) <= n:
+            raise InputError(path, f"[{section}] '{key}' is not a joint q1..q{n}", line, col)
+        if not isinstance(terms, dict) or not terms:
+            raise InputError(path, f"[{section}] {key} must be {{ q2 = 1.0, q3 = 1.0 }}: the recorded angles it sums, "
+                             "each with its factor", line, col)
+        row = [0.0] * n
+        for k, c in terms.items():
+            mk = re.fullmatch(r"q(\d+)", str(k))
+            if not mk or not 1 <= int(mk.group(1)) <= n or isinstance(c, bool) or not isinstance(c, (int, float)) \
+                    or not np.isfinite(c):
+                raise InputError(path, f"[{section}] {key}: '{k} = {c!r}' must be a recorded joint q1..q{n} with a "
+                                 "finite factor", line, col)
+            row[int(mk.group(1)) - 1] = float(c)
+        rows.append((int(m.group(1)) - 1, tuple(row)))
+    rows.sort()
+    C = np.eye(n)
+    for j, row in rows:
+        C[j] = row
+    if abs(np.linalg.det(C)) < 1e-9:
+        raise InputError(path, f"[{section}] makes the joint angles depend on each other so that the recorded angles "
+                         "cannot be recovered from them (a singular combination)", start, 1)
+    return tuple(rows)
 
 
 def load_robot(path) -> Robot:

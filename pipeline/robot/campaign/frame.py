@@ -230,7 +230,8 @@ class Consistency:
     ``err`` every pose's residual (mm), ``worst`` the index of the worst pose. ``cause`` is the
     explanation :func:`diagnose` found (empty when none), ``hypothesis`` its name (``radians``,
     ``metres``, ``sign<j>``, ``swap<j><k>``, ``tool``, ``frame``, ``outlier``), ``file`` the file
-    it points at (``poses``, ``tracker`` or ``robot``) and ``column`` the column.
+    it points at (``poses``, ``tracker`` or ``robot``) and ``column`` the column; ``tool_mm`` the SMR
+    (flange frame, mm) that fits when the cause is the tool.
     """
 
     ok: bool
@@ -248,6 +249,7 @@ class Consistency:
     n_outliers: int = 0
     rest_rms_mm: float = 0.0
     tried: dict = field(default_factory=dict)
+    tool_mm: object = None           # hypothesis "tool": the SMR (3,) mm in the flange frame that fits
 
     @property
     def translation_mm(self) -> float:
@@ -560,13 +562,23 @@ def _hypotheses(q, meas):
         qq[:, [j, k]] = qq[:, [k, j]]
         yield (f"swap{j + 1}{k + 1}", "poses", f"q{j + 1}", f"joints {j + 1} and {k + 1} look swapped (q{j + 1} and "
                f"q{k + 1} exchanged fit the nominal kinematics{{fit}}): check the order of the joint columns", qq, meas)
+    for j in range(1, q.shape[1]):
+        for sign, op in ((1.0, "+"), (-1.0, "-")):
+            qq = q.copy()
+            qq[:, j] = q[:, j] + sign * q[:, j - 1]
+            c = f"q{j + 1} = {{ q{j} = {sign:g}, q{j + 1} = 1 }}"
+            yield (f"coupling{j + 1}{op}", "poses", f"q{j + 1}",
+                   f"joint {j + 1}'s recorded angle looks coupled to joint {j}'s (q{j + 1} {op} q{j} fits the nominal "
+                   f"kinematics{{fit}}), as a FANUC's J3 counts J2 (the J2/J3 interaction): say so with [coupling] "
+                   f"{c} in robot.toml, or [joints] coupling = {{ {c} }} in the map", qq, meas)
 
 
 def diagnose(robot, model, q, meas, rows, Rf, pf, out: Consistency) -> Consistency:
     """Find the likely cause of a failed check; fills ``out.hypothesis/cause/file/column/tried``.
 
     Each hypothesis of :func:`_hypotheses` (joint angles in radians, positions in metres, each
-    joint's sign flipped, each pair of joints swapped) is refitted (:func:`refit`): a rigid fit,
+    joint's sign flipped, each pair of joints swapped, a joint's angle coupled to the one before it,
+    + or -) is refitted (:func:`refit`): a rigid fit,
     one FK pass when it changes the angles. The one with the lowest RMS that is within :data:`MAX_RMS_MM`
     and at most :data:`EXPLAINS_FRACTION` of the data's RMS is the likely cause. When none is, a
     wrong tool is tried: a fit with the tool offset free (:func:`fit_tool`). ``out.tried``
@@ -593,6 +605,7 @@ def diagnose(robot, model, q, meas, rows, Rf, pf, out: Consistency) -> Consisten
             out.tried["tool"] = r
             if r <= limit:
                 off = tool - np.asarray(robot.tool_xyz_mm, float)
+                out.tool_mm = tool
                 best = (r, "tool", "robot", "xyz_mm",
                         f"a wrong tool: with the SMR at [{tool[0]:.1f}, {tool[1]:.1f}, {tool[2]:.1f}] mm in the "
                         f"flange frame, {np.linalg.norm(off):.0f} mm from [tool] xyz_mm of robot.toml, the points "

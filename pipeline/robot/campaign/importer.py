@@ -5,13 +5,18 @@ Contract section 6. The map (``map.toml``) says how to read the export::
     [source]    delimiter = ";"  decimal = ","            (defaults "," and ".")
                 timestamp_format = "%Y%m%d%H%M%S"        (optional: how [columns] timestamp is written,
                                                           strptime's directives; default ISO-8601)
+                delimiter = " "                          (runs of spaces and tabs)
+                header = false                           (no header line: columns by number, 1 = the first)
     [joints]    columns = [N source columns, one per joint]  unit = "rad" | "deg"
+                coupling = { q3 = { q2 = 1.0, q3 = 1.0 } }  (optional: coupled joints, as robot.toml's
+                                                          [coupling]; written into the campaign's robot.toml)
     [position]  columns = [3 source columns]  unit = "mm" | "m"  frame = "tracker" | "base"
     [columns]   contract column = source column          (optional: point_id, temperature_c,
                 payload_kg, timestamp, sigma_mm, dir1..dirN)
     [split]     sample_fraction = 0.6  seed = 1          (seeded random split; default seed 0)
                 or column = "set"                        (values sample / target)
-    [orientation]  columns = [3 or 4 source columns]  kind = "euler" | "quaternion" | "rotvec"
+    [orientation]  columns = [3, 4 or 6 source columns]  kind = "euler" | "quaternion" | "rotvec" | "nest"
+                (nest: SMRs 2 and 3 of a nest of three, [position] being SMR 1)
                 sequence = "XYZ" (euler: upper case intrinsic, lower case extrinsic)  unit = "deg" | "rad"
                                                          (optional: a 6-DoF probe, contract section 13)
     [uncertainty]  position_columns = [3]  orientation_columns = [3]   (optional: per-pose 1-sigma,
@@ -49,7 +54,7 @@ from ..arm.kinematics import MAX_JOINTS, MIN_JOINTS, build_model, parse_robot
 from .urdf import FK_TOLERANCE_MM, robot_from_urdf, tag_line
 
 SECTIONS = ("source", "joints", "position", "orientation", "uncertainty", "columns", "split")
-KEYS = {"source": ("delimiter", "decimal", "timestamp_format"), "joints": ("columns", "unit"), "position": ("columns", "unit", "frame"),
+KEYS = {"source": ("delimiter", "decimal", "timestamp_format", "header"), "joints": ("columns", "unit", "coupling"), "position": ("columns", "unit", "frame"),
         "split": ("sample_fraction", "seed", "column"), "orientation": ("columns", "kind", "sequence", "unit"),
         "uncertainty": ("position_columns", "orientation_columns")}
 EXTRA_COLUMNS = ("point_id", "temperature_c", "payload_kg", "timestamp", "sigma_mm") + tuple(
@@ -99,6 +104,10 @@ class _Locator:
                 at = text.find(q + item + q, col - 1 if k == line - 1 else 0)
                 if at >= 0:
                     return k + 1, at + 1
+            if item.isdigit():            # a column given by number: [1, 2, 3]
+                m = re.search(r"(?<![\w.])" + item + r"(?![\w.])", text[(col - 1 if k == line - 1 else 0):])
+                if m:
+                    return k + 1, m.start() + (col if k == line - 1 else 1)
         return line, col
 
 
@@ -125,6 +134,10 @@ class ImportMap:
     uncertainty: dict | None = None
     #: strptime format of the source's timestamp column, or None (ISO-8601)
     timestamp_format: str | None = None
+    #: False: the source has no header line; its columns are named by number ("1" = the first)
+    header: bool = True
+    #: ``[joints] coupling``: coupled joints as :attr:`pipeline.robot.arm.kinematics.Robot.coupling` (() none)
+    coupling: tuple = ()
 
     def locate_column(self, name: str):
         """Line and column in the map where the source column ``name`` is named."""
@@ -164,6 +177,17 @@ def _unknown(path, where, found, known, section=None):
                 raise InputError(path, f"unknown section [{k}] in the map{hint}", line, col)
             line, col = where.key(section, k)
             raise InputError(path, f"unknown key '{k}' in [{section}]{hint}", line, col)
+
+
+def _numbered(doc, section: str, key: str) -> None:
+    """A headerless source's column numbers (1-based integers) in ``doc[section][key]`` as the strings
+    ``"1"``, ``"2"`` ... its columns are named by; anything else is left for the checks that follow."""
+    v = doc.get(section, {}).get(key)
+    ok = lambda x: isinstance(x, int) and not isinstance(x, bool) and x >= 1  # noqa: E731
+    if isinstance(v, list):
+        doc[section][key] = [str(x) if ok(x) else x for x in v]
+    elif ok(v):
+        doc[section][key] = str(v)
 
 
 def _string_list(path, where, doc, section, key, n, what):
@@ -221,6 +245,17 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
     if decimal == delimiter:
         _fail(path, where, "source", "decimal",
               f"[source] decimal and delimiter are both {delimiter!r}; a decimal comma needs another delimiter (\";\")")
+    header = src.get("header", True)
+    if not isinstance(header, bool):
+        _fail(path, where, "source", "header", f"[source] header = {header!r} must be true (the first line names the "
+              "columns) or false (no header: columns by number, 1 = the first)")
+    if not header:
+        for section, key in (("joints", "columns"), ("position", "columns"), ("orientation", "columns"),
+                             ("uncertainty", "position_columns"), ("uncertainty", "orientation_columns"),
+                             ("split", "column")):
+            _numbered(doc, section, key)
+        for key in list(doc.get("columns", {})):
+            _numbered(doc, "columns", key)
     tformat = src.get("timestamp_format")
     if tformat is not None:
         if not isinstance(tformat, str) or "%" not in tformat:
@@ -282,8 +317,26 @@ def parse_map(text: str, path="<map.toml>") -> ImportMap:
         if uncertainty["position_columns"] and "sigma_mm" in columns:
             _fail(path, where, "uncertainty", "position_columns",
                   "[uncertainty] position_columns and [columns] sigma_mm both give the position's uncertainty: keep one")
+    if not header:
+        for name in joints + pos + list(columns.values()) + ([column] if column else []) + \
+                (orientation["columns"] if orientation else []) + \
+                [c for v in (uncertainty or {}).values() for c in (v or [])]:
+            if not name.isdigit():
+                line, col = ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns,
+                                      fraction, 0, column, where, orientation, uncertainty).locate_column(name)
+                raise InputError(path, f"column '{name}' is a name, but [source] header = false: the file has no header "
+                                 "to name it; give the column's number (1 = the first), unquoted", line, col)
+    coupling = ()
+    if "coupling" in doc.get("joints", {}):
+        from ..arm.kinematics import parse_coupling
+
+        try:
+            coupling = parse_coupling(doc["joints"]["coupling"], len(joints), path, text, "joints")
+        except InputError as exc:
+            line, col = where.key("joints", "coupling")
+            raise InputError(path, exc.message.replace("[joints]", "[joints] coupling"), line, col) from None
     return ImportMap(str(path), delimiter, decimal, joints, junit, pos, punit, frame, columns, fraction,
-                     int(seed or 0), column, where, orientation, uncertainty, tformat)
+                     int(seed or 0), column, where, orientation, uncertainty, tformat, header, coupling)
 
 
 def _orientation_section(path, where, doc):
@@ -293,9 +346,10 @@ def _orientation_section(path, where, doc):
     if "orientation" not in doc:
         return None
     kind = _choice(path, where, doc, "orientation", "kind", KINDS)
-    n = 4 if kind == "quaternion" else 3
+    n = {"quaternion": 4, "nest": 6}.get(kind, 3)
     what = {"euler": "three Euler angles, in the order of the sequence", "quaternion": "w, x, y, z",
-            "rotvec": "a rotation vector's x, y, z"}[kind]
+            "rotvec": "a rotation vector's x, y, z",
+            "nest": "SMR 2's x, y, z then SMR 3's, in [position]'s unit; [position] is SMR 1"}[kind]
     cols = _string_list(path, where, doc, "orientation", "columns", n, what)
     sec = doc["orientation"]
     sequence = None
@@ -312,10 +366,14 @@ def _orientation_section(path, where, doc):
     elif "sequence" in sec:
         _fail(path, where, "orientation", "sequence", f"[orientation] sequence is for kind = \"euler\"; kind is {kind!r}")
     unit = None
-    if kind != "quaternion":
+    if kind not in ("quaternion", "nest"):
         unit = _choice(path, where, doc, "orientation", "unit", ORIENTATION_UNITS)
     elif "unit" in sec:
-        _fail(path, where, "orientation", "unit", "[orientation] a quaternion has no unit")
+        _fail(path, where, "orientation", "unit", f"[orientation] a {kind} has no unit"
+              + (" of its own: its SMRs are in [position]'s" if kind == "nest" else ""))
+    if kind == "nest" and "orientation_columns" in doc.get("uncertainty", {}):
+        _fail(path, where, "uncertainty", "orientation_columns", "[uncertainty] orientation_columns: a nest's "
+              "orientation has no columns of its own (its SMRs' position_columns weigh it)")
     return {"columns": cols, "kind": kind, "sequence": sequence, "unit": unit}
 
 
@@ -340,22 +398,32 @@ def decode(data: bytes) -> str:
 
 
 def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") -> Source:
-    """Split the export into header and rows; every mapped column must be in the header."""
-    reader = csv.reader(io.StringIO(text, newline=""), delimiter=imap.delimiter)
+    """Split the export into header and rows; every mapped column must be in the header.
+
+    ``delimiter = " "`` splits on runs of spaces and tabs; ``header = false``: no header line, the
+    columns are named ``"1"``, ``"2"`` ... (the fields of the first row).
+    """
     header, hline, rows, lines = None, None, [], []
+    name = Path(path).name
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=imap.delimiter, skipinitialspace=imap.delimiter == " ")
     try:
         for rec in reader:
+            if imap.delimiter == " ":
+                rec = [f for f in rec if f != ""] if rec else rec
             if not rec or all(not f.strip() for f in rec):
                 continue
-            if header is None:
+            if header is None and imap.header:
                 header, hline = [h.strip() for h in rec], reader.line_num
                 continue
+            if header is None:
+                header, hline = [str(k) for k in range(1, len(rec) + 1)], reader.line_num
             rows.append(rec)
             lines.append(reader.line_num)
     except csv.Error as exc:
         raise InputError(path, f"not readable as delimited text ({exc})", reader.line_num, None) from None
     if header is None:
-        raise InputError(path, "file is empty; expected a header line and one row per pose", 1, None)
+        raise InputError(path, "file is empty; expected " + ("a header line and " if imap.header else "")
+                         + "one row per pose", 1, None)
     counts: dict[str, int] = {}
     for h in header:
         counts[h] = counts.get(h, 0) + 1
@@ -363,6 +431,18 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
               + ([imap.split_column] if imap.split_column else [])
               + (imap.orientation["columns"] if imap.orientation else [])
               + [c for v in (imap.uncertainty or {}).values() for c in (v or [])]]
+    for col_name in needed:
+        if col_name not in counts and not imap.header:
+            line, col = imap.locate_column(col_name)
+            raise InputError(imap.path, f"column {col_name} is beyond the {len(header)} fields of line {hline} of {name} "
+                             f"(a file without a header, [source] header = false: columns are numbered from 1; "
+                             f"delimiter {imap.delimiter!r})", line, col)
+        numeric = sum(bool(NUMBER.match(h.replace(",", ".") if imap.decimal == "," else h)) for h in header)
+        if col_name not in counts and numeric > len(header) / 2:
+            line, col = imap.locate_column(col_name)
+            raise InputError(imap.path, f"column '{col_name}' is not in the header of {name}: line {hline} is numbers "
+                             f"({numeric} of its {len(header)} fields), not column names: a file without a header; set "
+                             "[source] header = false and give the columns by number (1 = the first)", line, col)
     for name in needed:
         if name not in counts:
             line, col = imap.locate_column(name)
@@ -382,7 +462,8 @@ def parse_source(text: str, imap: ImportMap, path="<source>", sha256: str = "") 
         raise InputError(path, "header only, no data rows", hline, None)
     for rec, ln in zip(rows, lines):
         if len(rec) != len(header):
-            raise InputError(path, f"{len(rec)} fields, the header has {len(header)} (delimiter {imap.delimiter!r}, "
+            first = "the header has" if imap.header else f"line {hline} (the first; no header) has"
+            raise InputError(path, f"{len(rec)} fields, {first} {len(header)} (delimiter {imap.delimiter!r}, "
                              f"decimal {imap.decimal!r})", ln, None)
     return Source(str(path), header, rows, lines, sha256)
 
@@ -506,6 +587,19 @@ def read_orientations(source: Source, imap: ImportMap) -> np.ndarray:
 
     o = imap.orientation
     v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
+    if o["kind"] == "nest":
+        scale = LENGTH_UNITS[imap.position_unit]
+        p1 = np.column_stack([numbers(source, imap, c) for c in imap.position_columns]) * scale
+        R, spread, worst = ro.nest_frames(p1, v[:, :3] * scale, v[:, 3:] * scale)
+        if len(spread) and spread[worst] > ro.NEST_TOL_MM:
+            raise InputError(source.path, f"the nest's SMRs are {spread[worst]:.3g} mm off their distances at the other "
+                             f"poses here (limit {ro.NEST_TOL_MM:g} mm): an SMR reseated, swapped or mistaken?",
+                             source.lines[worst], o["columns"][0])
+        if not np.all(np.isfinite(R)):
+            i = int(np.argmax(~np.isfinite(R).all(axis=(1, 2))))
+            raise InputError(source.path, "the nest's three SMRs lie on one line here: they give no orientation",
+                             source.lines[i], o["columns"][0])
+        return R
     if o["kind"] == "quaternion":
         norm = np.linalg.norm(v, axis=1)
         bad = ~(np.abs(norm - 1.0) <= ro.QUATERNION_NORM_TOL)
@@ -526,6 +620,8 @@ def orientation_readings(source: Source, imap: ImportMap) -> dict:
     from . import orientation as ro
 
     o = imap.orientation
+    if o["kind"] == "nest":
+        return {"a nest of three SMRs": read_orientations(source, imap)}
     v = np.column_stack([numbers(source, imap, c) for c in o["columns"]])
     out = {}
     if o["kind"] == "euler":
@@ -549,6 +645,8 @@ def stated_reading(imap: ImportMap) -> str:
         return f'sequence = "{o["sequence"]}", unit = "{o["unit"]}"'
     if o["kind"] == "rotvec":
         return f'unit = "{o["unit"]}"'
+    if o["kind"] == "nest":
+        return "a nest of three SMRs"
     return "columns in the order w, x, y, z"
 
 
@@ -775,7 +873,7 @@ def check_orientation(camp: Campaign, imap: ImportMap, robot, robot_text: str, s
     rms, M = by[stated]
     best_label, best_rms, _ = hyps[0]
     o = imap.orientation
-    key = {"euler": "sequence", "rotvec": "unit", "quaternion": "columns"}[o["kind"]]
+    key = {"euler": "sequence", "rotvec": "unit", "quaternion": "columns", "nest": "columns"}[o["kind"]]
     if best_label != stated and rms > ro.STATED_BAD_DEG and best_rms * ro.BETTER_FACTOR < rms:
         fix = best_label if o["kind"] != "quaternion" else "columns = [w, x, y, z] in that order"
         if o["kind"] == "euler" and best_label.split(",")[1].strip() == f'unit = "{o["unit"]}"':
@@ -844,12 +942,13 @@ _MAP_FIXES = {"frame": ("position", "frame", "[position] frame in the map"),
               "radians": ("joints", "unit", "[joints] unit in the map"),
               "metres": ("position", "unit", "[position] unit in the map"),
               "swap": ("joints", "columns", "the order of [joints] columns in the map"),
-              "sign": ("joints", "columns", "the joint columns of the map (a joint's sign)")}
+              "sign": ("joints", "columns", "the joint columns of the map (a joint's sign)"),
+              "coupling": ("joints", "columns", "the map's [joints]")}
 
 
 def _map_fix(hypothesis: str):
     for key, fix in _MAP_FIXES.items():
-        if hypothesis == key or (key in ("swap", "sign") and hypothesis.startswith(key)):
+        if hypothesis == key or (key in ("swap", "sign", "coupling") and hypothesis.startswith(key)):
             return fix
     return None
 
@@ -882,18 +981,50 @@ def _robot_location(exc: InputError, tmpdir: Path, robot_path):
     return None, None
 
 
+def _in_urdf_terms(message: str, robot_path, tip, base, tool_mm, tool_fit) -> str:
+    """A message about the imported robot.toml said in the terms of the URDF the user gave.
+
+    ``robot.toml`` becomes the URDF's name; a wrong tool's suggestion (``tool_fit``, the SMR in the
+    flange frame {N} that fits, mm) is given in the ``--tip`` link's frame, the frame ``--tool-mm`` is
+    read in, as the option to type.
+    """
+    name = Path(robot_path).name
+    if tool_fit is not None:
+        _, info = robot_from_urdf(robot_path, tip, base, tool_mm, checks=0)
+        R, t = info["tip_in_flange"]
+        local = R.T @ (np.asarray(tool_fit, float) - t)
+        given = np.zeros(3) if tool_mm is None else np.asarray(tool_mm, float)
+        said = f"--tool-mm {' '.join(f'{v:g}' for v in given)}" if tool_mm is not None else "its origin (no --tool-mm)"
+        typed = " ".join(f"{v:.1f}" for v in local)
+        message = re.sub(r"a wrong tool: with the SMR at \[[^\]]*\] mm in the flange frame, \d+ mm from \[tool\] "
+                         r"xyz_mm of robot\.toml,",
+                         f"a wrong tool: with the SMR at [{typed.replace(' ', ', ')}] mm in link '{tip}''s frame "
+                         f"(--tool-mm {typed}), {np.linalg.norm(local - given):.0f} mm from {said},", message)
+    message = message.replace("zero offsets (theta_offset_deg) of robot.toml", f"joint zeros of {name}")
+    message = re.sub(r"say so with \[coupling\] .*? in robot\.toml, or ", "say so with ", message)
+    return message.replace("robot.toml", f"{name} (--tip {tip})", 1).replace("robot.toml", name)
+
+
 def translate(exc: InputError, tmpdir: Path, camp: Campaign, imap: ImportMap, source: Source, robot_path,
-              robot_where=(None, None)) -> InputError:
+              robot_where=(None, None), urdf=None) -> InputError:
     """An error ``ingest_robot`` found in the temporary campaign, named where the user can fix it.
 
     A row's problem is named at the source's line and column; a refusal of the whole campaign
     by the nominal-consistency check at the map line its likely cause points to (frame, unit,
     joint columns); a robot problem in the robot file given (at ``robot_where`` for a URDF).
+    ``urdf``: ``(tip, base, tool_mm)`` of a URDF robot, whose messages are then said in its terms
+    (:func:`_in_urdf_terms`).
     """
     p = Path(exc.path)
     if p.parent.resolve() != Path(tmpdir).resolve():
         return exc
     name = p.name
+    if urdf is not None and is_urdf(robot_path):
+        said = _in_urdf_terms(exc.message, robot_path, *urdf, getattr(exc, "tool_mm", None))
+        if said != exc.message:
+            hyp, kind, tool = (getattr(exc, k, None) for k in ("hypothesis", "kind", "tool_mm"))
+            exc = InputError(exc.path, said, exc.line, exc.column)
+            exc.hypothesis, exc.kind, exc.tool_mm = hyp, kind, tool
     if name in ("poses.csv", "tracker.csv"):
         fix = _map_fix(getattr(exc, "hypothesis", "") or "")
         if fix is not None:
@@ -909,7 +1040,10 @@ def translate(exc: InputError, tmpdir: Path, camp: Campaign, imap: ImportMap, so
     if name == "campaign.toml":
         line, col = imap.where.key("position", "frame")
         return InputError(imap.path, f"{exc.message} (in the imported campaign.toml)", line, col)
-    line, col = robot_where if is_urdf(robot_path) else _robot_location(exc, Path(tmpdir), robot_path)
+    if is_urdf(robot_path):
+        return InputError(robot_path, exc.message if urdf is not None else f"{exc.message} (in the imported robot.toml)",
+                          *robot_where)
+    line, col = _robot_location(exc, Path(tmpdir), robot_path)
     return InputError(robot_path, f"{exc.message} (in the imported robot.toml)", line, col)
 
 
@@ -1048,16 +1182,26 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     imap = parse_map(map_text, str(map_path))
     robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm, ur_model)
     check_joint_count(imap, robot, robot_path)
+    if imap.coupling:
+        if robot.coupling and robot.coupling != imap.coupling:
+            line, col = imap.where.key("joints", "coupling")
+            raise InputError(imap.path, f"[joints] coupling differs from the [coupling] of {Path(robot_path).name}: "
+                             "state it once", line, col)
+        if not robot.coupling:
+            robot = replace(robot, coupling=imap.coupling)
+            robot_text = robot_text.rstrip("\n") + "\n\n" + "\n".join(robot.coupling_lines()) + "\n"
     source = read_source_file(source_path, imap)
     prov = [f"# source: {Path(source_path).name} (sha256 {source.sha256})",
             f"# map: {Path(map_path).name} (sha256 {_sha(map_path)})", robot_line]
     camp = build_campaign(source, imap, robot, robot_text, prov)
-    check_limits(camp, imap, robot, source)
-    rms = check_units(camp, imap, robot, source)
+    # the checks see the angles the kinematics take (coupled joints combined); poses.csv keeps the recorded ones
+    seen = replace(camp, q_deg=robot.kinematic_angles(camp.q_deg)) if robot.coupling else camp
+    check_limits(seen, imap, robot, source)
+    rms = check_units(seen, imap, robot, source)
     oriented = None
     if imap.orientation and rms <= MAX_RMS_MM:
         # (positions that do not fit the robot are refused below, with their likely cause, first)
-        robot, robot_text, oriented = check_orientation(camp, imap, robot, robot_text, source)
+        robot, robot_text, oriented = check_orientation(seen, imap, robot, robot_text, source)
         camp.files["robot.toml"] = robot_text
     robot_where = (None, None)
     if is_urdf(robot_path):
@@ -1067,9 +1211,29 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
         try:
             ingest_robot(tmp)
         except InputError as exc:
-            raise translate(exc, Path(tmp), camp, imap, source, robot_path, robot_where) from None
+            raise translate(exc, Path(tmp), camp, imap, source, robot_path, robot_where,
+                            (tip, base, tool_mm) if is_urdf(robot_path) else None) from None
 
     install_campaign(out_dir, camp.files, validate)
     n_s = int((camp.sets == "sample").sum())
     return {"n": len(camp.sets), "sample": n_s, "target": len(camp.sets) - n_s, "frame": imap.frame,
-            "nominal_rms_mm": rms, "orientation": oriented}
+            "nominal_rms_mm": rms, "orientation": oriented, "warnings": mass_warnings(robot, robot_path)}
+
+
+def mass_warnings(robot, robot_path) -> list[str]:
+    """What the robot's masses leave out, for the console: a URDF without ``<inertial>`` on the arm's
+    links gives every mass 0 (no gravity torque: compliance can be neither fitted nor revealed by any
+    poses); some links without one, those joints' links."""
+    if not is_urdf(robot_path):
+        return []
+    name = Path(robot_path).name
+    massless = [i + 1 for i, j in enumerate(robot.joints) if j.mass_kg <= 0.0]
+    if len(massless) == robot.n_joints:
+        return [f"{name} has no <inertial> on the arm's links: every mass is 0, so every gravity torque is 0 and "
+                "compliance can be neither fitted nor revealed by any choice of poses (only a payload would load the "
+                "joints); give the links' <inertial> (mass, origin) in the URDF and import again, or mass_kg and "
+                "com_mm in the campaign's robot.toml"]
+    if massless:
+        return [f"{name} gives no mass (no <inertial>) to the links of joint {', '.join(map(str, massless))}: the "
+                "gravity torques leave them out"]
+    return []

@@ -123,6 +123,12 @@ def load_robot_campaign(folder, problems: Problems | None = None):
         poses = read_table(pp, poses_required(n), poses_optional(n), problems)
     if tp.exists():
         tracker = read_table(tp, TRACKER_REQUIRED, TRACKER_OPTIONAL, problems)
+    if poses is not None and robot is not None and robot.coupling:
+        # coupled joints: the kinematics take the combination robot.toml's [coupling] states of the recorded
+        # angles (a FANUC's J2/J3 interaction); every check and model below sees those angles
+        cols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
+        if all(c in poses for c in cols):
+            poses[cols] = robot.kinematic_angles(poses[cols].to_numpy(float))
     if poses is not None:
         _dup(pp, poses, problems)
         bad = ~_member(poses["set"], SETS)
@@ -292,7 +298,8 @@ def _robot_line(robot: Robot, key="xyz_mm"):
 
 
 NO_CAUSE = ("none of the usual causes explains it (tried: joint angles in radians, positions in metres, each "
-            "joint's sign flipped, each pair of joints swapped, a wrong tool): check poses.csv against the joint "
+            "joint's sign flipped, each pair of joints swapped, a joint coupled to the one before it, a wrong "
+            "tool): check poses.csv against the joint "
             "order, signs and zero offsets (theta_offset_deg) of robot.toml, that each point_id joins its own "
             "tracker point, and the frame (frame = \"tracker\" in campaign.toml when the points are in the "
             "tracker's frame)")
@@ -303,7 +310,8 @@ def consistency_error(folder, c: "rf.Consistency", point_ids, poses_lines, track
 
     The error also carries ``hypothesis`` (the cause found: ``radians``, ``metres``, ``sign<j>``,
     ``swap<j><k>``, ``tool``, ``frame``, ``outlier``, or ``""`` when none explains the data) and
-    ``kind`` (``residual``, ``outlier``, ``frame``), for callers that point at their own inputs
+    ``kind`` (``residual``, ``outlier``, ``frame``) and ``tool_mm`` (the SMR in the flange frame that fits,
+    when the cause is the tool), for callers that point at their own inputs
     (``jointcal import``) instead of parsing the message.
 
     Parameters
@@ -319,6 +327,7 @@ def consistency_error(folder, c: "rf.Consistency", point_ids, poses_lines, track
     """
     err = _consistency_error(Path(folder), c, point_ids, poses_lines, tracker_lines, robot)
     err.hypothesis, err.kind = c.hypothesis, c.kind
+    err.tool_mm = c.tool_mm
     return err
 
 
@@ -484,6 +493,8 @@ def _check_limits(path, poses, robot: Robot, problems):
             i = int(np.argmax(out))
             v = q[i]
             hint = _limit_hint(poses, robot, j, tol)
+            if any(k == j for k, _ in robot.coupling):
+                hint += f" (joint {j + 1}'s angle as robot.toml's [coupling] combines the recorded ones)"
             if lo - tol <= np.rad2deg(v) <= hi + tol:
                 hint = "; the column looks like radians, the contract says degrees"
             problems.add(path, f"{col} = {v:g} deg is outside joint {j + 1}'s range [{lo:g}, {hi:g}] of robot.toml{hint}",

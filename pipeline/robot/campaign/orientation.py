@@ -9,7 +9,10 @@ which ``jointcal import`` reads through the map's ``[orientation]``:
   (``"XYZ"``: R = Rx(a) Ry(b) Rz(c), each turn about the axes already turned), lower case extrinsic
   (``"xyz"``: R = Rz(c) Ry(b) Rx(a), each turn about the fixed axes, in the order written);
 * ``kind = "quaternion"``: four columns w, x, y, z;
-* ``kind = "rotvec"``: a rotation vector (axis times angle).
+* ``kind = "rotvec"``: a rotation vector (axis times angle);
+* ``kind = "nest"``: a nest of three SMRs: ``[position]`` is SMR 1 (the probe frame's origin), the six
+  columns SMRs 2 and 3 (same unit and frame); the probe frame has x from SMR 1 to SMR 2, z along the
+  normal of the three, y = z x x (:func:`nest_frames`).
 
 The probe's mounting on the flange (``robot.toml``'s ``[tool] rpy_deg``) is estimated from the data
 as the tracker frame is: with the tracker-to-base rotation from the positions, the rotation M that
@@ -28,7 +31,10 @@ from scipy.spatial.transform import Rotation
 SEQUENCES = tuple("".join(p) for p in itertools.product("XYZ", repeat=3) if p[0] != p[1] and p[1] != p[2])
 SEQUENCES = SEQUENCES + tuple(s.lower() for s in SEQUENCES)
 ORIENTATION_UNITS = ("deg", "rad")
-KINDS = ("euler", "quaternion", "rotvec")
+KINDS = ("euler", "quaternion", "rotvec", "nest")
+#: the distances between a nest's SMRs may vary by this much (mm) from their median before a pose is
+#: refused as a reseated or swapped SMR
+NEST_TOL_MM = 0.5
 #: A quaternion whose norm is off 1 by more than this is refused (tracker.csv, a quaternion export)
 QUATERNION_NORM_TOL = 1e-3
 #: A real robot's orientation errors after the best tracker frame and probe mounting stay well below a
@@ -42,6 +48,36 @@ STATED_BAD_DEG = 0.5
 #: The probe's mounting estimated from the data is used instead of robot.toml's when they differ by
 #: more than this (deg): beyond it the fit's small-angle model of the mounting would start far away
 MOUNTING_TOL_DEG = 2.0
+
+
+def nest_frames(p1, p2, p3) -> tuple[np.ndarray, np.ndarray, int]:
+    """The probe frames of a nest of three SMRs, and how rigid the nest stayed.
+
+    Parameters
+    ----------
+    p1, p2, p3 : array_like, shape (n, 3), mm
+        SMRs 1, 2 and 3 at every pose (SMR 1 is the frame's origin).
+
+    Returns
+    -------
+    R : ndarray, shape (n, 3, 3)
+        x along SMR 1 -> SMR 2, z along (p2 - p1) x (p3 - p1), y = z x x.
+    spread_mm : ndarray, shape (n,), mm
+        The largest departure of the three SMR-to-SMR distances from their medians over the poses.
+    worst : int
+        The pose of the largest spread.
+    """
+    p1, p2, p3 = (np.asarray(p, float).reshape(-1, 3) for p in (p1, p2, p3))
+    a, b = p2 - p1, p3 - p1
+    with np.errstate(invalid="ignore", divide="ignore"):      # coincident or collinear SMRs: NaN frames
+        x = a / np.linalg.norm(a, axis=1, keepdims=True)
+        z = np.cross(a, b)
+        z /= np.linalg.norm(z, axis=1, keepdims=True)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z], axis=2)
+    d = np.column_stack([np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1), np.linalg.norm(p3 - p2, axis=1)])
+    spread = np.abs(d - np.median(d, axis=0)).max(axis=1)
+    return R, spread, int(np.argmax(spread)) if len(spread) else 0
 
 
 def quaternions_to_matrices(q_wxyz) -> np.ndarray:

@@ -249,7 +249,9 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
     -------
     robot : Robot
     info : dict
-        ``chain`` (joint names), ``base``, ``tip``, ``fk_max_error_mm`` (the check), ``checks``.
+        ``chain`` (joint names), ``base``, ``tip``, ``fk_max_error_mm`` (the check), ``checks``,
+        ``tip_in_flange`` (R (3, 3), t (3,) mm: the tip link's frame in the flange frame {N}, a point p
+        of the tip's frame at ``R p + t``).
     """
     text, root, model = _read_urdf(path)
     tip_fid = _body_frame(path, text, root, model, tip, "--tip")
@@ -321,8 +323,10 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
     robot = Robot(_sanitize(root.get("name") or Path(str(path)).stem), tuple(joints),
                   tuple(_clean(c) for c in tool), str(path))
     err = fk_agreement(robot, model, chain, base_fid, tip_fid, tool_local, checks)
+    # the tip link's frame in the flange frame {N}: a point p in the tip's frame is R p + t in {N}
+    tip_in_flange = (TN[:3, :3].T @ tip_R, TN[:3, :3].T @ (tip_p - TN[:3, 3]))
     info = {"chain": [model.names[j] for j in chain], "base": base_name, "tip": tip, "fk_max_error_mm": err,
-            "checks": checks}
+            "checks": checks, "tip_in_flange": tip_in_flange}
     if not err < FK_TOLERANCE_MM:
         _fail(path, text, f"the DH parameters derived from the URDF disagree with pinocchio's URDF model by up to "
               f"{err:.3g} mm at random configurations (tolerance {FK_TOLERANCE_MM:g} mm); refused", "joint", j1)

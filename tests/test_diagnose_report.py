@@ -21,7 +21,7 @@ def expected_pages(result, adapter, data):
     variables = adapter.signature_variables(data).values()
     panels = sum(2 if kind == "angle" else 1 for _, _, kind in variables)
     summary = math.ceil(len(summary_lines(result)) / SUMMARY_LINES_PER_PAGE)
-    return summary + math.ceil(panels / PANELS_PER_PAGE) + 2
+    return 1 + summary + math.ceil(panels / PANELS_PER_PAGE) + 2   # at a glance, text (appendix), figures
 
 
 # ------------------------------------------------------------------------------ encoder
@@ -42,8 +42,9 @@ def test_encoder_report_pages_and_same_bytes_twice(encoder_diagnosis, tmp_path):
     diagnosis_report(result, adapter, spec, data, second)
     raw = first.read_bytes()
     assert raw.startswith(b"%PDF") and raw == second.read_bytes()
-    # summary, residuals (angle + spectrum, time, temperature, direction, run), candidates, waterfall
-    assert n_pages(first) == expected_pages(result, adapter, data) == 4
+    # at a glance, residuals (angle + spectrum, time, temperature, direction, run), candidates, waterfall,
+    # the summary's text (appendix)
+    assert n_pages(first) == expected_pages(result, adapter, data) == 5
 
 
 def test_cli_writes_report(invoke, tmp_path):
@@ -51,7 +52,7 @@ def test_cli_writes_report(invoke, tmp_path):
     res = invoke("diagnose", "--campaign", ROOT / "raw" / "encoder" / "a", "--spec", ROOT / "specs" / "encoder_paper.toml",
                  "--json", tmp_path / "d.json", "--report", out, "--quiet")
     assert res.exit_code == 0, res.output
-    assert out.read_bytes().startswith(b"%PDF") and n_pages(out) == 4
+    assert out.read_bytes().startswith(b"%PDF") and n_pages(out) == 5
 
 
 def test_hidden_direction_report(invoke, tmp_path):
@@ -179,4 +180,4 @@ def test_vector_residual_report(robot_like, tmp_path):
     diagnosis_report(result, adapter, spec, data, second)
     assert first.read_bytes() == second.read_bytes()
     # 6 angles (+ 6 spectra), 6 torques, 6 directions, temperature, payload = 26 panels: 3 pages
-    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 3 + 2
+    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 1 + 3 + 2

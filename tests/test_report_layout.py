@@ -168,6 +168,12 @@ def test_encoder_report_layout(recorder, tmp_path):
                      "model": json.loads((work / "model.json").read_text()), "aliasing": work / "alias.csv"}
     pages = check_report(recorder, lambda: encoder_report(inputs, tmp_path / "encoder.pdf"))
     assert sum(info["appendix"] for _, info in pages) >= 3     # numbers, terms, aliasing: console text, last
+    # the first page's numbers are the ones README quotes, as it quotes them (docs/quoted-numbers.toml: .2f)
+    first = pages[0][1]["text"].split("\n")
+    for m in "ab":
+        model = inputs[m]["model"]
+        for key in ("p2p_before_arcsec", "p2p_after_arcsec", "reduction_pct"):
+            assert f"{model[key]:.2f}" in first, (m, key)
 
 
 # ---------------------------------------------------------------------------------------------- diagnosis
@@ -280,4 +286,9 @@ def test_real_report_of_two_series_by_makes_names(recorder, seven_joint_arm, tmp
         r["fits"]["diagnosed"] = json.loads((tmp / "results" / f"{s}_backlash.json").read_text())
         r["self"]["diagnosed"] = json.loads((tmp / "results" / f"{s}_backlash_self.json").read_text())
         r["on"]["diagnosed"] = {o: json.loads((tmp / "results" / f"{s}_backlash_on_{o}.json").read_text())}
-    check_report(recorder, lambda: real_report(results, campaigns, tmp_path / "real.pdf"))
+    pages = check_report(recorder, lambda: real_report(results, campaigns, tmp_path / "real.pdf"))
+    # the first page's numbers: the fits' held-out RMS before / after as README quotes them (.3f)
+    first = pages[0][1]["text"].split("\n")
+    for s in campaigns:
+        h = results[s]["fits"]["kinematic"]["heldout"]
+        assert f"{h['rms_before_mm']:.3f}" in first and f"{h['rms_after_mm']:.3f}" in first, s

@@ -477,8 +477,8 @@ def _waterfall(ax, result, steps, base_effects, suggested=(), fontsize=7, width=
     unit = result["baseline"]["unit"]
     min_gain = result.get("thresholds", {}).get("min_gain", 0.0)
     labels = ["nothing\n(constants only)"]
-    for s, e in zip(steps[1:], base_effects):
-        labels.append("+ " + "\n".join(textwrap.wrap(_effect_label(e), width)))
+    for s, e in zip(steps[1:], base_effects):      # a narrow panel: the effect's name only
+        labels.append("+ " + "\n".join(textwrap.wrap(e.name if rotate else _effect_label(e), width)))
     values = [s["cv_rms"] for s in steps]
     colors = ["0.45"] * len(values)
     hatches = [None] * len(values)
@@ -503,8 +503,7 @@ def _waterfall(ax, result, steps, base_effects, suggested=(), fontsize=7, width=
         ax.annotate(txt, (k, v), ha="center", va="bottom", fontsize=fontsize, xytext=(0, 2), textcoords="offset points")
     ax.set_xticks(x)
     if rotate:      # a narrow panel: the labels on one line each, turned
-        ax.set_xticklabels([lb.replace("\n", " ") for lb in labels], fontsize=fontsize, rotation=60, ha="right",
-                           rotation_mode="anchor")
+        ax.set_xticklabels([lb.replace("\n", " ") for lb in labels], fontsize=fontsize, rotation=90)
     else:
         ax.set_xticklabels(labels, fontsize=fontsize)
     ax.set_ylim(0, top * 1.3)

@@ -126,8 +126,11 @@ def _panel_title(ax, k, module, text):
     ax.set_title(f"({chr(ord('a') + k)}) joint module {module}: {text}", loc="left")
 
 
-def _finish(fig):
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+def _finish(fig, what=None, h_pad=None):
+    """Lay the panels out under the title; ``what``: the caption sentence (what to see)."""
+    fig.tight_layout(rect=(0, 0.035 if what else 0, 1, 0.96), h_pad=h_pad)
+    if what:
+        caption(fig, what)
 
 
 def _modelling_runs(inp):
@@ -275,7 +278,8 @@ def _fig4(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, [inputs[m]["readings"]["error_arcsec"].to_numpy(float)], top=0.2, bottom=0.05)
         ax.legend(ncol=3, loc="upper right")
-    _finish(fig)
+    _finish(fig, "Every run repeats the same pattern around the turn: the joint's own periodic error, which the "
+                 "harmonic model fits; run to run scatter is the noise.")
     save(pdf, fig)
 
 
@@ -296,7 +300,7 @@ def _fig5(pdf, inputs):
         ax.set_ylabel("amplitude C_i (arcsec)")
         ax.set_xticks(orders)
         ax.legend(ncol=len(runs), loc="upper left")
-    _finish(fig)
+    _finish(fig, "Orders whose amplitude is large in every run are the joint's; small, varying ones are noise.")
     save(pdf, fig)
 
 
@@ -331,7 +335,7 @@ def _fig6(pdf, inputs):
         ax.set_ylim(0, max(t["mean_C_arcsec"].max(), max((abs(c) for c, _ in paper.values()), default=0)) * 1.3)
         h0, _ = ax.get_legend_handles_labels()
         ax.legend(handles=handles + h0, loc="upper center", ncol=2)
-    _finish(fig)
+    _finish(fig, "Red bars: the orders the paper's rule keeps (strong, or prominent with a stable phase); grey: dropped.")
     save(pdf, fig)
 
 
@@ -376,7 +380,8 @@ def _fig7(pdf, inputs):
         ax.set_ylim(-185, 212)
         ax.set_yticks(np.arange(-180, 181, 45))
         ax.legend(ncol=4, loc="lower left", fontsize=7, framealpha=0.95)
-    fig.tight_layout(rect=(0, 0, 1, 0.96), h_pad=3)
+    _finish(fig, "An order whose phase stays put over the runs (a narrow range) is a real error term; a scattered "
+                 "phase is noise.", h_pad=3)
     save(pdf, fig)
 
 
@@ -405,7 +410,7 @@ def _fig8(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, ys, top=0.3, bottom=0.05)
         ax.legend(ncol=3, loc="upper center", fontsize=7)
-    _finish(fig)
+    _finish(fig, "The fitted model should follow the readings of every modelling run; the paper's model is drawn beside it.")
     save(pdf, fig)
 
 
@@ -438,7 +443,7 @@ def _fig9(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, ys, top=0.22, bottom=0.2)
         ax.legend(loc="upper left")
-    _finish(fig)
+    _finish(fig, "Orange, the held-out run after compensation, should be flat: what remains is what the model misses.")
     save(pdf, fig)
 
 

@@ -126,7 +126,8 @@ def _before_after(ax, ok, flagged, measure, unit):
     lo, hi = 0.0, float(np.nanmax(ok["before"])) * 1.05
     for share in (0.1, 0.2, 0.3):
         ax.plot([lo, hi], [lo, hi * share], color="grey", lw=0.7, ls=":")
-        ax.text(hi, hi * share, f"{100 * (1 - share):.0f} % less ", fontsize=7, va="bottom", ha="right")
+        ax.text(0.4 * hi, 0.4 * hi * share, f"{100 * (1 - share):.0f} % less", fontsize=7, va="bottom", ha="center",
+                color="0.35")
     ax.set_xlabel(f"{measure} before ({unit})")
     ax.set_ylabel(f"after compensation ({unit})")
     ax.set_title("Every unit: before and after (held out)")

@@ -16,11 +16,12 @@ def n_pages(path):
 
 
 def expected_pages(result, adapter, data):
-    from pipeline.diagnosis.report import PANELS_PER_PAGE, SUMMARY_LINES_PER_PAGE, summary_lines
+    from pipeline.core.plotting import text_page_count
+    from pipeline.diagnosis.report import PANELS_PER_PAGE, SUMMARY_FONTSIZE, summary_lines
 
     variables = adapter.signature_variables(data).values()
     panels = sum(2 if kind == "angle" else 1 for _, _, kind in variables)
-    summary = math.ceil(len(summary_lines(result)) / SUMMARY_LINES_PER_PAGE)
+    summary = text_page_count(summary_lines(result), SUMMARY_FONTSIZE)
     return 1 + summary + math.ceil(panels / PANELS_PER_PAGE) + 2   # at a glance, text (appendix), figures
 
 

@@ -292,3 +292,18 @@ def test_real_report_of_two_series_by_makes_names(recorder, seven_joint_arm, tmp
     for s in campaigns:
         h = results[s]["fits"]["kinematic"]["heldout"]
         assert f"{h['rms_before_mm']:.3f}" in first and f"{h['rms_after_mm']:.3f}" in first, s
+
+
+def test_diagnosis_report_of_a_users_seven_joint_arm(recorder, seven_joint_arm, tmp_path):
+    """`jointcal diagnose --report` on the arm's campaign (a folder name the project never uses): laid out."""
+    from test_any_arm import KINEMATIC
+
+    result = {}
+
+    def write():
+        result["r"] = cli_invoker()("diagnose", "--campaign", seven_joint_arm / "campaigns" / "east", "--spec", KINEMATIC,
+                                    "--json", tmp_path / "d.json", "--report", tmp_path / "d.pdf", "--quiet")
+
+    pages = check_report(recorder, write)
+    assert result["r"].exit_code == 0, result["r"].output
+    assert "backlash joint 2" in pages[0][1]["text"]      # the hidden effect, named on the first page

@@ -96,12 +96,22 @@ def _wrap_lines(lines, width):
     return wrapped
 
 
-def _text_pages(pages, title, lines, fontsize):
+def _text_chunks(lines, fontsize):
+    """The lines of a text page wrapped to the page's width, a list a page."""
     # characters that fit across the page in monospace: 88 % of 8.27 in at 0.602 em a character
     width = int(0.88 * A4[0] * 72 / (0.602 * fontsize))
-    rows = int(0.88 * A4[1] * 72 / (1.2 * fontsize))      # lines down the page at matplotlib's spacing
+    rows = int(0.86 * A4[1] * 72 / (1.27 * fontsize))     # lines down the page at matplotlib's spacing (measured)
     wrapped = _wrap_lines(lines, width)
-    chunks = [wrapped[i:i + rows] for i in range(0, len(wrapped), rows)] or [[]]
+    return [wrapped[i:i + rows] for i in range(0, len(wrapped), rows)] or [[]]
+
+
+def text_page_count(lines, fontsize=9) -> int:
+    """How many pages :func:`text_page` takes for ``lines`` at ``fontsize``."""
+    return len(_text_chunks(lines, fontsize))
+
+
+def _text_pages(pages, title, lines, fontsize):
+    chunks = _text_chunks(lines, fontsize)
     for k, chunk in enumerate(chunks):
         fig = plt.figure(figsize=A4)
         t = title if len(chunks) == 1 else f"{title} ({k + 1}/{len(chunks)})"

@@ -37,7 +37,8 @@ from .engine import done_text, label, target_text, verified_text, waterfall
 A4 = (8.27, 11.69)
 MAX_ORDER = 17
 PANELS_PER_PAGE = 9          # 3 x 3 grid on an A4 page
-SUMMARY_LINES_PER_PAGE = 76          # fits an A4 page of 8 pt monospace (pipeline.core.plotting)
+SUMMARY_FONTSIZE = 8                 # the summary's text pages (the appendix), pt
+MAX_BARS = 30                        # candidates drawn on the candidates page (every one: the appendix)
 SUMMARY_WIDTH = 100
 COMPONENT_COLORS = ("tab:red", "tab:green", "tab:purple")
 MEAN_COLOR = "black"
@@ -225,13 +226,10 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
 
 
 def _summary_pages(pdf, result, base_effects, name=None):
+    """The summary as text (the appendix; as many pages as it takes)."""
     lines = summary_lines(result, base_effects)
     title = f"Diagnosis of {name or result['kind']}: candidates, evidence, what cannot be revealed"
-    n = SUMMARY_LINES_PER_PAGE
-    chunks = [lines[i:i + n] for i in range(0, len(lines), n)] or [[]]
-    for k, chunk in enumerate(chunks):
-        t = title if len(chunks) == 1 else f"{title} ({k + 1}/{len(chunks)})"
-        text_page(pdf, t, chunk, fontsize=8)
+    text_page(pdf, title, lines, fontsize=SUMMARY_FONTSIZE)
 
 
 # ------------------------------------------------------------------------------ page 2
@@ -296,6 +294,8 @@ def _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit):
                             label=f"mean {_component_names(comps.shape[1])[j]}")
         if kind == "angle" and np.nanmax(x) - np.nanmin(x) > 180:
             ax.set_xticks(np.arange(np.ceil(np.nanmin(x) / 90 - 0.15) * 90, np.nanmax(x) + 0.15 * 90, 90))
+        else:
+            ax.locator_params(axis="x", nbins=4)      # a third of a page wide: room for four labels
     ax.axhline(0.0, color="0.4", lw=0.6, zorder=0)
     ax.set_xlabel(f"{name} ({unit})" if unit else name)
     ax.set_ylabel(ylab)
@@ -386,7 +386,8 @@ def _residual_pages(pdf, result, adapter, base, data, base_effects=(), name=None
 
 # ------------------------------------------------------------------------------ page 3
 def _candidates_page(pdf, result, name=None):
-    cands = result["candidates"]
+    every = result["candidates"]
+    cands = every[:MAX_BARS]
     th = result.get("thresholds", {})
     unit = result["baseline"]["unit"]
     height = min(A4[1], max(4.0, 1.6 + 0.24 * len(cands)))
@@ -427,7 +428,8 @@ def _candidates_page(pdf, result, name=None):
     if th:
         sub = (f"\nmeaningful: gain >= {100 * th['min_gain']:.3g} % and p <= alpha/N = {th['alpha']:g}/{len(cands)}"
                f" = {th['p_max']:.2g} (Bonferroni)")
-    ax.set_title(fit_text(f"{name + ': ' if name else ''}cross-validated gain of adding each candidate effect",
+    more = f" (the first {len(cands)} of {len(every)}; every one in the appendix)" if len(every) > len(cands) else ""
+    ax.set_title(fit_text(f"{name + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}",
                           0.85 * A4[0], 10), fontsize=10)
     fig.tight_layout(rect=(0, 0.9 / height, 1, 1))
     caption(fig, "Blue bars are the effects to add: they lower the held-out error beyond noise." + sub.replace("\n", " ")

@@ -22,7 +22,9 @@ def expected_pages(result, adapter, data):
     variables = adapter.signature_variables(data).values()
     panels = sum(2 if kind == "angle" else 1 for _, _, kind in variables)
     summary = text_page_count(summary_lines(result), SUMMARY_FONTSIZE)
-    return 1 + summary + math.ceil(panels / PANELS_PER_PAGE) + 2   # at a glance, text (appendix), figures
+    signatures = int(any(c["meaningful"] for c in result["candidates"]))
+    # at a glance, residuals, the recommended effects' signatures, candidates, waterfall, text (appendix)
+    return 1 + math.ceil(panels / PANELS_PER_PAGE) + signatures + 2 + summary
 
 
 # ------------------------------------------------------------------------------ encoder
@@ -97,6 +99,9 @@ class _Effect:
 
     def target(self):
         return self.joint
+
+    def spec_lines(self):
+        return f'[[effect]]\nname = "{self.name}"' + ("" if self.joint is None else f"\njoints = [{self.joint}]")
 
 
 class _RobotLikeAdapter:
@@ -180,5 +185,20 @@ def test_vector_residual_report(robot_like, tmp_path):
     diagnosis_report(result, adapter, spec, data, first)
     diagnosis_report(result, adapter, spec, data, second)
     assert first.read_bytes() == second.read_bytes()
-    # 6 angles (+ 6 spectra), 6 torques, 6 directions, temperature, payload = 26 panels: 3 pages
-    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 1 + 3 + 2
+    # 6 angles (+ 6 spectra), 6 torques, 6 directions, temperature, payload = 26 panels: 3 pages; backlash 2's
+    # signature
+    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 3 + 1 + 2 + 1
+
+
+def test_the_signature_a_recommended_effect_explains(robot_like):
+    """Backlash of joint 2 (hidden in z, following joint 2's direction of last motion): the page that shows
+    it next to its residual draws that direction and component, not another variable."""
+    from pipeline.diagnosis.report import explained_signature
+
+    result, adapter, spec, data = robot_like
+    base = adapter.cross_validate(spec.effects, data)
+    after = adapter.cross_validate([*spec.effects, _Effect("backlash", 2)], data)
+    assert explained_signature(adapter.signature_variables(data), base.residuals, after.residuals) == ("direction 2", 2)
+    # geometry, missing, leaves 0.4 mm sin(q2) in x: added, it explains q2's pattern in x
+    none = adapter.cross_validate([], data)
+    assert explained_signature(adapter.signature_variables(data), none.residuals, base.residuals) == ("q2", 0)

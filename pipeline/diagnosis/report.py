@@ -15,6 +15,9 @@ Then, per campaign:
    (amplitude of orders 1..17 from one least-squares fit against the angle). For d = 3
    the norm |r| is drawn as points and the signed x, y, z components as binned means.
    Nine panels a page; more pages when the adapter names more variables.
+   Then each recommended (meaningful) effect next to the residual it explains: the baseline's
+   held-out residual against the signature variable whose pattern the effect removes most, and
+   the same with the effect added (:func:`explained_signature`).
 3. Candidates: gain (%) of each candidate, meaningful ones highlighted, with the
    thresholds (min gain, Bonferroni p).
 4. Waterfall, full size.
@@ -384,6 +387,122 @@ def _residual_pages(pdf, result, adapter, base, data, base_effects=(), name=None
         save(pdf, fig)
 
 
+# ------------------------------------------------------------------------------ signatures
+MAX_SIGNATURES = 4
+
+
+def _structure(r, groups):
+    """How much of ``r`` (n, d) the group means carry beyond noise: sum over groups and components of
+    n_g mean_g^2, less what scatter alone gives (the residual variance once a group: its expectation
+    when the means are noise), so many small groups score no more than a few large ones."""
+    means = float(sum(g.size * np.sum(np.mean(r[g], axis=0) ** 2) for g in groups))
+    return means - len(groups) * float(np.sum(np.var(r, axis=0)))
+
+
+def _groups(values, kind):
+    x = np.asarray(values, float)
+    if kind == "categorical":
+        cats = np.unique(x[np.isfinite(x)])
+        return cats, [np.flatnonzero(x == c) for c in cats]
+    return _bins(x)
+
+
+def explained_signature(variables, before, after):
+    """The signature variable whose residual structure an added effect removes most.
+
+    Parameters
+    ----------
+    variables : dict name -> (values (n,), unit, kind), the adapter's signature variables
+    before, after : ndarray, shape (n,) or (n, d), held-out residuals without and with the effect
+        (the adapter's unit)
+
+    Returns
+    -------
+    (name, component) : the variable, and the residual component (0-based) whose group means fell most
+    """
+    b = np.asarray(before, float).reshape(len(before), -1)
+    a = np.asarray(after, float).reshape(len(after), -1)
+    best, best_drop, best_comp = None, -np.inf, 0
+    for name, (values, _, kind) in variables.items():
+        _, groups = _groups(values, kind)
+        if len(groups) < 2:
+            continue
+        drops = [_structure(b[:, [k]], groups) - _structure(a[:, [k]], groups) for k in range(b.shape[1])]
+        k = int(np.argmax(drops))
+        if drops[k] > best_drop:
+            best, best_drop, best_comp = name, drops[k], k
+    return best, best_comp
+
+
+def _signature_runs(result, adapter, spec, data, base_effects, base):
+    """Each meaningful candidate (the first MAX_SIGNATURES): its held-out residuals when added alone, and the
+    signature variable it explains."""
+    best = [c for c in result["candidates"] if c["meaningful"]][:MAX_SIGNATURES]
+    if not best:
+        return []
+    objs = {o.spec_lines(): o for o in adapter.candidates(spec, data, base_effects) if hasattr(o, "spec_lines")}
+    variables = adapter.signature_variables(data)
+    out = []
+    for c in best:
+        obj = objs.get(c["spec_line"])
+        if obj is None:
+            continue
+        try:
+            after = adapter.cross_validate(adapter.add(list(base_effects), obj), data)
+        except np.linalg.LinAlgError:
+            continue
+        name, comp = explained_signature(variables, base.residuals, after.residuals)
+        if name is not None:
+            out.append({"candidate": c, "variable": name, "component": comp, "after": after})
+    return out
+
+
+def _signature_page(pdf, result, adapter, data, base, runs, name=None):
+    """Each recommended effect's signature next to the residual it explains: the baseline's held-out residual
+    against the variable the effect explains (left) and with the effect added (right), binned means drawn."""
+    if not runs:
+        return
+    unit = getattr(adapter, "unit", result["baseline"]["unit"])
+    variables = adapter.signature_variables(data)
+    d = np.asarray(base.residuals).reshape(len(base.residuals), -1).shape[1]
+    comp_names = _component_names(d) if d > 1 else ("",)
+    H = 1.2 + 2.6 * len(runs)
+    fig, axes = plt.subplots(len(runs), 2, figsize=(A4[0], H), squeeze=False, sharey="row")
+    for (axl, axr), run in zip(axes, runs):
+        values, vunit, kind = variables[run["variable"]]
+        centres, groups = _groups(values, kind)
+        x = np.asarray(values, float)
+        k = run["component"]
+        comp = f" {comp_names[k]}" if d > 1 else ""
+        for ax, res, title in ((axl, base.residuals, "baseline"), (axr, run["after"].residuals,
+                                                                      "+ " + _label(run["candidate"]))):
+            r = np.asarray(res, float).reshape(len(res), -1)[:, k]
+            jitter = (np.random.default_rng(0).uniform(-0.15, 0.15, x.size) if kind == "categorical" else 0.0)
+            ax.scatter(x + jitter, r, s=3, color=GREY, lw=0, zorder=1)
+            m, se = _mean_se(r, groups)
+            if kind == "categorical":
+                ax.errorbar(centres, m, yerr=se, fmt="o", color=MEAN_COLOR, ms=4, capsize=3, zorder=3)
+                ax.set_xticks(centres)
+                ax.set_xticklabels([f"{c:g}" for c in centres])
+            else:
+                ax.plot(centres, m, "-", color=MEAN_COLOR, lw=1.3, zorder=3)
+                ax.fill_between(centres, m - se, m + se, color=MEAN_COLOR, alpha=0.15, lw=0, zorder=2)
+                ax.locator_params(axis="x", nbins=5)
+            ax.axhline(0.0, color="0.4", lw=0.6, zorder=0)
+            ax.set_xlabel(f"{run['variable']} ({vunit})" if vunit else run["variable"])
+            rms = float(np.sqrt(np.mean(np.sum(np.asarray(res, float).reshape(len(res), -1) ** 2, axis=1))))
+            ax.set_title(f"{title}: held-out RMS {rms:.4g} {unit}", fontsize=8.5)
+        axl.set_ylabel(f"residual{comp} ({unit})")
+    head = fit_text(f"{name + ': ' if name else ''}each recommended effect next to the residual it explains",
+                    0.92 * A4[0], 10)
+    fig.suptitle(head, fontsize=10)
+    fig.tight_layout(rect=(0, 0.5 / H, 1, 1 - (0.3 + 0.17 * head.count("\n")) / H))
+    caption(fig, "Left: the baseline's held-out residual against the variable whose pattern the effect removes most "
+                 "(black: the mean per bin or category); right: the same with the effect added. A pattern on the left "
+                 "that is gone on the right is the effect's signature.", y=0.06 / H)
+    save(pdf, fig)
+
+
 # ------------------------------------------------------------------------------ page 3
 def _candidates_page(pdf, result, name=None):
     every = result["candidates"]
@@ -583,13 +702,15 @@ def _prepare(result, adapter, spec, data, progress=None, name=None):
     base = adapter.cross_validate(base_effects, data)
     steps = waterfall(adapter, spec, data, progress)
     suggested = suggested_steps(result, adapter, spec, data, base_effects)
+    signatures = _signature_runs(result, adapter, spec, data, base_effects, base)
     return {"result": result, "adapter": adapter, "data": data, "base_effects": base_effects, "base": base,
-            "steps": steps, "suggested": suggested, "name": name}
+            "steps": steps, "suggested": suggested, "signatures": signatures, "name": name}
 
 
 def _pages(pdf, r):
     name = r["name"]
     _residual_pages(pdf, r["result"], r["adapter"], r["base"], r["data"], r["base_effects"], name)
+    _signature_page(pdf, r["result"], r["adapter"], r["data"], r["base"], r["signatures"], name)
     _candidates_page(pdf, r["result"], name)
     _waterfall_page(pdf, r["result"], r["steps"], r["base_effects"], r["suggested"], name)
     _summary_pages(pdf, r["result"], r["base_effects"], name)      # console text: the appendix
@@ -621,4 +742,5 @@ def diagnosis_report_many(items, out, progress=None, names=None):
     return out
 
 
-__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "residual_spectrum", "suggested_steps", "summary_lines"]
+__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "explained_signature", "residual_spectrum",
+           "suggested_steps", "summary_lines"]

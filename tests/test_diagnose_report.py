@@ -16,12 +16,15 @@ def n_pages(path):
 
 
 def expected_pages(result, adapter, data):
-    from pipeline.diagnosis.report import PANELS_PER_PAGE, SUMMARY_LINES_PER_PAGE, summary_lines
+    from pipeline.core.plotting import text_page_count
+    from pipeline.diagnosis.report import PANELS_PER_PAGE, SUMMARY_FONTSIZE, summary_lines
 
     variables = adapter.signature_variables(data).values()
     panels = sum(2 if kind == "angle" else 1 for _, _, kind in variables)
-    summary = math.ceil(len(summary_lines(result)) / SUMMARY_LINES_PER_PAGE)
-    return summary + math.ceil(panels / PANELS_PER_PAGE) + 2
+    summary = text_page_count(summary_lines(result), SUMMARY_FONTSIZE)
+    signatures = int(any(c["meaningful"] for c in result["candidates"]))
+    # at a glance, residuals, the recommended effects' signatures, candidates, waterfall, text (appendix)
+    return 1 + math.ceil(panels / PANELS_PER_PAGE) + signatures + 2 + summary
 
 
 # ------------------------------------------------------------------------------ encoder
@@ -42,8 +45,9 @@ def test_encoder_report_pages_and_same_bytes_twice(encoder_diagnosis, tmp_path):
     diagnosis_report(result, adapter, spec, data, second)
     raw = first.read_bytes()
     assert raw.startswith(b"%PDF") and raw == second.read_bytes()
-    # summary, residuals (angle + spectrum, time, temperature, direction, run), candidates, waterfall
-    assert n_pages(first) == expected_pages(result, adapter, data) == 4
+    # at a glance, residuals (angle + spectrum, time, temperature, direction, run), candidates, waterfall,
+    # the summary's text (appendix)
+    assert n_pages(first) == expected_pages(result, adapter, data) == 5
 
 
 def test_cli_writes_report(invoke, tmp_path):
@@ -51,7 +55,7 @@ def test_cli_writes_report(invoke, tmp_path):
     res = invoke("diagnose", "--campaign", ROOT / "raw" / "encoder" / "a", "--spec", ROOT / "specs" / "encoder_paper.toml",
                  "--json", tmp_path / "d.json", "--report", out, "--quiet")
     assert res.exit_code == 0, res.output
-    assert out.read_bytes().startswith(b"%PDF") and n_pages(out) == 4
+    assert out.read_bytes().startswith(b"%PDF") and n_pages(out) == 5
 
 
 def test_hidden_direction_report(invoke, tmp_path):
@@ -95,6 +99,9 @@ class _Effect:
 
     def target(self):
         return self.joint
+
+    def spec_lines(self):
+        return f'[[effect]]\nname = "{self.name}"' + ("" if self.joint is None else f"\njoints = [{self.joint}]")
 
 
 class _RobotLikeAdapter:
@@ -178,5 +185,20 @@ def test_vector_residual_report(robot_like, tmp_path):
     diagnosis_report(result, adapter, spec, data, first)
     diagnosis_report(result, adapter, spec, data, second)
     assert first.read_bytes() == second.read_bytes()
-    # 6 angles (+ 6 spectra), 6 torques, 6 directions, temperature, payload = 26 panels: 3 pages
-    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 3 + 2
+    # 6 angles (+ 6 spectra), 6 torques, 6 directions, temperature, payload = 26 panels: 3 pages; backlash 2's
+    # signature
+    assert n_pages(first) == expected_pages(result, adapter, data) == 1 + 3 + 1 + 2 + 1
+
+
+def test_the_signature_a_recommended_effect_explains(robot_like):
+    """Backlash of joint 2 (hidden in z, following joint 2's direction of last motion): the page that shows
+    it next to its residual draws that direction and component, not another variable."""
+    from pipeline.diagnosis.report import explained_signature
+
+    result, adapter, spec, data = robot_like
+    base = adapter.cross_validate(spec.effects, data)
+    after = adapter.cross_validate([*spec.effects, _Effect("backlash", 2)], data)
+    assert explained_signature(adapter.signature_variables(data), base.residuals, after.residuals) == ("direction 2", 2)
+    # geometry, missing, leaves 0.4 mm sin(q2) in x: added, it explains q2's pattern in x
+    none = adapter.cross_validate([], data)
+    assert explained_signature(adapter.signature_variables(data), none.residuals, base.residuals) == ("q2", 0)

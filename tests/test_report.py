@@ -31,8 +31,8 @@ def test_report_pages_and_same_bytes_twice(report_inputs, tmp_path):
     encoder_report(report_inputs, second)
     data = first.read_bytes()
     assert data.startswith(b"%PDF") and data == second.read_bytes()
-    # numbers page, Figures 4-9, terms beside the paper's, aliasing table
-    assert len(re.findall(rb"/Type /Page\b", data)) == 9
+    # at a glance, Figures 4-9; appendix: numbers, terms beside the paper's, aliasing table
+    assert len(re.findall(rb"/Type /Page\b", data)) == 10
     assert not list(first.parent.glob(".*.tmp"))  # written atomically, nothing left behind
 
 
@@ -42,4 +42,4 @@ def test_report_single_module_without_paper_numbers(report_inputs, tmp_path):
 
     out = tmp_path / "c.pdf"
     encoder_report({"c": report_inputs["a"]}, out)
-    assert len(re.findall(rb"/Type /Page\b", out.read_bytes())) == 9
+    assert len(re.findall(rb"/Type /Page\b", out.read_bytes())) == 10

@@ -51,7 +51,7 @@ def diagnose(campaign, spec_path, json_out, report_out, quiet, workers, keep_out
     if report_out:
         from ..diagnosis.report import diagnosis_report  # matplotlib (0.4 s): only with --report
 
-        diagnosis_report(result, adapter, spec, data, report_out)
+        diagnosis_report(result, adapter, spec, data, report_out, name=str(campaign))
     if not quiet:
         click.echo(format_table(result))
 
@@ -81,5 +81,5 @@ def diagnose_all(pairs, report_out):
                    + (f"missing: {', '.join(c['effect'] + ('' if c['target'] is None else ' ' + str(c['target'])) for c in best)}"
                       if best else "nothing meaningful missing"), err=True)
         items.append((result, adapter, spec, data))
-    diagnosis_report_many(items, report_out)
+    diagnosis_report_many(items, report_out, names=[str(c) for c, _, _ in pairs])
     click.echo(f"{report_out}: written", err=True)

@@ -401,28 +401,55 @@ def report_cmd(results_dir, beyond_path, diagnosis_path, out):
 
 
 @robot_group.command("real-report")
+@click.option("--fit", "fits", multiple=True, type=click.Path(dir_okay=False),
+              help="Your robot: a jointcal fit JSON (repeat for more models; each named by its file name). "
+                   "Then --predict, --campaign (and --other) are read instead of --results/--campaigns.")
+@click.option("--predict", "predicts", multiple=True, type=click.Path(dir_okay=False),
+              help="jointcal predict JSON of each --fit on its own campaign (held-out poses), in the same order.")
+@click.option("--other", "others", multiple=True, type=click.Path(dir_okay=False),
+              help="Optional: jointcal predict --register JSON of each --fit on another campaign, in the same order.")
+@click.option("--campaign", "campaign_dir", default=None, type=click.Path(file_okay=False),
+              help="The imported campaign the --fit JSONs were fitted on (its poses.csv gives the joint angles).")
+@click.option("--other-name", default="other", show_default=True, help="What to call the --other campaign.")
 @click.option("--results", "results_dir", default="results/real", show_default=True, type=click.Path(),
-              help="Folder with <series>_<spec>.json (fit), _self.json and _on_<other>.json (predict).")
+              help="make real: folder with <series>_<spec>.json (fit), _self.json and _on_<other>.json (predict).")
 @click.option("--campaigns", "campaigns_dir", default="interim/real", show_default=True, type=click.Path(),
-              help="Folder with one imported campaign per series (jointcal import).")
-@click.option("--out-json", default="results/real/transfer.json", show_default=True, type=click.Path(dir_okay=False),
-              help="The report's numbers (summary.json's real section).")
+              help="make real: folder with one imported campaign per series (jointcal import).")
+@click.option("--note", default=None, help="A sentence about the data set, printed under the first page's title.")
+@click.option("--out-json", default=None, type=click.Path(dir_okay=False),
+              help="The report's numbers (summary.json's real section); default: results/real/transfer.json, "
+                   "or none with --fit.")
 @click.option("--out", default="reports/real.pdf", show_default=True, type=click.Path(dir_okay=False))
-def real_report_cmd(results_dir, campaigns_dir, out_json, out):
-    """Write reports/real.pdf: nominal / kinematic / paper-spec errors (mm) of every real series on its
-    own held-out poses and on the other series (registered), and each held-out pose's error against
-    each joint angle (deg)."""
-    from ..core.files import write_json
-    from ..robot.reporting.real_report import load_campaigns, load_results, real_report
+def real_report_cmd(fits, predicts, others, campaign_dir, other_name, results_dir, campaigns_dir, note, out_json, out):
+    """Write a report of a robot's fitted models on poses they never saw: nominal and each model's errors
+    (mm, arcsec) on the campaign's held-out poses and on another campaign (registered), coverage of the
+    stated u95, and each held-out pose's error against each joint angle (deg).
 
-    campaigns = load_campaigns(campaigns_dir)
-    results = load_results(results_dir, list(campaigns))
-    table = real_report(results, campaigns, out)
-    write_json(out_json, table)
-    click.echo(f"{out}: written; {out_json}: " + "; ".join(
-        f"{s}: kinematic {t['kinematic']['rms_mm']:.3f} mm own, "
-        + ", ".join(f"{k.split('_on_')[1]} {t[k]['rms_mm']:.3f}" for k in sorted(t) if k.startswith("kinematic_on_"))
-        for s, t in table.items() if "kinematic" in t), err=True)
+    Your robot: --fit FIT.json --predict PRED.json --campaign CAMPAIGN [--other PRED_ON.json].
+    make real: --results and --campaigns (every series' fits by make's file names)."""
+    from ..core.files import write_json
+    from ..robot.reporting.real_report import (load_campaign, load_campaigns, load_results,
+                                                   load_user_results, model_names, real_report)
+
+    if fits:
+        if not campaign_dir:
+            raise click.UsageError("--fit needs --campaign (the imported campaign it was fitted on)")
+        name = Path(campaign_dir).name or "campaign"
+        results = load_user_results(list(fits), list(predicts), list(others), name, other_name)
+        campaigns = {name: load_campaign(campaign_dir)}
+    else:
+        campaigns = load_campaigns(campaigns_dir)
+        results = load_results(results_dir, list(campaigns))
+        out_json = out_json or "results/real/transfer.json"
+    table = real_report(results, campaigns, out, note)
+    if out_json:
+        write_json(out_json, table)
+    models = model_names(results)
+    click.echo(f"{out}: written" + (f"; {out_json}" if out_json else "") + ": " + "; ".join(
+        f"{s}: " + ", ".join(f"{m} {t[m]['rms_mm']:.3f} mm own" + "".join(
+            f", {k.split('_on_')[1]} {t[k]['rms_mm']:.3f}" for k in sorted(t) if k.startswith(f"{m}_on_"))
+            for m in models if m in t)
+        for s, t in table.items()), err=True)
 
 
 @robot_group.command("diagnose-loop")

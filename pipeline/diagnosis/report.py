@@ -5,20 +5,25 @@ x, y, z in mm). Deterministic bytes (see :mod:`pipeline.core.plotting`).
 
 Pages
 -----
-1. Summary (text; continued on more pages when long): baseline effects and cross-validated
-   RMS with unit and folds, the candidate table, for every meaningful candidate the
-   evidence, explanation and the ``[[effect]]`` lines to paste into the spec, and the
-   effects these data cannot reveal with the reason.
+1. At a glance: every campaign's baseline (its spec's effects) and top candidates as a typeset
+   table (cross-validated RMS with unit, gain, p, verdict), and each campaign's waterfall: the
+   held-out RMS as each effect of the spec is added in turn, then the top meaningful candidate.
+Then, per campaign:
 2. Held-out residuals of the baseline against every signature variable the adapter names,
    one small panel each, with a binned mean (continuous) or per-category means with
    standard-error bars (categorical); every "angle" variable also gets a residual spectrum
    (amplitude of orders 1..17 from one least-squares fit against the angle). For d = 3
    the norm |r| is drawn as points and the signed x, y, z components as binned means.
    Nine panels a page; more pages when the adapter names more variables.
+   Then each recommended (meaningful) effect next to the residual it explains: the baseline's
+   held-out residual against the signature variable whose pattern the effect removes most, and
+   the same with the effect added (:func:`explained_signature`).
 3. Candidates: gain (%) of each candidate, meaningful ones highlighted, with the
    thresholds (min gain, Bonferroni p).
-4. Waterfall: held-out RMS as each effect of the spec is added in turn, and the top
-   meaningful candidate as one more, suggested bar.
+4. Waterfall, full size.
+Appendix (last): the summary as text: the candidate table, for every meaningful candidate the
+evidence, explanation and the ``[[effect]]`` lines to paste into the spec, the refused ones and
+the effects these data cannot reveal, with the reasons.
 """
 
 from __future__ import annotations
@@ -29,13 +34,14 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ..core.plotting import pdf_pages, plt, save, text_page
+from ..core.plotting import caption, fit_text, pdf_pages, plt, save, summary_page, text_page
 from .engine import done_text, label, target_text, verified_text, waterfall
 
 A4 = (8.27, 11.69)
 MAX_ORDER = 17
 PANELS_PER_PAGE = 9          # 3 x 3 grid on an A4 page
-SUMMARY_LINES_PER_PAGE = 88
+SUMMARY_FONTSIZE = 8                 # the summary's text pages (the appendix), pt
+MAX_BARS = 30                        # candidates drawn on the candidates page (every one: the appendix)
 SUMMARY_WIDTH = 100
 COMPONENT_COLORS = ("tab:red", "tab:green", "tab:purple")
 MEAN_COLOR = "black"
@@ -222,19 +228,20 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     return lines
 
 
-def _summary_pages(pdf, result, base_effects):
+def _summary_pages(pdf, result, base_effects, name=None):
+    """The summary as text (the appendix; as many pages as it takes)."""
     lines = summary_lines(result, base_effects)
-    title = f"Diagnosis ({result['kind']}): where the model fails"
-    n = SUMMARY_LINES_PER_PAGE
-    chunks = [lines[i:i + n] for i in range(0, len(lines), n)] or [[]]
-    for k, chunk in enumerate(chunks):
-        t = title if len(chunks) == 1 else f"{title} ({k + 1}/{len(chunks)})"
-        text_page(pdf, t, chunk, fontsize=8)
+    title = f"Diagnosis of {name or result['kind']}: candidates, evidence, what cannot be revealed"
+    text_page(pdf, title, lines, fontsize=SUMMARY_FONTSIZE)
 
 
 # ------------------------------------------------------------------------------ page 2
 def _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit):
     x = np.asarray(values, float)
+    fin = x[np.isfinite(x)]
+    if fin.size and np.ptp(fin) <= 1e-9 * max(1.0, float(np.max(np.abs(fin)))):
+        # the same value at every point (a joint gravity cannot load, say): drawn at its value, no offset axis
+        x = np.where(np.isfinite(x), round(float(np.mean(fin)), 9) + 0.0, x)
     d_is_vec = comps is not None
     ylab = f"|residual| ({res_unit})" if d_is_vec else f"residual ({res_unit})"
     if kind == "categorical":
@@ -290,6 +297,8 @@ def _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit):
                             label=f"mean {_component_names(comps.shape[1])[j]}")
         if kind == "angle" and np.nanmax(x) - np.nanmin(x) > 180:
             ax.set_xticks(np.arange(np.ceil(np.nanmin(x) / 90 - 0.15) * 90, np.nanmax(x) + 0.15 * 90, 90))
+        else:
+            ax.locator_params(axis="x", nbins=4)      # a third of a page wide: room for four labels
     ax.axhline(0.0, color="0.4", lw=0.6, zorder=0)
     ax.set_xlabel(f"{name} ({unit})" if unit else name)
     ax.set_ylabel(ylab)
@@ -340,16 +349,16 @@ def _model_orders(base_effects):
     return out
 
 
-def _residual_pages(pdf, result, adapter, base, data, base_effects=()):
+def _residual_pages(pdf, result, adapter, base, data, base_effects=(), name=None):
     res_unit = getattr(adapter, "unit", result["baseline"]["unit"])
     mag, comps = _residual_parts(base.residuals)
     # harmonic orders a meaningful candidate names: highlight them in the spectrum
     marked = {c["target"] for c in result["candidates"] if c["meaningful"] and c["effect"] == "harmonic"}
     panels = []
-    for name, (values, unit, kind) in adapter.signature_variables(data).items():
-        panels.append(("res", name, values, unit, kind))
+    for var, (values, unit, kind) in adapter.signature_variables(data).items():
+        panels.append(("res", var, values, unit, kind))
         if kind == "angle":
-            panels.append(("spec", name, values, unit, kind))
+            panels.append(("spec", var, values, unit, kind))
     in_model = _model_orders(base_effects)
     pages = [panels[i:i + PANELS_PER_PAGE] for i in range(0, len(panels), PANELS_PER_PAGE)]
     what = ("|held-out residual| (points) and mean x, y, z components (lines)" if comps is not None
@@ -358,25 +367,146 @@ def _residual_pages(pdf, result, adapter, base, data, base_effects=()):
         rows = -(-len(page) // 3)
         fig, axes = plt.subplots(rows, 3, figsize=(A4[0], 1.0 + 3.4 * rows), squeeze=False)
         axes = axes.ravel()
-        for ax, (typ, name, values, unit, kind) in zip(axes, page):
+        for ax, (typ, var, values, unit, kind) in zip(axes, page):
             if typ == "res":
-                _panel_residual(ax, name, values, unit, kind, mag, comps, res_unit)
+                _panel_residual(ax, var, values, unit, kind, mag, comps, res_unit)
             else:
-                _panel_spectrum(ax, name, values, base.residuals, res_unit, marked, in_model)
+                _panel_spectrum(ax, var, values, base.residuals, res_unit, marked, in_model)
         for ax in axes[len(page):]:
             ax.set_visible(False)
         suffix = "" if len(pages) == 1 else f" ({p + 1}/{len(pages)})"
-        fig.suptitle(f"Baseline {what} against every signature{suffix}\n"
-                     f"baseline: {' + '.join(result['baseline']['effects']) or 'nothing'}, "
-                     f"CV RMS {base.rms:.4g} {res_unit} ({result['baseline'].get('folds', '')}); "
-                     "a trend or a spectral peak is what the model misses", fontsize=9)
-        fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / (1.0 + 3.4 * rows)), h_pad=1.6)
+        head = fit_text(f"{name + ': ' if name else ''}baseline {what} against every signature{suffix}",
+                        0.92 * A4[0], 10)
+        fig.suptitle(head, fontsize=10)
+        H = 1.0 + 3.4 * rows
+        cap = (f"Baseline: {' + '.join(result['baseline']['effects']) or 'nothing'}, cross-validated RMS "
+               f"{base.rms:.4g} {res_unit} ({result['baseline'].get('folds', '')}). A trend against a variable, or "
+               "a spectral peak above the noise level, is what the model misses.")
+        fig.tight_layout(rect=(0, 0.75 / H, 1, 1 - (0.3 + 0.17 * head.count("\n")) / H), h_pad=1.6)
+        caption(fig, cap, y=0.08 / H)
         save(pdf, fig)
 
 
+# ------------------------------------------------------------------------------ signatures
+MAX_SIGNATURES = 4
+
+
+def _structure(r, groups):
+    """How much of ``r`` (n, d) the group means carry beyond noise: sum over groups and components of
+    n_g mean_g^2, less what scatter alone gives (the residual variance once a group: its expectation
+    when the means are noise), so many small groups score no more than a few large ones."""
+    means = float(sum(g.size * np.sum(np.mean(r[g], axis=0) ** 2) for g in groups))
+    return means - len(groups) * float(np.sum(np.var(r, axis=0)))
+
+
+def _groups(values, kind):
+    x = np.asarray(values, float)
+    if kind == "categorical":
+        cats = np.unique(x[np.isfinite(x)])
+        return cats, [np.flatnonzero(x == c) for c in cats]
+    return _bins(x)
+
+
+def explained_signature(variables, before, after):
+    """The signature variable whose residual structure an added effect removes most.
+
+    Parameters
+    ----------
+    variables : dict name -> (values (n,), unit, kind), the adapter's signature variables
+    before, after : ndarray, shape (n,) or (n, d), held-out residuals without and with the effect
+        (the adapter's unit)
+
+    Returns
+    -------
+    (name, component) : the variable, and the residual component (0-based) whose group means fell most
+    """
+    b = np.asarray(before, float).reshape(len(before), -1)
+    a = np.asarray(after, float).reshape(len(after), -1)
+    best, best_drop, best_comp = None, -np.inf, 0
+    for name, (values, _, kind) in variables.items():
+        _, groups = _groups(values, kind)
+        if len(groups) < 2:
+            continue
+        drops = [_structure(b[:, [k]], groups) - _structure(a[:, [k]], groups) for k in range(b.shape[1])]
+        k = int(np.argmax(drops))
+        if drops[k] > best_drop:
+            best, best_drop, best_comp = name, drops[k], k
+    return best, best_comp
+
+
+def _signature_runs(result, adapter, spec, data, base_effects, base):
+    """Each meaningful candidate (the first MAX_SIGNATURES): its held-out residuals when added alone, and the
+    signature variable it explains."""
+    best = [c for c in result["candidates"] if c["meaningful"]][:MAX_SIGNATURES]
+    if not best:
+        return []
+    objs = {o.spec_lines(): o for o in adapter.candidates(spec, data, base_effects) if hasattr(o, "spec_lines")}
+    variables = adapter.signature_variables(data)
+    out = []
+    for c in best:
+        obj = objs.get(c["spec_line"])
+        if obj is None:
+            continue
+        try:
+            after = adapter.cross_validate(adapter.add(list(base_effects), obj), data)
+        except np.linalg.LinAlgError:
+            continue
+        name, comp = explained_signature(variables, base.residuals, after.residuals)
+        if name is not None:
+            out.append({"candidate": c, "variable": name, "component": comp, "after": after})
+    return out
+
+
+def _signature_page(pdf, result, adapter, data, base, runs, name=None):
+    """Each recommended effect's signature next to the residual it explains: the baseline's held-out residual
+    against the variable the effect explains (left) and with the effect added (right), binned means drawn."""
+    if not runs:
+        return
+    unit = getattr(adapter, "unit", result["baseline"]["unit"])
+    variables = adapter.signature_variables(data)
+    d = np.asarray(base.residuals).reshape(len(base.residuals), -1).shape[1]
+    comp_names = _component_names(d) if d > 1 else ("",)
+    H = 1.2 + 2.6 * len(runs)
+    fig, axes = plt.subplots(len(runs), 2, figsize=(A4[0], H), squeeze=False, sharey="row")
+    for (axl, axr), run in zip(axes, runs):
+        values, vunit, kind = variables[run["variable"]]
+        centres, groups = _groups(values, kind)
+        x = np.asarray(values, float)
+        k = run["component"]
+        comp = f" {comp_names[k]}" if d > 1 else ""
+        for ax, res, title in ((axl, base.residuals, "baseline"), (axr, run["after"].residuals,
+                                                                      "+ " + _label(run["candidate"]))):
+            r = np.asarray(res, float).reshape(len(res), -1)[:, k]
+            jitter = (np.random.default_rng(0).uniform(-0.15, 0.15, x.size) if kind == "categorical" else 0.0)
+            ax.scatter(x + jitter, r, s=3, color=GREY, lw=0, zorder=1)
+            m, se = _mean_se(r, groups)
+            if kind == "categorical":
+                ax.errorbar(centres, m, yerr=se, fmt="o", color=MEAN_COLOR, ms=4, capsize=3, zorder=3)
+                ax.set_xticks(centres)
+                ax.set_xticklabels([f"{c:g}" for c in centres])
+            else:
+                ax.plot(centres, m, "-", color=MEAN_COLOR, lw=1.3, zorder=3)
+                ax.fill_between(centres, m - se, m + se, color=MEAN_COLOR, alpha=0.15, lw=0, zorder=2)
+                ax.locator_params(axis="x", nbins=5)
+            ax.axhline(0.0, color="0.4", lw=0.6, zorder=0)
+            ax.set_xlabel(f"{run['variable']} ({vunit})" if vunit else run["variable"])
+            rms = float(np.sqrt(np.mean(np.sum(np.asarray(res, float).reshape(len(res), -1) ** 2, axis=1))))
+            ax.set_title(f"{title}: held-out RMS {rms:.4g} {unit}", fontsize=8.5)
+        axl.set_ylabel(f"residual{comp} ({unit})")
+    head = fit_text(f"{name + ': ' if name else ''}each recommended effect next to the residual it explains",
+                    0.92 * A4[0], 10)
+    fig.suptitle(head, fontsize=10)
+    fig.tight_layout(rect=(0, 0.5 / H, 1, 1 - (0.3 + 0.17 * head.count("\n")) / H))
+    caption(fig, "Left: the baseline's held-out residual against the variable whose pattern the effect removes most "
+                 "(black: the mean per bin or category); right: the same with the effect added. A pattern on the left "
+                 "that is gone on the right is the effect's signature.", y=0.06 / H)
+    save(pdf, fig)
+
+
 # ------------------------------------------------------------------------------ page 3
-def _candidates_page(pdf, result):
-    cands = result["candidates"]
+def _candidates_page(pdf, result, name=None):
+    every = result["candidates"]
+    cands = every[:MAX_BARS]
     th = result.get("thresholds", {})
     unit = result["baseline"]["unit"]
     height = min(A4[1], max(4.0, 1.6 + 0.24 * len(cands)))
@@ -417,8 +547,12 @@ def _candidates_page(pdf, result):
     if th:
         sub = (f"\nmeaningful: gain >= {100 * th['min_gain']:.3g} % and p <= alpha/N = {th['alpha']:g}/{len(cands)}"
                f" = {th['p_max']:.2g} (Bonferroni)")
-    ax.set_title(f"Candidates: cross-validated gain of adding each missing effect{sub}", fontsize=9)
-    fig.tight_layout()
+    more = f" (the first {len(cands)} of {len(every)}; every one in the appendix)" if len(every) > len(cands) else ""
+    ax.set_title(fit_text(f"{name + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}",
+                          0.85 * A4[0], 10), fontsize=10)
+    fig.tight_layout(rect=(0, 0.9 / height, 1, 1))
+    caption(fig, "Blue bars are the effects to add: they lower the held-out error beyond noise." + sub.replace("\n", " ")
+            + ".", y=0.1 / height)
     save(pdf, fig)
 
 
@@ -459,21 +593,21 @@ def suggested_steps(result, adapter, spec, data, base_effects, max_n=MAX_SUGGEST
     return steps
 
 
-def _waterfall_page(pdf, result, steps, base_effects, suggested=()):
+def _waterfall(ax, result, steps, base_effects, suggested=(), fontsize=7, width=22, rotate=False):
+    """Held-out RMS as each effect of the spec is added in turn, then the suggested ones (bars)."""
     unit = result["baseline"]["unit"]
     min_gain = result.get("thresholds", {}).get("min_gain", 0.0)
     labels = ["nothing\n(constants only)"]
-    for s, e in zip(steps[1:], base_effects):
-        labels.append("+ " + "\n".join(textwrap.wrap(_effect_label(e), 22)))
+    for s, e in zip(steps[1:], base_effects):      # a narrow panel: the effect's name only
+        labels.append("+ " + "\n".join(textwrap.wrap(e.name if rotate else _effect_label(e), width)))
     values = [s["cv_rms"] for s in steps]
     colors = ["0.45"] * len(values)
     hatches = [None] * len(values)
     for k, s in enumerate(suggested):
-        labels.append("+ " + "\n".join(textwrap.wrap(s["label"], 22)) + ("\n(suggested)" if k == 0 else "\n(then)"))
+        labels.append("+ " + "\n".join(textwrap.wrap(s["label"], width)) + ("\n(suggested)" if k == 0 else "\n(then)"))
         values.append(s["cv_rms"])
         colors.append(HIGHLIGHT if k == 0 else "lightsteelblue")
         hatches.append("//")
-    fig, ax = plt.subplots(figsize=(A4[0], A4[1] / 2))
     x = np.arange(len(values))
     bars = ax.bar(x, values, color=colors, width=0.6, edgecolor="white")
     for bar, h in zip(bars, hatches):
@@ -481,55 +615,132 @@ def _waterfall_page(pdf, result, steps, base_effects, suggested=()):
             bar.set_hatch(h)
     top = max(values) if values else 1.0
     for k, v in enumerate(values):
-        txt = f"{v:.4g} {unit}"
+        txt = f"{v:.4g}"
         if k and values[k - 1] > 0:
             change = v / values[k - 1] - 1.0
-            txt += f"\n({100 * change:+.1f} %)"
+            txt += f"\n{100 * change:+.1f} %"
             if k >= len(steps) + 1 and -change < min_gain:
-                txt += "\nno further gain"
-        ax.annotate(txt, (k, v), ha="center", va="bottom", fontsize=7, xytext=(0, 2), textcoords="offset points")
+                txt += "\nno gain"
+        ax.annotate(txt, (k, v), ha="center", va="bottom", fontsize=fontsize, xytext=(0, 2), textcoords="offset points")
     ax.set_xticks(x)
-    ax.set_xticklabels(labels, fontsize=7)
-    ax.set_ylim(0, top * 1.2)
+    if rotate:      # a narrow panel: the labels on one line each, turned
+        ax.set_xticklabels([lb.replace("\n", " ") for lb in labels], fontsize=fontsize, rotation=90)
+    else:
+        ax.set_xticklabels(labels, fontsize=fontsize)
+    ax.set_ylim(0, top * 1.3)
     ax.set_ylabel(f"cross-validated RMS ({unit})")
     ax.grid(axis="x", visible=False)
+
+
+def _waterfall_page(pdf, result, steps, base_effects, suggested=(), name=None):
+    fig, ax = plt.subplots(figsize=(A4[0], A4[1] / 2))
+    _waterfall(ax, result, steps, base_effects, suggested)
     if suggested:
-        note = ("blue: the top meaningful candidate added to the spec's model"
-                + ("; light blue: the next meaningful ones added after it, in turn" if len(suggested) > 1 else ""))
+        note = ("Blue: the top meaningful candidate added to the spec's model"
+                + ("; light blue: the next meaningful ones added after it, in turn." if len(suggested) > 1 else "."))
     else:
-        note = "no meaningful candidate: nothing to add"
-    ax.set_title("Waterfall: held-out error as each effect of the spec is added in turn\n"
-                 f"({result['baseline'].get('folds', '')}; change vs the bar before in brackets)\n{note}", fontsize=9)
-    fig.tight_layout()
+        note = "No meaningful candidate: nothing to add."
+    ax.set_title(fit_text(f"{name + ': ' if name else ''}held-out error as each effect of the spec is added in turn",
+                          0.85 * A4[0], 10), fontsize=10)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    caption(fig, f"Each bar is the cross-validated RMS ({result['baseline'].get('folds', '')}) with the effects up to "
+                 f"it; the change against the bar before is under each value. {note}")
     save(pdf, fig)
 
 
+def _headline_rows(result, name=None, top=6):
+    """The summary table's rows of one campaign: baseline, then the top candidates."""
+    b = result["baseline"]
+    unit = b["unit"]
+    rows = [[name or result["kind"], "", "", "", "", ""],
+            ["", "baseline: " + (" + ".join(b["effects"]) or "nothing"), f"{b['cv_rms']:.4g}", "", "", ""]]
+    for c in result["candidates"][:top]:
+        verdict = "add it" if c["meaningful"] else "refused" if c.get("refused") else "within noise"
+        rows.append(["", "+ " + _label(c), f"{c['cv_rms_with']:.4g}", f"{100 * c['gain']:+.1f}", f"{c['p']:.1e}",
+                     verdict])
+    return rows, unit
+
+
+def _summary_first_page(pdf, runs):
+    """Page 1: every campaign's baseline and top candidates (a typeset table) and its waterfall."""
+    header = ["campaign", "model", "cross-validated\nRMS", "gain\n(%)", "p", "verdict"]
+    rows, bold, units = [], [], []
+    top = 6 if len(runs) == 1 else 3
+    for r in runs:
+        bold.append(len(rows))
+        rr, unit = _headline_rows(r["result"], r["name"], top)
+        for row in rr[1:]:
+            row[2] += f" {unit}"
+        rows += rr
+        units.append(unit)
+    found = [(r["name"] or r["result"]["kind"], [c for c in r["result"]["candidates"] if c["meaningful"]]) for r in runs]
+    notes = [f"{n}: add {', '.join(_label(c) for c in best)}." if best else f"{n}: nothing meaningful is missing."
+             for n, best in found]
+
+    def draw(fig, rect):
+        left, bottom, width, height = rect
+        gs = fig.add_gridspec(1, len(runs), left=left, right=left + width,
+                              bottom=bottom + (0.14 if len(runs) > 1 else 0.06), top=bottom + height, wspace=0.45)
+        for k, r in enumerate(runs):
+            ax = fig.add_subplot(gs[0, k])
+            _waterfall(ax, r["result"], r["steps"], r["base_effects"], r["suggested"][:1],
+                       fontsize=6 if len(runs) > 1 else 7, width=40 if len(runs) > 1 else 22, rotate=len(runs) > 1)
+            ax.set_title(r["name"] or r["result"]["kind"], fontsize=9)
+
+    summary_page(pdf, "Diagnosis: what the model misses", "Each campaign's baseline model (its spec's effects) is "
+                 "cross-validated; each candidate effect is added in turn and kept only when it lowers the held-out "
+                 "error beyond noise (gain and Bonferroni p) and carries over to held-out regions.",
+                 header, rows, draw, "The waterfall: held-out RMS as the spec's effects are added one by one, then the "
+                 "top meaningful candidate (blue, hatched). A blue bar well below the last grey one is an effect the "
+                 "model misses; the full candidate lists and reasons are in the appendix.",
+                 notes=notes, align=["l", "l", "r", "r", "r", "l"], bold_rows=bold, table_fontsize=7.5)
+
+
 # ------------------------------------------------------------------------------ entry
-def diagnosis_pages(pdf, result, adapter, spec, data, progress=None):
-    """Add one campaign's diagnosis pages to an open PDF."""
+def _prepare(result, adapter, spec, data, progress=None, name=None):
     base_effects = adapter.baseline_effects(spec, data)
     base = adapter.cross_validate(base_effects, data)
     steps = waterfall(adapter, spec, data, progress)
     suggested = suggested_steps(result, adapter, spec, data, base_effects)
-    _summary_pages(pdf, result, base_effects)
-    _residual_pages(pdf, result, adapter, base, data, base_effects)
-    _candidates_page(pdf, result)
-    _waterfall_page(pdf, result, steps, base_effects, suggested)
+    signatures = _signature_runs(result, adapter, spec, data, base_effects, base)
+    return {"result": result, "adapter": adapter, "data": data, "base_effects": base_effects, "base": base,
+            "steps": steps, "suggested": suggested, "signatures": signatures, "name": name}
 
 
-def diagnosis_report(result, adapter, spec, data, out, progress=None):
+def _pages(pdf, r):
+    name = r["name"]
+    _residual_pages(pdf, r["result"], r["adapter"], r["base"], r["data"], r["base_effects"], name)
+    _signature_page(pdf, r["result"], r["adapter"], r["data"], r["base"], r["signatures"], name)
+    _candidates_page(pdf, r["result"], name)
+    _waterfall_page(pdf, r["result"], r["steps"], r["base_effects"], r["suggested"], name)
+    _summary_pages(pdf, r["result"], r["base_effects"], name)      # console text: the appendix
+
+
+def diagnosis_pages(pdf, result, adapter, spec, data, progress=None, name=None):
+    """Add one campaign's diagnosis pages to an open PDF (its summary page first)."""
+    r = _prepare(result, adapter, spec, data, progress, name)
+    _summary_first_page(pdf, [r])
+    _pages(pdf, r)
+
+
+def diagnosis_report(result, adapter, spec, data, out, progress=None, name=None):
     """Write the diagnosis PDF to ``out`` (see the module docstring for the pages)."""
     with pdf_pages(out, f"jointcal diagnosis ({result['kind']})") as pdf:
-        diagnosis_pages(pdf, result, adapter, spec, data, progress)
+        diagnosis_pages(pdf, result, adapter, spec, data, progress, name)
     return out
 
 
-def diagnosis_report_many(items, out, progress=None):
-    """One PDF for several campaigns: ``items`` is a list of (result, adapter, spec, data)."""
+def diagnosis_report_many(items, out, progress=None, names=None):
+    """One PDF for several campaigns: ``items`` is a list of (result, adapter, spec, data); ``names``
+    (optional) what to call each campaign. One summary page for all, then each campaign's pages."""
+    names = list(names) if names else [None] * len(items)
+    runs = [_prepare(result, adapter, spec, data, progress, n) for (result, adapter, spec, data), n in zip(items, names)]
     with pdf_pages(out, "jointcal diagnosis") as pdf:
-        for result, adapter, spec, data in items:
-            diagnosis_pages(pdf, result, adapter, spec, data, progress)
+        _summary_first_page(pdf, runs)
+        for r in runs:
+            _pages(pdf, r)
     return out
 
 
-__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "residual_spectrum", "suggested_steps", "summary_lines"]
+__all__ = ["diagnosis_report", "diagnosis_report_many", "diagnosis_pages", "explained_signature", "residual_spectrum",
+           "suggested_steps", "summary_lines"]

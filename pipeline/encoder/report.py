@@ -3,16 +3,18 @@ numbers beside the paper's, as one deterministic PDF (``reports/encoder.pdf``).
 
 Pages
 -----
-1. Numbers beside the paper's: p2p before/after and reduction of the held-out run, the
-   selected orders (paper rule, cross-validated choice, paper), max |LSQ - FFT|, closures.
+1. At a glance: p2p before/after and reduction of each held-out run beside the paper's (a typeset
+   table) and each held-out run before and after compensation.
 2. Figure 4: original angle error of every run.
 3. Figure 5: harmonic characteristic (amplitude per order) of each modelling run.
 4. Figure 6: amplitude-order diagram with the selection thresholds.
 5. Figure 7: phase of each order over the modelling runs, phase range and stability.
 6. Figure 8: the error model over 0-360 deg with the modelling runs' readings.
 7. Figure 9: held-out run before and after compensation.
-8. Fitted terms (C_i, phi_i) beside the paper's Eqs. 7/8.
-9. Aliasing table (Eqs. 3-4) for the number of distinct angles of this campaign.
+Appendix (monospaced text, last): 8. numbers beside the paper's: p2p before/after and reduction of
+the held-out run, the selected orders (paper rule, cross-validated choice, paper), max |LSQ - FFT|,
+closures; 9. fitted terms (C_i, phi_i) beside the paper's Eqs. 7/8; 10. aliasing table (Eqs. 3-4)
+for the number of distinct angles of this campaign.
 
 Conventions (see :mod:`pipeline.encoder.harmonic`): error = C_0 + sum C_i sin(i theta + phi_i);
 angles in deg, angle errors in arcsec. Order 0 is the signed constant C_0; where an
@@ -29,7 +31,7 @@ import pandas as pd
 
 from .evaluate import model_from_result
 from .model import circular_mean_deg
-from ..core.plotting import pdf_pages, plt, save, text_page
+from ..core.plotting import caption, pdf_pages, plt, save, summary_page, text_page
 from .simulate import PAPER_MODELS
 
 A4 = (8.27, 11.69)
@@ -124,8 +126,11 @@ def _panel_title(ax, k, module, text):
     ax.set_title(f"({chr(ord('a') + k)}) joint module {module}: {text}", loc="left")
 
 
-def _finish(fig):
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+def _finish(fig, what=None, h_pad=None):
+    """Lay the panels out under the title; ``what``: the caption sentence (what to see)."""
+    fig.tight_layout(rect=(0, 0.035 if what else 0, 1, 0.96), h_pad=h_pad)
+    if what:
+        caption(fig, what)
 
 
 def _modelling_runs(inp):
@@ -209,6 +214,54 @@ def _numbers_page(pdf, inputs):
     text_page(pdf, "Encoder report: this run's numbers beside the paper's (Hu et al. 2020)", L, fontsize=7.6)
 
 
+def _summary(pdf, inputs):
+    """Page 1: p2p before / after / reduction of each module's held-out run beside the paper's (typeset),
+    and each held-out run's error before and after compensation against the joint angle."""
+    modules = list(inputs)
+    header = ["module", "held-out\nrun", "p2p before\n(arcsec)", "p2p after\n(arcsec)", "reduction\n(%)",
+              "paper before\n(arcsec)", "paper after\n(arcsec)", "paper\nreduction (%)", "harmonic orders\nin the model"]
+    rows, ours = [], []
+    for m in modules:
+        mod = inputs[m]["model"]
+        p = PAPER.get(m, {})
+        rows.append([m, ",".join(str(r) for r in mod.get("validation_runs", [])), f"{mod['p2p_before_arcsec']:.2f}",
+                     f"{mod['p2p_after_arcsec']:.2f}", f"{mod['reduction_pct']:.2f}", _fmt(p.get("p2p_before")),
+                     _fmt(p.get("p2p_after")), _fmt(p.get("reduction")), _orders_str(mod.get("orders"))])
+        ours.append(mod["reduction_pct"])
+    rows.append(["average", "", "", "", f"{np.mean(ours):.2f}", "", "", f"{PAPER_AVERAGE_REDUCTION:.2f}", ""])
+    notes = [f"Module {m}: selected orders {_orders_str(inputs[m]['model'].get('orders'))}; the paper's "
+             f"{_orders_str(PAPER[m]['orders'])}." for m in modules if m in PAPER]
+
+    def draw(fig, rect):
+        left, bottom, width, height = rect
+        gs = fig.add_gridspec(len(modules), 1, left=left, right=left + width, bottom=bottom, top=bottom + height,
+                              hspace=0.45)
+        for k, m in enumerate(modules):
+            ax = fig.add_subplot(gs[k, 0])
+            mod = inputs[m]["model"]
+            for v in mod.get("validation", []):
+                x = _unwrap_deg(v["theta_deg"])
+                before = np.asarray(v["error_arcsec"], float)
+                after = before - np.asarray(v["model_arcsec"], float)
+                ax.plot(x, before, "-o", ms=2.5, lw=1, color="tab:blue", label=f"run {v['run']} before")
+                ax.plot(x, after, "-o", ms=2.5, lw=1, color="tab:orange", label=f"run {v['run']} after")
+            ax.set_title(f"module {m}: held-out run {_orders_str(mod.get('validation_runs', []))}, "
+                         f"p2p {mod['p2p_before_arcsec']:.2f} → {mod['p2p_after_arcsec']:.2f}″", fontsize=9, loc="left")
+            ax.set_xlabel("joint angle θ (deg)")
+            ax.set_ylabel("angle error (arcsec)")
+            ax.set_xlim(-5, 365)
+            ax.set_xticks(np.arange(0, 361, 30))
+            if ax.get_legend_handles_labels()[1]:
+                ax.legend(loc="upper right", ncol=2, fontsize=7)
+
+    summary_page(pdf, "Joint modules: angle error before and after compensation", " ".join(DATA_NOTE)
+                 + " Held-out run: not used in the fit (first paper, Hu et al. 2020, section 4.2).", header, rows, draw,
+                 "What remains after compensation (orange) is what the harmonic model misses: a pattern repeating "
+                 "around the turn is a harmonic order it left out, a step or drift is not periodic. Figures 4-9 of the "
+                 "paper follow; the numbers in full are in the appendix.", notes=notes, align=["l"] + ["r"] * 7 + ["l"],
+                 table_fontsize=8.0)
+
+
 def _fig4(pdf, inputs):
     modules = list(inputs)
     fig, axes = _panel_figure(modules, "Figure 4 (paper): original angle error of the joint modules")
@@ -225,7 +278,8 @@ def _fig4(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, [inputs[m]["readings"]["error_arcsec"].to_numpy(float)], top=0.2, bottom=0.05)
         ax.legend(ncol=3, loc="upper right")
-    _finish(fig)
+    _finish(fig, "Every run repeats the same pattern around the turn: the joint's own periodic error, which the "
+                 "harmonic model fits; run to run scatter is the noise.")
     save(pdf, fig)
 
 
@@ -246,7 +300,7 @@ def _fig5(pdf, inputs):
         ax.set_ylabel("amplitude C_i (arcsec)")
         ax.set_xticks(orders)
         ax.legend(ncol=len(runs), loc="upper left")
-    _finish(fig)
+    _finish(fig, "Orders whose amplitude is large in every run are the joint's; small, varying ones are noise.")
     save(pdf, fig)
 
 
@@ -281,7 +335,7 @@ def _fig6(pdf, inputs):
         ax.set_ylim(0, max(t["mean_C_arcsec"].max(), max((abs(c) for c, _ in paper.values()), default=0)) * 1.3)
         h0, _ = ax.get_legend_handles_labels()
         ax.legend(handles=handles + h0, loc="upper center", ncol=2)
-    _finish(fig)
+    _finish(fig, "Red bars: the orders the paper's rule keeps (strong, or prominent with a stable phase); grey: dropped.")
     save(pdf, fig)
 
 
@@ -326,7 +380,8 @@ def _fig7(pdf, inputs):
         ax.set_ylim(-185, 212)
         ax.set_yticks(np.arange(-180, 181, 45))
         ax.legend(ncol=4, loc="lower left", fontsize=7, framealpha=0.95)
-    fig.tight_layout(rect=(0, 0, 1, 0.96), h_pad=3)
+    _finish(fig, "An order whose phase stays put over the runs (a narrow range) is a real error term; a scattered "
+                 "phase is noise.", h_pad=3)
     save(pdf, fig)
 
 
@@ -355,7 +410,7 @@ def _fig8(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, ys, top=0.3, bottom=0.05)
         ax.legend(ncol=3, loc="upper center", fontsize=7)
-    _finish(fig)
+    _finish(fig, "The fitted model should follow the readings of every modelling run; the paper's model is drawn beside it.")
     save(pdf, fig)
 
 
@@ -388,7 +443,7 @@ def _fig9(pdf, inputs):
         ax.set_xticks(np.arange(0, 361, 30))
         _pad_ylim(ax, ys, top=0.22, bottom=0.2)
         ax.legend(loc="upper left")
-    _finish(fig)
+    _finish(fig, "Orange, the held-out run after compensation, should be flat: what remains is what the model misses.")
     save(pdf, fig)
 
 
@@ -468,6 +523,7 @@ def encoder_report(inputs: dict, out) -> None:
     """
     inputs = {m: inputs[m] for m in sorted(inputs)}
     with pdf_pages(out, "jointcal encoder report: Figures 4-9 of Hu et al. (2020)") as pdf:
+        _summary(pdf, inputs)
         _numbers_page(pdf, inputs)
         _fig4(pdf, inputs)
         _fig5(pdf, inputs)

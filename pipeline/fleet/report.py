@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.ticker import FuncFormatter
 
-from ..core.plotting import pdf_pages, plt, save, text_page
+from ..core.plotting import caption, pdf_pages, plt, save, summary_page, text_page
 from .engine import FAMILY_MEASURE, MIN_UNITS_FOR_FAMILY
 
 #: the first paper's held-out peak-to-peak reductions (Eqs. 7, 8: modules a and b)
@@ -55,6 +55,7 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
         bad = table[table["status"] != "ok"]
         if len(bad):
             lines += ["", "Units that did not run:"] + [f"  {r['unit']}: {r['status']}: {r['error']}" for _, r in bad.iterrows()]
+        _summary(pdf, table, summary, ok, flagged, eff, kind, unit, measure, spec_path)
         text_page(pdf, "Fleet: calibration of many units with one spec", lines, fontsize=8)
         if not len(ok):
             return
@@ -90,25 +91,14 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
         ax2.set_ylabel("units")
         ax2.set_title("Residuals across the fleet: out-of-family units flagged")
         ax2.legend(loc="upper right")
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.04, 1, 1))
+        caption(fig, "Top: the paper's reductions (dashed) against the fleet's; bottom: a unit far right of the "
+                     "family is flagged (red) and named.")
         save(pdf, fig)
 
         # page 3: before vs after per unit, and the missing effects
         fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8.27, 11.69 * 0.8))
-        inf = ok[~ok["out_of_family"]]
-        ax1.scatter(inf["before"], inf["after"], s=12, color="tab:blue", label="in family")
-        if len(flagged):
-            ax1.scatter(flagged["before"], flagged["after"], s=24, color="tab:red", marker="x", label="out of family")
-            for _, f in flagged.iterrows():
-                ax1.annotate(f["unit"], (f["before"], f["after"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
-        lo, hi = 0.0, float(np.nanmax(ok["before"])) * 1.05
-        for share in (0.1, 0.2, 0.3):
-            ax1.plot([lo, hi], [lo, hi * share], color="grey", lw=0.7, ls=":")
-            ax1.text(hi, hi * share, f" {100 * (1 - share):.0f} % less", fontsize=7, va="center")
-        ax1.set_xlabel(f"{measure} before ({unit})")
-        ax1.set_ylabel(f"after compensation ({unit})")
-        ax1.set_title("Every unit: before and after (held out)")
-        ax1.legend(loc="upper left")
+        _before_after(ax1, ok, flagged, measure, unit)
         if len(eff):
             top = eff.head(15).iloc[::-1]
             ax2.barh(top["effect"], top["units"], color="tab:purple")
@@ -119,8 +109,63 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
             ax2.text(0.5, 0.5, "no unit lacks an effect the diagnosis can show", ha="center", transform=ax2.transAxes)
         ax2.set_xlabel(f"units whose diagnosis finds the effect missing (of {len(ok)})")
         ax2.set_title("Effects the diagnosis finds most often (add them to the spec)")
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.05, 1, 1))
+        caption(fig, "Top: units far above the dotted lines gained less from compensation than the others; bottom: an "
+                     "effect missing on many units is a design or batch defect, worth adding to the spec.")
         save(pdf, fig)
+
+
+def _before_after(ax, ok, flagged, measure, unit):
+    """Every calibrated unit: its error before against after compensation (held out), flagged ones named."""
+    inf = ok[~ok["out_of_family"]]
+    ax.scatter(inf["before"], inf["after"], s=12, color="tab:blue", label="in family")
+    if len(flagged):
+        ax.scatter(flagged["before"], flagged["after"], s=24, color="tab:red", marker="x", label="out of family")
+        for _, f in flagged.iterrows():
+            ax.annotate(f["unit"], (f["before"], f["after"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    lo, hi = 0.0, float(np.nanmax(ok["before"])) * 1.05
+    for share in (0.1, 0.2, 0.3):
+        ax.plot([lo, hi], [lo, hi * share], color="grey", lw=0.7, ls=":")
+        ax.text(0.4 * hi, 0.4 * hi * share, f"{100 * (1 - share):.0f} % less", fontsize=7, va="bottom", ha="center",
+                color="0.35")
+    ax.set_xlabel(f"{measure} before ({unit})")
+    ax.set_ylabel(f"after compensation ({unit})")
+    ax.set_title("Every unit: before and after (held out)")
+    ax.legend(loc="upper left")
+
+
+def _summary(pdf, table, summary, ok, flagged, eff, kind, unit, measure, spec_path):
+    """Page 1: the fleet's headline numbers (typeset) and every unit's before / after, flagged ones named."""
+    red = summary["reduction_pct"]
+    f1 = lambda v: "—" if v is None else f"{v:.1f}"  # noqa: E731
+    header = ["units", "cali-\nbrated", "refused", "failed", "median\nreduction (%)", "10th percentile\nreduction (%)",
+              "worst\nreduction (%)", "paper\nreduction (%)", f"median held-out\nRMS ({unit})", "out of\nfamily"]
+    rows = [[str(summary["units"]), str(summary["ok"]), str(summary["bad_input"]), str(summary["failed"]),
+             f1(red["median"]), f1(red["p10"]), f1(red["min"]), ", ".join(f"{p:.2f}" for p in PAPER_REDUCTIONS[kind]),
+             f"{ok['heldout_rms'].median():.3g}" if len(ok) else "—",
+             str(len(flagged)) if summary["family_judged"] else "not judged"]]
+    notes = []
+    if len(flagged):
+        worst = flagged.sort_values("robust_z", ascending=False)
+        notes.append("Out of family: " + ", ".join(worst["unit"].astype(str).head(8))
+                     + (" ..." if len(worst) > 8 else "") + " (why: appendix).")
+    if len(eff):
+        notes.append("Missing most often: " + ", ".join(f"{e['effect']} ({int(e['units'])} units)"
+                                                       for _, e in eff.head(3).iterrows()) + ".")
+
+    def draw(fig, rect):
+        ax = fig.add_axes(rect)
+        if len(ok):
+            _before_after(ax, ok, flagged, measure, unit)
+        else:
+            ax.set_axis_off()
+            ax.text(0.5, 0.5, "no unit calibrated", ha="center", va="center", transform=ax.transAxes)
+
+    summary_page(pdf, f"Fleet: {summary['units']} {kind} units calibrated with one spec",
+                 f"Spec {spec_path}; every unit calibrated and judged on its own held-out data ({measure}).", header,
+                 rows, draw, "Each point is one unit; the dotted lines mark 70, 80 and 90 % less error. Units above "
+                 "the cloud gained less than the family: they are flagged and named, and their diagnosis says what "
+                 "they lack.", notes=notes, align=["r"] * len(header), table_fontsize=8.0)
 
 
 def _bins(x, n):

@@ -21,11 +21,20 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
 
 from ...core.errors import InputError
 from ...core.files import read_json_input
-from ...core.plotting import pdf_pages, plt, save, text_page
+from ...core.plotting import caption, pdf_pages, plt, save, summary_page, text_page
 
+#: the models ``make real`` fits, in the report's order (``load_results`` reads them by these names);
+#: any other model (a user's own fit, named by its file) follows them
 SPECS = {"kinematic": "geometry + base + tool (specs/robot_kinematic.toml)",
          "paper": "the second paper's spec (specs/robot_paper.toml)",
          "diagnosed": "what the diagnosis loop ended with (results/real/<series>_diagnosed.toml)"}
+
+
+def model_names(results: dict) -> list[str]:
+    """The models of ``results`` (see :func:`transfer_table`) in the report's order: ``SPECS``'
+    first, then any other in the order given (a user's --fit order)."""
+    found = list(dict.fromkeys(m for s in sorted(results) for m in results[s].get("fits", {})))
+    return [m for m in SPECS if m in found] + [m for m in found if m not in SPECS]
 
 
 def _wrap(text: str, width: int = 86) -> list[str]:
@@ -106,14 +115,14 @@ def transfer_table(results: dict) -> dict:
     return out
 
 
-def _full_pose_lines(table: dict) -> list[str]:
+def _full_pose_lines(table: dict, models) -> list[str]:
     """The report's page on a 6-DoF probe's orientation (issue 30): per series and model, held out."""
-    lines = ["The probe is a 6-DoF T-Mac: every pose's orientation is measured too (repeatable to about",
-             "0.006 deg = 22 arcsec). Each fit weighs the orientation against the position by variance",
-             "components (weight in mm per mrad of orientation error). Held-out errors: position (mm),",
-             "orientation (arcsec, the angle between measured and predicted probe frames) and a point",
-             "rigidly fixed 300 mm out along the probe's z (mm), which the measured frame observes exactly.", "",
-             f"{'series / model':40s}{'pos RMS':>9s}{'ori RMS':>9s}{'ori deg':>9s}{'300 mm':>9s}"]
+    lines = ["The probe is a 6-DoF probe: every pose's orientation is measured too. Each fit weighs the",
+             "orientation against the position by variance components (weight in mm per mrad of orientation",
+             "error). Held-out errors: position (mm), orientation (arcsec, the angle between measured and",
+             "predicted probe frames) and a point rigidly fixed to the probe (jointcal predict --point; mm),",
+             "which the measured frame observes exactly.", "",
+             f"{'series / model':40s}{'pos RMS':>9s}{'ori RMS':>9s}{'ori deg':>9s}{'point':>9s}"]
     for s in sorted(table):
         t = table[s]
         nom = t["nominal"]
@@ -121,7 +130,7 @@ def _full_pose_lines(table: dict) -> list[str]:
         if "orientation_rms_arcsec" in nom:
             lines.append(f"  {'nominal kinematics':38s}{nom['rms_mm']:9.3f}{nom['orientation_rms_arcsec']:9.1f}"
                          f"{nom['orientation_rms_arcsec'] / 3600:9.4f}{'':>9s}")
-        for spec in SPECS:
+        for spec in models:
             e = t.get(spec) or {}
             if "orientation_rms_arcsec" not in e:
                 continue
@@ -160,7 +169,7 @@ def _coverage(pred: dict) -> dict:
 def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
     """Issue 33: the stated 95 % intervals against the errors of poses the fit never saw, and the
     parameters the fits are least sure of."""
-    specs = [sp for sp in SPECS if any(f"{sp}_coverage" in table[s] for s in series)]
+    specs = [sp for sp in model_names(results) if any(f"{sp}_coverage" in table[s] for s in series)]
     if not specs:
         return
     lines = _wrap("Each fitted model states, for every pose, u95_mm: the radius within which it expects the robot "
@@ -217,13 +226,16 @@ def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
             ax.set_xlabel("stated u95_mm (mm)")
             ax.set_ylabel("|error| (mm)")
             ax.set_title(f"series {s}, {sp} model", fontsize=9)
-            ax.legend(loc="upper left", fontsize=7)
+            if ax.get_legend_handles_labels()[1]:
+                ax.legend(loc="upper left", fontsize=7)
     fig.suptitle("Error of each pose against its stated 95 % radius (below the line: within)", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07 / len(series), 1, 1))
+    caption(fig, "About 95 % of the points should lie below the diagonal; far fewer says the stated intervals are "
+                 "too narrow there (the full table is in the appendix).")
     save(pdf, fig)
 
 
-def _verdicts(table: dict) -> list[str]:
+def _verdicts(table: dict, models=tuple(SPECS)) -> list[str]:
     """Plain-words lines: does each model carry over to the other series as well as geometry does?"""
     out = []
     for s, t in sorted(table.items()):
@@ -232,7 +244,7 @@ def _verdicts(table: dict) -> list[str]:
                 continue
             other = k.split("_on_")[1]
             ref = t[k]["rms_mm"]
-            for spec in SPECS:
+            for spec in models:
                 key = f"{spec}_on_{other}"
                 if spec == "kinematic" or key not in t:
                     continue
@@ -246,6 +258,192 @@ def _verdicts(table: dict) -> list[str]:
                 elif v < ref:
                     out.append(f"{spec} fitted on {s} carries over to {other}: {v:.3f} vs {ref:.3f} mm RMS.")
     return out
+
+
+def _described(results: dict, model: str) -> str:
+    """A user's model in words: its effects (from its fit JSON), else its name."""
+    for r in results.values():
+        fit = r.get("fits", {}).get(model)
+        if fit and fit.get("effects"):
+            eff = fit["effects"]
+            names = [e if isinstance(e, str) else (e.get("name") or e.get("effect") or str(e)) for e in eff]
+            return " + ".join(names)
+    return model
+
+
+def _fmt(v, spec=".3f"):
+    return "—" if v is None or not np.isfinite(v) else format(v, spec)
+
+
+def _summary(pdf, results, table, campaigns, series, models, note):
+    """Page 1: the headline numbers (nominal and every model; own held-out and other series; position,
+    orientation, a point on the probe; coverage of the stated u95) and the errors of the held-out poses
+    against each joint angle, first model against last, the worst poses marked."""
+    ori = any("orientation_rms_arcsec" in table[s].get(m, {}) for s in series for m in models)
+    pt = any("point_rms_mm" in table[s].get(m, {}) for s in series for m in models)
+    cov = any(f"{m}_coverage" in table[s] for s in series for m in models)
+    header = ["series / model", "own\nRMS (mm)", "own\nmax (mm)", "other\nRMS (mm)", "other\nmax (mm)"]
+    if ori:
+        header.append("orientation\nRMS (″)")
+    if pt:
+        header.append("probe point\nRMS (mm)")
+    if cov:
+        header.append("within u95 (%)\nown / other")
+    rows, bold = [], []
+    for s in series:
+        t = table[s]
+        bold.append(len(rows))
+        rows.append([f"Series {s} ({t['n_sample']} sample, {t['n_target']} held-out poses)"] + [""] * (len(header) - 1))
+        nom = t["nominal"]
+        row = ["  nominal kinematics", _fmt(nom["rms_mm"]), _fmt(nom["max_mm"]), "—", "—"]
+        if ori:
+            row.append(_fmt(nom.get("orientation_rms_arcsec"), ".1f"))
+        if pt:
+            row.append("—")
+        if cov:
+            row.append("—")
+        rows.append(row)
+        for m in models:
+            if m not in t:
+                continue
+            e = t[m]
+            on = [t[k] for k in sorted(t) if k.startswith(f"{m}_on_")]
+            o = on[0] if on else {}
+            row = [f"  {m}", _fmt(e["rms_mm"]), _fmt(e["max_mm"]), _fmt(o.get("rms_mm")), _fmt(o.get("max_mm"))]
+            if ori:
+                row.append(_fmt(e.get("orientation_rms_arcsec"), ".1f"))
+            if pt:
+                row.append(_fmt(e.get("point_rms_mm")))
+            if cov:
+                c = t.get(f"{m}_coverage") or {}
+                own = c.get("own", {}).get("coverage_95")
+                far = [v["coverage_95"] for k, v in c.items() if k != "own"]
+                row.append(f"{_fmt(None if own is None else 100 * own, '.1f')} / "
+                           f"{_fmt(100 * far[0] if far else None, '.1f')}")
+            rows.append(row)
+    notes = []
+    first, last = (models[0], models[-1]) if models else (None, None)
+    for s in series:
+        t = table[s]
+        if last not in t:
+            continue
+        nom, own = t["nominal"]["rms_mm"], t[last]["rms_mm"]
+        text = (f"Series {s}: the {last} model lowers the own held-out RMS from {nom:.3f} to {own:.3f} mm "
+                f"({nom / own:.1f}x)" if own > 0 else f"Series {s}:")
+        on_last = [(k.split("_on_")[1], t[k]) for k in sorted(t) if k.startswith(f"{last}_on_")]
+        on_first = {k.split("_on_")[1]: t[k] for k in sorted(t) if k.startswith(f"{first}_on_")}
+        for o, v in on_last:
+            text += f"; on series {o} it gives {v['rms_mm']:.3f} mm"
+            if last != first and o in on_first:
+                ref = on_first[o]["rms_mm"]
+                text += (f", {first} {ref:.3f} mm: " + ("it carries over" if v["rms_mm"] < ref else
+                                                         "it does not carry over"))
+        notes.append(text + ".")
+    pic_series = [s for s in series if s in campaigns and any(results[s]["self"].get(m) for m in models)]
+
+    def draw(fig, rect):
+        _joint_picture(fig, rect, results, campaigns, pic_series, models)
+
+    sub = ("Each campaign is split into sample poses (fitted) and held-out target poses by jointcal import. 'own': "
+           "the held-out poses of the series the model was fitted on; 'other': the other series, after re-estimating "
+           "only the tracker-to-base transform (jointcal predict --register); 'nominal': the nominal kinematics after "
+           "the best rigid fit of the tracker frame" + ("; orientation and probe point: on the own held-out poses"
+                                                        if ori or pt else "")
+           + ("; within u95: the share of poses inside the model's stated 95 % radius" if cov else "") + "."
+           + (f" {note}" if note else ""))
+    cap = (f"Each dot is one held-out pose: its position error against each joint angle, {first} model in grey"
+           + (f", {last} model in blue" if last != first else "")
+           + "; red: the worst 5 % of poses of the " + f"{last} model. A trend along one joint, or red dots "
+           "gathered at one end of its range, is where the model fails.")
+    summary_page(pdf, "Calibrated robot: errors on poses the fit never saw", sub, header, rows, draw, cap,
+                 notes=notes, bold_rows=bold, table_fontsize=8.0)
+
+
+def _joint_picture(fig, rect, results, campaigns, series, models):
+    """Error of each held-out pose against each joint angle (a row per series, a panel per joint):
+    the first model grey, the last blue, the last model's worst 5 % red (mm against deg)."""
+    if not series or not models:
+        ax = fig.add_axes(rect)
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, "no per-pose errors to draw", ha="center", va="center", transform=ax.transAxes)
+        return
+    first, last = models[0], models[-1]
+    qn = max(sum(1 for c in campaigns[s].columns if c[:1] == "q" and c[1:].isdigit()) for s in series)
+    left, bottom, width, height = rect
+    top = bottom + height
+    height = min(height, 0.2 * len(series) + 0.06 * (len(series) - 1))     # panels no taller than about wide
+    bottom = top - height
+    gs = fig.add_gridspec(len(series), qn, left=left, right=left + width, bottom=bottom, top=bottom + height,
+                          wspace=0.12, hspace=0.35)
+    handles = {}
+    for i, s in enumerate(series):
+        poses = campaigns[s].set_index("point_id")
+        top = 0.0
+        drawn = []
+        for m in dict.fromkeys((first, last)):
+            pred = results[s]["self"].get(m)
+            if not pred:
+                continue
+            pts = pd.DataFrame(pred["points"])
+            q = poses.loc[pts["point_id"], [f"q{j + 1}" for j in range(qn) if f"q{j + 1}" in poses]].to_numpy(float)
+            e = pts["error_mm"].to_numpy(float)
+            drawn.append((m, q, e))
+            top = max(top, float(e.max()))
+        for j in range(qn):
+            ax = fig.add_subplot(gs[i, j])
+            for m, q, e in drawn:
+                if j >= q.shape[1]:
+                    continue
+                colour = "0.6" if (m == first and first != last) else "tab:blue"
+                h, = ax.plot(q[:, j], e, ".", ms=1.8, color=colour, alpha=0.7, zorder=2 if m == last else 1)
+                handles.setdefault(f"{m} model", h)
+                if m == last and e.size >= 20:
+                    worst = e >= np.quantile(e, 0.95)
+                    h, = ax.plot(q[worst, j], e[worst], ".", ms=3.5, color="tab:red", zorder=3)
+                    handles.setdefault(f"worst 5 % of the {m} model", h)
+            ax.set_ylim(0, 1.05 * top if top > 0 else 1)
+            ax.tick_params(labelsize=6, length=2, pad=1)
+            ax.locator_params(axis="x", nbins=3)
+            ax.set_xlabel(f"q{j + 1} (deg)", fontsize=7, labelpad=1)
+            if j == 0:
+                ax.set_ylabel(f"series {s}\n|error| (mm)", fontsize=7)
+            else:
+                ax.tick_params(labelleft=False)
+    if handles:
+        fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=len(handles), fontsize=7,
+                   bbox_to_anchor=(left + width / 2, bottom + height + 0.005), markerscale=2.5, frameon=False)
+
+
+def load_user_results(fits, predicts, others=(), series="campaign", other_name="other") -> dict:
+    """:func:`transfer_table`'s input from a user's own files (any robot): each ``jointcal fit`` JSON
+    with the ``jointcal predict`` JSON of it on its own campaign and, optionally, on another campaign
+    (``predict --register``). A model is named by its fit file's name without ``.json``.
+
+    Parameters
+    ----------
+    fits, predicts : list of paths, one predict a fit, in the same order
+    others : list of paths, empty or one a fit
+    """
+    if len(predicts) != len(fits):
+        raise InputError(predicts[0] if predicts else fits[0],
+                         f"{len(fits)} --fit but {len(predicts)} --predict: give one predict JSON a fit, in order")
+    if others and len(others) != len(fits):
+        raise InputError(others[0], f"{len(fits)} --fit but {len(others)} --other: give none or one a fit")
+    r = {"fits": {}, "self": {}, "on": {}}
+    for k, (f, p) in enumerate(zip(fits, predicts)):
+        name = Path(f).name.removesuffix(".json")
+        r["fits"][name] = read_json_input(f)
+        r["self"][name] = read_json_input(p)
+        r["on"][name] = {other_name: read_json_input(others[k])} if others else {}
+    return {series: r}
+
+
+def load_campaign(campaign_dir):
+    """One imported campaign's ``poses.csv`` (point_id, set, q1..qN deg); missing is bad input."""
+    path = Path(campaign_dir) / "poses.csv"
+    if not path.exists():
+        raise InputError(path, "no imported campaign here: give the folder jointcal import wrote (--out)")
+    return pd.read_csv(path, dtype={"point_id": str})
 
 
 def load_campaigns(campaigns_dir) -> dict:
@@ -280,7 +478,7 @@ def load_results(results_dir, series) -> dict:
     return out
 
 
-def real_report(results: dict, campaigns: dict, out) -> dict:
+def real_report(results: dict, campaigns: dict, out, note: str | None = None) -> dict:
     """Write the report; returns :func:`transfer_table`.
 
     Parameters
@@ -288,10 +486,15 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
     results : dict (see :func:`transfer_table`)
     campaigns : dict series -> DataFrame of the imported ``poses.csv`` (point_id, set, q1..qN deg)
     out : path of the PDF
+    note : str, optional
+        A sentence about the data set (where it comes from, what others measured on it), printed under
+        the first page's title; none for a user's own robot.
     """
     table = transfer_table(results)
     series = sorted(table)
+    models = model_names(results)
     with pdf_pages(out, "jointcal real-robot report") as pdf:
+        _summary(pdf, results, table, campaigns, series, models, note)
         lines = ["Real laser-tracker measurements: errors on poses the fit never saw (mm)", "",
                  "Each series is split into sample poses (fitted) and target poses (held out) by",
                  "`jointcal import`. 'nominal' is the nominal kinematics after the best rigid fit of the",
@@ -308,7 +511,7 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
             lines.append(head)
             lines.append(f"  {'nominal kinematics':42s}{t['nominal']['rms_mm']:8.3f}{t['nominal']['max_mm']:8.3f}"
                          f"{t['nominal']['mean_mm']:8.3f}")
-            for spec in SPECS:
+            for spec in models:
                 if spec not in t:
                     continue
                 e = t[spec]
@@ -327,16 +530,15 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
             lines.append("")
         lines += ["'outside': poses of the other series with a joint outside the joint ranges the model",
                   "was fitted on (it extrapolates there).", ""]
-        verdicts = _verdicts(table)
+        verdicts = _verdicts(table, models)
         if verdicts:
             lines += ["What carries over:"] + [f"  {v}" for v in verdicts] + [""]
-        lines += ["Models:"] + [f"  {k}: {v}" for k, v in SPECS.items()]
-        lines += ["", "A standard kinematic calibration of this robot is reported at about 0.45-0.48 mm RMS on",
-                  "held-out poses (the data set's README); tests/test_real_reference.py checks jointcal's",
-                  "against one written independently with scipy (within 5 %)."]
-        text_page(pdf, "Real robot: own held-out poses and the other series", lines)
-        if any("orientation_rms_arcsec" in table[s].get(spec, {}) for s in series for spec in SPECS):
-            text_page(pdf, "Full poses: the probe's orientation and a tool point 300 mm out", _full_pose_lines(table))
+        lines += ["Models:"] + [f"  {k}: {SPECS.get(k, _described(results, k))}" for k in models]
+        if note:
+            lines += [""] + _wrap(note)
+        text_page(pdf, "Own held-out poses and the other series, model by model", lines)
+        if any("orientation_rms_arcsec" in table[s].get(spec, {}) for s in series for spec in models):
+            text_page(pdf, "Full poses: the probe's orientation and a point on the probe", _full_pose_lines(table, models))
 
         exported = {s: results[s]["export"] for s in series if results[s].get("export")}
         if exported:   # what reaches the robot (jointcal export --heldout): held-out RMS, mm
@@ -437,7 +639,7 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
         for ax, s in zip(axes[0], series):
             t = table[s]
             labels, own, other = ["nominal"], [t["nominal"]["rms_mm"]], [np.nan]
-            for spec in SPECS:
+            for spec in models:
                 if spec in t:
                     labels.append(spec)
                     own.append(t[spec]["rms_mm"])
@@ -445,7 +647,8 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                     other.append(t[k]["rms_mm"] if k else np.nan)
             x = np.arange(len(labels))
             ax.bar(x - 0.2, own, 0.4, label=f"own held-out poses of {s}")
-            ax.bar(x + 0.2, other, 0.4, label="other series (registered)")
+            if np.isfinite(other).any():
+                ax.bar(x + 0.2, other, 0.4, label="other series (registered)")
             for xi, v in zip(x, own):
                 ax.text(xi - 0.2, v, f"{v:.2f}", ha="center", va="bottom", fontsize=7)
             for xi, v in zip(x, other):
@@ -461,12 +664,16 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
             ax.set_ylabel("RMS position error (mm, log)")
             ax.set_title(f"model fitted on series {s}")
             ax.legend(loc="upper left")
-        fig.tight_layout()
+            ax.tick_params(axis="x", labelsize=7)
+        fig.suptitle("Held-out RMS error of each model: own target poses and the other series", fontsize=10)
+        fig.tight_layout(rect=(0, 0.1, 1, 1))
+        caption(fig, "A model that is lower on its own poses but not on the other series fits its own campaign's "
+                     "poses without carrying over (log scale: equal steps are equal ratios).")
         save(pdf, fig)
 
         # per-pose error against each joint angle (held-out poses of each series)
         for s in series:
-            for spec in SPECS:
+            for spec in models:
                 pred = results[s]["self"].get(spec)
                 if pred is None or s not in campaigns:
                     continue
@@ -486,16 +693,19 @@ def real_report(results: dict, campaigns: dict, out) -> dict:
                     ax.plot(q[:, j], e, ".", ms=2, alpha=0.5)
                     # a running median shows a trend the cloud hides
                     order = np.argsort(q[:, j])
-                    if e.size >= 40:
+                    if e.size >= 40:   # noqa: PLR2004 (fewer poses: no median to draw, no legend)
                         k = max(10, e.size // 30)
                         med = pd.Series(e[order]).rolling(k, center=True, min_periods=k // 2).median()
                         ax.plot(q[order, j], med, "-", lw=1.2, color="C3", label="running median")
                     ax.set_xlabel(f"q{j + 1} (deg)")
                     if j % 3 == 0:
                         ax.set_ylabel("|error| (mm)")
-                axes[0, 0].legend(loc="upper right")
+                if axes[0, 0].get_legend_handles_labels()[1]:
+                    axes[0, 0].legend(loc="upper right")
                 fig.suptitle(f"Series {s}, {spec} model: error of each held-out pose against each joint angle "
                              f"(RMS {pred['rms_mm']:.3f} mm)", fontsize=9)
-                fig.tight_layout()
+                fig.tight_layout(rect=(0, 0.09, 1, 1))
+                caption(fig, "A trend along one joint's angle (the running median rising or falling) is an effect "
+                             "the model lacks; a flat cloud is noise.")
                 save(pdf, fig)
     return table

@@ -46,7 +46,7 @@ def stage_effects(spec, stage):
 def synthetic_campaign(robot, effects, n, seed=0, size=0.02):
     """``n`` poses uniform in the joint range; tracker positions of the model ``effects`` with
     parameters drawn N(0, size) (internal units: mm, mrad) plus N(0, 0.015 mm) noise."""
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
     from pipeline.robot.arm.effects import RobotData
     from pipeline.robot.arm.kinematics import gravity_torques
 

@@ -524,7 +524,7 @@ def export_cmd(model_path, fmt, out, urdf_path, tip, base_link, heldout_campaign
         written = [out]
     elif fmt == "ur":
         from ..export.ur import calibration_conf, kinematics_yaml, published_reference, standard_dh
-        from ..robot.model.calibrate import RobotErrorModel
+        from ..robot.model.estimator import RobotErrorModel
 
         chain = folded_chain(robot, chain_model)
         nominal = published_reference(robot, effects, doc["parameters"], folded_chain)   # a UR's own calibration

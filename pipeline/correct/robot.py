@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core.units import REFERENCE_TEMPERATURE_C
-from ..robot.model.calibrate import Design
+from ..robot.model.design import Design
 from ..robot.arm.effects import RobotData
 from ..robot.arm.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
 from ..robot.model.predict import outside_range
@@ -155,7 +155,7 @@ class ModelKinematics:
 
     def unseen_rotations(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
         """How the model's flange turns along each direction of its parameters that the fit's
-        measurements did not determine (:meth:`pipeline.robot.model.calibrate.RobotErrorModel.undetermined`),
+        measurements did not determine (:meth:`pipeline.robot.model.estimator.RobotErrorModel.undetermined`),
         at commanded poses: shape (n, 3, m), rad per unit of the direction, world-aligned."""
         self._built()
         D = self.model.undetermined() if hasattr(self.model, "undetermined") else np.zeros((0, 0))

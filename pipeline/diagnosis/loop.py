@@ -52,7 +52,7 @@ def _stats(err) -> dict:
 def _pose_stats(model, target, register_on=None) -> dict:
     """:func:`_stats` of a model's held-out errors on ``target``, with the orientation's (arcsec) on a 6-DoF
     campaign; ``register_on``: another series' sample poses to re-register its tracker on first."""
-    from ..robot.model.calibrate import angle_arcsec, orientation_errors
+    from ..core.se3 import angle_arcsec, orientation_errors
 
     Rt = np.eye(3)
     if register_on is None:

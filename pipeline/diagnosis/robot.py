@@ -1,6 +1,6 @@
 """The robot side of diagnosis: folds by pose over the sample set, candidates per joint.
 
-The model is :class:`pipeline.robot.model.calibrate.RobotErrorModel` (Gauss-Newton over the sum of the
+The model is :class:`pipeline.robot.model.estimator.RobotErrorModel` (Gauss-Newton over the sum of the
 effects, pinocchio Jacobians). Poses are independent (each is its own tracker measurement),
 so a candidate's held-out gain is tested with a paired t test over poses.
 """
@@ -14,12 +14,15 @@ import numpy as np
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..core.memory import release_freed_memory
-from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, scaled_svd, start_weight
+from ..core.se3 import ARCSEC_PER_MRAD, orientation_errors
+from ..robot.model.design import Design
+from ..robot.model.normal import scaled_svd
+from ..robot.model.weighting import start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
 from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
 from ..robot.arm.kinematics import gravity_torques
 from ..robot.model.budget import angle_budget, angle_variation, error_scale, lever_arms
-from ..robot.model.lm import describe_implausible, implausible_parameters
+from ..robot.model.plausibility import describe_implausible, implausible_parameters
 from ..robot.model.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
@@ -32,7 +35,7 @@ def span_weights(J) -> np.ndarray:
     of any X (m, c) in an orthonormal basis of the span are ``W.T @ (J.T @ X)``.
 
     The span is that of J's columns scaled to unit norm, with singular values above 1e-9 of the largest
-    (:func:`pipeline.robot.model.calibrate.scaled_svd`: a 6-DoF baseline's J is 43,000 x 800, and its U would
+    (:func:`pipeline.robot.model.normal.scaled_svd`: a 6-DoF baseline's J is 43,000 x 800, and its U would
     be another 275 MB kept, issue 32)."""
     m, k = J.shape
     if k == 0 or m == 0:

@@ -1,6 +1,6 @@
 """Choosing the poses to measure (contract section 9): D-optimal and Ds-optimal designs over a pool.
 
-The problem is the fit's own: :meth:`pipeline.robot.model.calibrate.RobotErrorModel.identification` of
+The problem is the fit's own: :meth:`pipeline.robot.model.estimator.RobotErrorModel.identification` of
 the estimator ``jointcal fit`` uses for the spec (:func:`pipeline.robot.model.estimate.effects_estimator`)
 gives the identification Jacobian at the nominal robot (3 rows a pose, mm per internal unit) and
 the parameters the poses can determine (rank, weak determination: the fit's own tolerances). Only
@@ -452,7 +452,7 @@ def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
     columns ``A_model`` (n, 3, q) over the same poses, each scaled to unit RMS per pose; columns
     that vanish after the projection (the model has them) are dropped.
     """
-    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.model.estimator import RobotErrorModel
     from ..robot.arm.effects import Chebyshev
 
     nj = len(robot.joints)

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.crossval import CVResult
-from .calibrate import Design, RobotErrorModel, angle_arcsec, orientation_errors
+from ...core.se3 import angle_arcsec, orientation_errors
+from .design import Design
+from .estimator import RobotErrorModel
 from .chebyshev import chebyshev_estimator
 
 
@@ -21,7 +23,7 @@ def effects_estimator(robot, effects, start=None, checks: bool = True, orientati
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
     start the solver from (a nested model's solution). ``checks``: judge the fitted model's plausibility
-    (:class:`~pipeline.robot.model.calibrate.RobotErrorModel`); off for a fit used only to predict.
+    (:class:`~pipeline.robot.model.estimator.RobotErrorModel`); off for a fit used only to predict.
     ``orientation``: fit a 6-DoF campaign's orientations too (False: its positions alone);
     ``orientation_weight`` (mm per mrad): their weight, None to estimate it (variance components), starting
     from ``weight_start`` when given (the weight a fit of the same model on nearly the same poses ended with)."""
@@ -288,8 +290,8 @@ class FoldsBeforeWild:
         mm per mrad, every fold's (the whole sample's weight).
     first : RobotErrorModel or None
         The model fitted on every pose of ``data`` (its design kept), or None. Given, each fold's model is it
-        taken to the other folds' poses by Gauss-Newton steps (:meth:`~pipeline.robot.model.calibrate.\
-RobotErrorModel.determined_without`, at its orientation weight, in its fitted directions): the fit on them
+        taken to the other folds' poses by Gauss-Newton steps (:meth:`~pipeline.robot.model.estimator.\
+RobotErrorModel.refit_without`, at its orientation weight, in its fitted directions): the fit on them
         to the steps' 1e-5 mm^2, from the fit on all the poses (four fifths of them the fold's), instead of a
         design, an identification and an iteration from nominal; fitted where the other folds' poses leave a fitted
         direction undetermined.
@@ -306,13 +308,13 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         design of every pose, fitted on the other folds'), (train, model) for a model fitted on ``train``."""
         folds = fold_ids(self.data.n, self.n_folds)
         if self.first is not None:
-            m = self.first.determined_without(self.data, folds != f)
+            m = self.first.refit_without(self.data, folds != f)
             if m is not None:
                 return None, m
         train = self.data.subset(folds != f)
         est = effects_estimator(self.robot, self.effects, checks=False, orientation=self.orientation,
                                 orientation_weight=self.orientation_weight)
-        est._retain_designs = True       # the steps to the kept poses reuse its design
+        est.keep_designs = True       # the steps to the kept poses reuse its design
         return train, est.fit(train)
 
     def fit(self) -> "FoldsBeforeWild":
@@ -327,13 +329,13 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         train, m = fitted if fitted is not None else self._fit_fold(f)
         if not keep[folds != f].all():
             # stepped from the whole sample's model: on its design of every pose, the other folds' kept ones
-            step = (m.determined_without(self.data, (folds != f) & keep) if train is None
-                    else m.determined_without(train, keep[folds != f]))
+            step = (m.refit_without(self.data, (folds != f) & keep) if train is None
+                    else m.refit_without(train, keep[folds != f]))
             if step is None:
                 step = fit_effects(self.robot, self.effects, self.data.subset((folds != f) & keep), checks=False,
                                    orientation=self.orientation, orientation_weight=self.orientation_weight)
             m = step
-        m._designs = None
+        m.release_designs()
         held = self.data.subset((folds == f) & keep)
         o = None
         if self.data.has_orientation:

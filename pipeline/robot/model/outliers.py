@@ -14,7 +14,7 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
 2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
    fitted again, until the set named no longer changes (a redescending M-estimator with hard
    rejection: a wild pose gets weight 0, every other weight 1). A refit is Gauss-Newton steps from the
-   fit on all sample poses, on the normal equations of the poses kept (``stepped_without``). Each pose's
+   fit on all sample poses, on the normal equations of the poses kept (``refit_without``). Each pose's
    residual is its 3-D distance from that model (for a pose left out, a prediction).
 3. **A robust scale** of the residuals: ``sigma = sqrt(median(|r|^2) / 2.366)``, the per-axis
    standard deviation the median of the squared 3-D residual gives for Gaussian noise (2.366 is
@@ -137,7 +137,7 @@ def _flag(res, sigma, q, q_ref, res_ref, valid_ref, own=None) -> np.ndarray:
 
 def _orientation_residuals(model, data) -> np.ndarray:
     """Orientation errors (n, 3) arcsec, measured - predicted (the turn from the predicted probe frame)."""
-    from .calibrate import ARCSEC_PER_MRAD, orientation_errors
+    from ...core.se3 import ARCSEC_PER_MRAD, orientation_errors
 
     R, _ = model.predict_pose(data)
     return -orientation_errors(R, data.measured_R) * ARCSEC_PER_MRAD
@@ -404,7 +404,7 @@ def _search(robot, effects, flex, sample, target) -> dict:
         if first is None:
             try:
                 est = effects_estimator(robot, flex, checks=False)
-                est._retain_designs = True       # the refit steps and predictions on the sample reuse its design
+                est.keep_designs = True       # the refit steps and predictions on the sample reuse its design
                 first = est.fit(sample)
             except np.linalg.LinAlgError:
                 first = fit_effects(robot, list(effects), sample, checks=False)
@@ -412,7 +412,7 @@ def _search(robot, effects, flex, sample, target) -> dict:
         else:
             # the refit without the poses named: Gauss-Newton steps from the fit on all of them, on the
             # normal equations of the rest (the same model on all but a few of the same poses)
-            model = first.stepped_without(sample, ~ws)
+            model = first.refit_without(sample, ~ws, determined=False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
         n_res = rs.shape[1] * n_fitted

@@ -27,7 +27,8 @@ import numpy as np
 
 from ...core.errors import InputError
 from ...core.spec import parse_spec
-from .calibrate import RobotErrorModel, angle_arcsec, orientation_errors
+from ...core.se3 import angle_arcsec, orientation_errors
+from .estimator import RobotErrorModel
 from .estimate import point_errors
 from .outliers import describe, find_wild
 from ..campaign.frame import apply, from_matrix, rigid_fit, rotation_angle_deg, to_matrix

@@ -2,8 +2,8 @@
 the pairs that trade with each other, and each predicted point's 95 % radius ``u95_mm``.
 
 **Parameters.** The fit moves the parameters ``x`` in the span of its fitted directions ``B``
-(``x = B z``, :meth:`pipeline.robot.model.calibrate.RobotErrorModel.fit`: the identified parameters,
-redundant combinations held nearest the nominal robot by :func:`~pipeline.robot.model.calibrate.physical_subspace`,
+(``x = B z``, :meth:`pipeline.robot.model.estimator.RobotErrorModel.fit`: the identified parameters,
+redundant combinations held nearest the nominal robot by :func:`~pipeline.robot.model.identify.physical_subspace`,
 parameters left at nominal outside it). At the solution, with ``A = [J B; Pen B]`` (the Jacobian of the
 position residuals in the fitted directions, and the effects' penalty rows), the least-squares
 covariance is
@@ -105,7 +105,7 @@ def parameter_covariance(model, data) -> dict:
     dict: ``covariance`` (p, p) internal units, ``sigma_mm`` (s, per coordinate, mm), ``dof`` (fitted
     degrees of freedom), ``n_obs`` (3 n).
     """
-    from .calibrate import DENSE_SVD_MAX, gram, scaled_svd
+    from .normal import DENSE_SVD_MAX, gram, scaled_svd
 
     d = model.design(data)
     B = np.asarray(model.basis_, float)

@@ -169,7 +169,7 @@ class Design:
         ii, ee, vv = self._pose_major()           # (pose, entry), pose-major
         vals = Jext[ii, :, self.c_idx[ee]] * vv[:, None]          # (nnz, 3)
         if self._coo is None:
-            self._coo = posecsc_structure(ii, self.p_idx[ee], self.data.n, self.p)
+            self._coo = pose_csc_structure(ii, self.p_idx[ee], self.data.n, self.p)
         return P, _pose_csc(vals, self._coo)
 
     def pose_and_jacobian(self, x, columns=None):
@@ -195,7 +195,7 @@ class Design:
         del vals
         if self._coo6 is None:
             # the entries' rows and columns are the same at every x: the layout is built once
-            self._coo6 = pose6csc_structure(ii, self.p_idx[ee], n, self.p)
+            self._coo6 = pose6_csc_structure(ii, self.p_idx[ee], n, self.p)
         J = _csc(data, self._coo6)
         F = np.concatenate([(P - self.data.measured_mm).ravel(),
                             self.weight * orientation_errors(R, self.data.measured_R).ravel()])
@@ -258,7 +258,7 @@ def csc_structure(rows, cols, m, p):
     return order, (start if start.size < r.size else None), r[start].astype(np.int32), indptr, (m, p)
 
 
-def posecsc_structure(ii, cols, n, p):
+def pose_csc_structure(ii, cols, n, p):
     """The CSC layout of a positions' Jacobian (3 n, p) whose nonzeros t (pose ``ii[t]``, column ``cols[t]``,
     pose-major) each fill the rows 3 ii + 0, 1, 2: the order taking the nonzeros to it (by column, poses
     increasing), where each run of nonzeros of one (pose, column) starts (None: no run longer than one),
@@ -269,7 +269,7 @@ def posecsc_structure(ii, cols, n, p):
     return order, (first if first.size < i.size else None), rows, indptr, (3 * n, p)
 
 
-def pose6csc_structure(ii, cols, n, p):
+def pose6_csc_structure(ii, cols, n, p):
     """The :func:`csc_structure` of a 6-DoF Jacobian (6 n, p) whose nonzeros t (pose ``ii[t]``, column
     ``cols[t]``, pose-major) each fill the rows 3 ii + 0, 1, 2 (positions) and 3 n + 3 ii + 0, 1, 2 (turns),
     the values laid out as ``[vals[:, :3].ravel(), vals[:, 3:].ravel()]``: the same layout, sorted as
@@ -313,7 +313,7 @@ def pose6csc_structure(ii, cols, n, p):
 
 
 def _pose_csc(vals, structure):
-    """The sparse matrix (CSC) of the nonzeros' values ``vals`` (nnz, 3) on a :func:`posecsc_structure`
+    """The sparse matrix (CSC) of the nonzeros' values ``vals`` (nnz, 3) on a :func:`pose_csc_structure`
     (a run of one (pose, column) summed in order)."""
     import scipy.sparse
 

@@ -45,3 +45,17 @@ def test_the_chordal_mean_of_rotations_spread_evenly_about_one_is_that_one():
 def test_the_two_arcsec_per_mrad_constants_agree_to_their_six_digits():
     assert se3.ARCSEC_PER_MRAD_EXACT == pytest.approx(se3.ARCSEC_PER_MRAD, rel=2e-9)
     assert se3.ARCSEC_PER_RAD == pytest.approx(206264.80624709636)
+
+
+def test_kabsch_finds_the_turn_between_two_point_sets_and_rigid_fit_the_shift_too():
+    R0 = pin.exp3(np.array([0.4, 0.1, -0.7]))
+    a = np.random.default_rng(5).normal(size=(20, 3))
+    R, S = se3.kabsch_rotation((a - a.mean(0)).T @ ((a @ R0.T) - (a @ R0.T).mean(0)))
+    np.testing.assert_allclose(R, R0, atol=1e-12)
+    assert S[1] > 1.0
+    R2, t2 = se3.rigid_fit(a, a @ R0.T + [1.0, -2.0, 3.0])
+    np.testing.assert_allclose(t2, [1.0, -2.0, 3.0], atol=1e-12)
+    assert se3.rotation_angle_deg(R2 @ R0.T) == pytest.approx(0.0, abs=1e-5)
+    assert se3.rotation_angle_deg(pin.exp3(np.array([0.0, 0.0, np.pi / 2]))) == pytest.approx(90.0)
+    with pytest.raises(ValueError, match="collinear"):
+        se3.rigid_fit(np.outer(np.arange(5.0), [1, 2, 3]), np.outer(np.arange(5.0), [3, 2, 1]))

@@ -26,7 +26,8 @@ from ..core.memory import release_freed_memory
 from ..core.spec import load_spec, parse_spec
 from ..robot.arm.effects import jh_orders
 from ..robot.model.estimate import fit_effects
-from ..robot.campaign.frame import apply, rigid_fit
+from ..core.se3 import rigid_fit
+from ..robot.campaign.frame import apply
 from ..robot.campaign.ingest import robot_data_sets
 from ..robot.model.fit import check_spec_joints
 from ..robot.model.outliers import describe, find_wild

@@ -33,6 +33,7 @@ from ..robot.arm.effects import RobotData
 from ..robot.model.estimate import effects_estimator
 from ..robot.model.uncertainty import prediction_covariance
 from ..robot.arm.kinematics import Robot, gravity_torques
+from ..core.se3 import ARCSEC_PER_MRAD
 from ..core.units import REFERENCE_TEMPERATURE_C
 
 #: Ridge added to the information matrix (scaled units: a pose adds about 1 per parameter)
@@ -539,7 +540,7 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     union = pool if measured is None else concat_data(measured, pool)
     weight = None
     if noise_arcsec is not None:
-        weight = noise_mm / (noise_arcsec / 206.264806)
+        weight = noise_mm / (noise_arcsec / ARCSEC_PER_MRAD)
         union, pool = with_probe(union, weight), with_probe(pool, weight)
         if measured is not None:
             measured = with_probe(measured, weight)

@@ -27,10 +27,11 @@ import numpy as np
 import pinocchio as pin
 
 from ...core.effect import REGISTRY, Effect
+from ...core.se3 import ARCSEC_PER_MRAD
 from ...core.units import REFERENCE_TEMPERATURE_C
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
-MRAD_ARCSEC = 206.264806  # arcsec per mrad
+MRAD_ARCSEC = ARCSEC_PER_MRAD  # arcsec per mrad (pipeline.core.se3)
 #: Joint numbers of a six-axis robot
 #: the joints of the papers' six-joint robots (the default when an effect is not told the robot)
 ALL_JOINTS = (1, 2, 3, 4, 5, 6)

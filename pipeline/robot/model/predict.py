@@ -31,7 +31,8 @@ from ...core.se3 import angle_arcsec, orientation_errors
 from .estimator import RobotErrorModel
 from .estimate import point_errors
 from .outliers import describe, find_wild
-from ..campaign.frame import apply, from_matrix, rigid_fit, rotation_angle_deg, to_matrix
+from ...core.se3 import rigid_fit, rotation_angle_deg
+from ..campaign.frame import apply, from_matrix, to_matrix
 from ..campaign.ingest import robot_data_sets
 from ..arm.kinematics import Robot, parse_robot
 

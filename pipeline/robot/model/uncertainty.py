@@ -54,6 +54,8 @@ import re
 
 import numpy as np
 
+from ...core.se3 import ARCSEC_PER_MRAD_EXACT, ARCSEC_PER_RAD
+
 #: The probability of the stated radius
 P95 = 0.95
 #: Pairs of parameters correlated beyond this are listed (contract section 14)
@@ -62,8 +64,6 @@ CORRELATION_LIMIT = 0.9
 #: whole unexplained scatter (as that joint's angle) at this many sampled widths beyond it
 #: (:func:`extrapolation_covariance`); further, it stays there.
 EXTRAPOLATION_WIDTHS = 1.0
-ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
-ARCSEC_PER_MRAD = ARCSEC_PER_RAD / 1000.0
 #: Singular values of the column-scaled fitted Jacobian below this (relative) are left out of the
 #: covariance (directions the fit could not move: none, normally)
 COVARIANCE_RCOND = 1e-12
@@ -486,7 +486,7 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
         ro = np.linalg.norm(np.asarray(cv_orientation, float), axis=1)
         bo = radius95(at_o + Uo)
         pred["unexplained_orientation_mrad2"] = Uo.tolist()
-        pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD
+        pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD_EXACT
         pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
         pred["method_orientation"] = ("u95_arcsec: the same for the probe frame's orientation (its rows of the "
                                       "prediction Jacobian, the cross-validation's orientation errors, the joints' "
@@ -562,7 +562,7 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
         So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
             data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"], stated.get("spread_rad"),
             Jturn=joint_jacobian(model, data, turn=True))
-        out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD
+        out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD_EXACT
     return out
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..core.memory import release_freed_memory
+from ..core.parallel import fork_imap
 from ..core.se3 import ARCSEC_PER_MRAD, orientation_errors
 from ..robot.model.design import Design
 from ..robot.model.normal import scaled_svd
@@ -46,12 +47,9 @@ def span_weights(J) -> np.ndarray:
     return (Vt[keep].T / sv[keep]) / norms[:, None]
 
 
-_EVAL = None
-
-
-def _evaluate_one(k):
+def _evaluate_one(shared, k):
     """One candidate in a forked worker (the adapter and its shared fit come with the fork)."""
-    adapter, base_effects, cands, data = _EVAL
+    adapter, base_effects, cands, data = shared
     return adapter._evaluate(cands[k], data, base_effects)
 
 
@@ -307,22 +305,15 @@ class RobotAdapter:
         self.linear(base_effects, data)     # the baseline fitted here, once: forked workers share it
         out, t0, last = [], time.perf_counter(), 0.0
         if self.workers > 1 and len(cands) > 1:
-            import multiprocessing as mp
-
-            global _EVAL
-            _EVAL = (self, base_effects, cands, data)
-            try:
-                with mp.get_context("fork").Pool(self.workers) as pool:
-                    for k, res in enumerate(pool.imap(_evaluate_one, range(len(cands)), chunksize=4)):
-                        out.append({"with": CVResult(res[0], np.arange(data.n)),
-                                    "region": CVResult(res[1], np.arange(data.n)), "refused": res[2]})
-                        now = time.perf_counter() - t0
-                        if now - last > 2.0 or k + 1 == len(cands):
-                            last = now
-                            say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about "
-                                f"{now / (k + 1) * (len(cands) - k - 1):.0f} s left)")
-            finally:
-                _EVAL = None
+            results = fork_imap(_evaluate_one, (self, base_effects, cands, data), len(cands), self.workers, chunksize=4)
+            for k, res in enumerate(results):
+                out.append({"with": CVResult(res[0], np.arange(data.n)),
+                            "region": CVResult(res[1], np.arange(data.n)), "refused": res[2]})
+                now = time.perf_counter() - t0
+                if now - last > 2.0 or k + 1 == len(cands):
+                    last = now
+                    say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about "
+                        f"{now / (k + 1) * (len(cands) - k - 1):.0f} s left)")
             return out
         for k, cand in enumerate(cands):
             r1, r2, why = self._evaluate(cand, data, base_effects)

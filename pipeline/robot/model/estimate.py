@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.crossval import CVResult
+from ...core.parallel import can_fork, fork_map, fork_map_async
 from ...core.se3 import angle_arcsec, orientation_errors
 from .design import Design
 from .estimator import RobotErrorModel
@@ -195,7 +196,6 @@ def fold_description(data, n_folds: int = N_FOLDS) -> str:
 #: sample poses from which ``jointcal fit`` cross-validates its folds in forked processes (fewer: one process;
 #: a fork costs about 0.1 s, a fold's fit of 1,000 6-DoF poses about as much)
 PARALLEL_CV_MIN_POSES = 2000
-_CV_SHARED = None
 
 
 def cpu_count() -> int:
@@ -219,23 +219,13 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bo
     ``jobs`` > 1 fits the folds in up to that many forked processes (Linux, not from inside a worker
     process): each fold's fit is the same computation as in one process, so the result is the same.
     """
-    global _CV_SHARED
-    import multiprocessing as mp
-    import sys
-
     folds = fold_ids(data.n, n_folds)
     res = np.empty((data.n, 3))
     ori = np.empty((data.n, 3)) if data.has_orientation else None
     args = (robot, effects, data, folds, orientation, orientation_weight)
     jobs = min(int(jobs), n_folds)
-    if (jobs > 1 and effects and sys.platform.startswith("linux") and not mp.current_process().daemon
-            and "fork" in mp.get_all_start_methods()):
-        _CV_SHARED = args
-        try:
-            with mp.get_context("fork").Pool(jobs) as pool:
-                parts = pool.map(_cv_shared_fold, range(n_folds), chunksize=1)
-        finally:
-            _CV_SHARED = None
+    if jobs > 1 and effects and can_fork():
+        parts = fork_map(_cv_shared_fold, args, n_folds, jobs)
     else:
         parts = [_cv_fold(*args, f) for f in range(n_folds)]
     for f, (r, o) in enumerate(parts):
@@ -266,8 +256,8 @@ def _cv_fold(robot, effects, data, folds, orientation, orientation_weight, f):
     return data.measured_mm[test] - pred, o
 
 
-def _cv_shared_fold(f):
-    return _cv_fold(*_CV_SHARED, f)
+def _cv_shared_fold(args, f):
+    return _cv_fold(*args, f)
 
 
 class FoldsBeforeWild:
@@ -350,28 +340,15 @@ RobotErrorModel.refit_without`, at its orientation weight, in its fitted directi
         (Linux, not from inside a worker process; else here, when asked): returns a function that gives its
         :class:`CVResult`. Folds fitted by :meth:`fit` are stepped there; the others fitted and stepped. The
         caller goes on meanwhile (the model's own steps, its held-out errors)."""
-        global _FOLDS_SHARED
-        import multiprocessing as mp
-        import sys
-
         keep = np.asarray(keep, bool)
         jobs = min(int(jobs), self.n_folds)
-        if not (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
-                and "fork" in mp.get_all_start_methods()):
+        if not (jobs > 1 and can_fork()):
             return lambda: self.cross_validate(keep)
-        _FOLDS_SHARED = (self, keep)
-        try:
-            pool = mp.get_context("fork").Pool(jobs)      # the workers fork here, with the folds' models
-        finally:
-            _FOLDS_SHARED = None
-        pending = pool.map_async(_shared_fold, range(self.n_folds), chunksize=1)
+        # the workers fork here, with the folds' models
+        pending = fork_map_async(_shared_fold, (self, keep), self.n_folds, jobs)
 
         def result() -> CVResult:
-            try:
-                parts = pending.get()
-            finally:
-                pool.terminate()
-                pool.join()
+            parts = pending()
             self.models_ = None
             return self._assemble(keep, parts)
 
@@ -403,10 +380,7 @@ RobotErrorModel.refit_without`, at its orientation weight, in its fitted directi
         return out
 
 
-_FOLDS_SHARED = None
-
-
-def _shared_fold(f):
-    folds, keep = _FOLDS_SHARED
+def _shared_fold(shared, f):
+    folds, keep = shared
     fitted = getattr(folds, "models_", None)
     return folds._fold(f, keep, fitted[f] if fitted else None)

@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.errors import InputError
+from ...core.parallel import can_fork, fork_process, pipe
 from ...core.spec import parse_spec
 from ...core.tables import text_table
 from ...core.wild import HANDFUL, MAX_WILD_FRACTION, MIN_RESIDUAL_DOF_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
@@ -265,7 +266,6 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
 #: sample poses from which a wild search not in the cache runs in a forked process (:class:`WildSearch`), the
 #: caller going on with work that does not need it (a fork costs about 0.1 s)
 BACKGROUND_MIN_POSES = 2000
-_BACKGROUND = None
 
 
 class WildSearch:
@@ -300,23 +300,14 @@ class WildSearch:
         return self._proc is not None
 
     def _fork(self) -> None:
-        global _BACKGROUND
-        import multiprocessing as mp
         import sys
 
-        if not (sys.platform.startswith("linux") and not mp.current_process().daemon
-                and "fork" in mp.get_all_start_methods()):
+        if not can_fork():
             return
         sys.stdout.flush()         # the forked process flushes its copy of what is buffered when it ends
         sys.stderr.flush()
-        ctx = mp.get_context("fork")
-        receive, send = ctx.Pipe(duplex=False)
-        _BACKGROUND = (self.args, self._flex, self._key, send)
-        try:
-            self._proc = ctx.Process(target=_search_in_background, daemon=True)
-            self._proc.start()
-        finally:
-            _BACKGROUND = None
+        receive, send = pipe()
+        self._proc = fork_process(_search_in_background, (self.args, self._flex, self._key, send))
         send.close()
         self._pipe = receive
 
@@ -344,9 +335,9 @@ class WildSearch:
         return _wild(self._found, sample, target, campaign, keep)
 
 
-def _search_in_background() -> None:
+def _search_in_background(shared) -> None:
     """The forked process of :class:`WildSearch`: the search, kept in the cache, its result sent back."""
-    (robot, effects, sample, target, campaign, keep), flex, key, send = _BACKGROUND
+    (robot, effects, sample, target, campaign, keep), flex, key, send = shared
     try:
         found = _search(robot, effects, flex, sample, target)
         _keep(key, found)

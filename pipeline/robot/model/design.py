@@ -57,9 +57,8 @@ class Design:
         self.p_idx = np.asarray(p_idx, int)
         self.c_idx = np.asarray(c_idx, int)
         # each entry's channel values, kept without their zeros (a joint map's value moves only the poses
-        # near its knot: 7 % of a 12,000-pose flexible model's (pose, entry) pairs): entry e's poses are
-        # rows[ptr[e]:ptr[e + 1]] (increasing), its values vals[...] (issue 32: building them dense took
-        # 0.4 s and 63 MB a design)
+        # near its knot): entry e's poses are rows[ptr[e]:ptr[e + 1]] (increasing), its values vals[...]
+        # (why not dense: docs/speed.md, "The fitting core's measurements")
         self._ptr = np.concatenate([[0], np.cumsum([r.size for r in rows])]).astype(np.int64)
         self._rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
         self._vals = np.concatenate(vals) if vals else np.zeros(0)
@@ -147,7 +146,7 @@ class Design:
         position mm, or position and orientation), each parameter's entries summed in order.
 
         ``columns`` (p,) bool: only those parameters' columns, (n, m, k), the same values (a 6-DoF
-        baseline's fixed parameters are a third of its 863: 100 MB of 43,000 rows, issue 32)."""
+        baseline's fixed parameters need no column)."""
         Jext = np.asarray(Jext, float)
         where = np.arange(self.p) if columns is None else np.cumsum(columns) - 1
         keep = np.ones(self.p, bool) if columns is None else np.asarray(columns, bool)
@@ -235,8 +234,8 @@ class Design:
 
 def _by_column(keys, cols, p):
     """Entries (``keys``, ``cols``) sorted by column, keys increasing within a column: the order, where each
-    run of one (key, column) starts, the sorted keys and columns (issue 32: a stable sort, radix on small
-    column numbers, when the keys already increase in entry order)."""
+    run of one (key, column) starts, the sorted keys and columns (a stable sort, radix on small column
+    numbers, when the keys already increase in entry order)."""
     keys, cols = np.asarray(keys, np.int64), np.asarray(cols, np.int64)
     order = np.argsort(cols.astype(np.int16) if p < 2 ** 15 else cols, kind="stable")
     k, c = keys[order], cols[order]
@@ -273,9 +272,8 @@ def pose6_csc_structure(ii, cols, n, p):
     """The :func:`csc_structure` of a 6-DoF Jacobian (6 n, p) whose nonzeros t (pose ``ii[t]``, column
     ``cols[t]``, pose-major) each fill the rows 3 ii + 0, 1, 2 (positions) and 3 n + 3 ii + 0, 1, 2 (turns),
     the values laid out as ``[vals[:, :3].ravel(), vals[:, 3:].ravel()]``: the same layout, sorted as
-    nonzeros rather than as its six times as many entries (issue 32: 0.4 s a design on 7,000 poses), also
-    where a (pose, column) has several nonzeros (a run, summed: the loop's designs, 0.27 s each the general
-    way)."""
+    nonzeros rather than as its six times as many entries, also where a (pose, column) has several
+    nonzeros (a run, summed: the loop's designs). Its measured cost: docs/speed.md."""
     ii, cols = np.asarray(ii, np.int64), np.asarray(cols, np.int64)
     order, first, i, c = _by_column(ii, cols, p)
     nnz = ii.size
@@ -303,7 +301,7 @@ def pose6_csc_structure(ii, cols, n, p):
     f = first
     uptr = np.searchsorted(c[f], np.arange(p + 1)).astype(np.int64)  # each column's runs
     # where each run's stored values start, in the layout's order: a column's runs' position rows (run by
-    # run, x y z), then the same runs' turns; placed there directly (a sort of them took 0.23 s on 7,000 poses)
+    # run, x y z), then the same runs' turns; placed there directly (not sorted again)
     pos_start = ((6 * ptr[c[f]] + 3 * lo[f])[:, None] + a * length[f][:, None]).ravel()
     at = (3 * uptr[c[f]] + 3 * np.arange(f.size))[:, None] + a
     start = np.empty(2 * pos_start.size, np.int64)

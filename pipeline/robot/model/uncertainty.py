@@ -85,8 +85,7 @@ def model_jacobian(model, data, columns=None) -> np.ndarray:
 
 def moving(cov) -> np.ndarray:
     """The parameters a covariance (p, p) holds, (p,) bool: a parameter left at nominal has an exactly zero
-    row and column, and adds nothing to ``J C J^T`` (its Jacobian columns need not be made: 293 of the 866
-    of Series A's loop model)."""
+    row and column, and adds nothing to ``J C J^T`` (its Jacobian columns need not be made)."""
     return np.any(np.asarray(cov) != 0.0, axis=0)
 
 
@@ -129,9 +128,9 @@ def parameter_covariance(model, data) -> dict:
         U, sv, Vt = U[:, live], sv[live], Vt[live]
         dof = float(np.sum(U[:n_obs] ** 2))
     else:
-        # a large campaign: the same sv and V from the sparse Jacobian, block of rows by block (the dense
-        # J (6 n, p) and U (6 n, k) of 12,000 6-DoF poses were 1.2 GB more), and the data rows' share of
-        # each direction as 1 less the penalty rows' (U's columns are unit vectors)
+        # a large campaign: the same sv and V from the sparse Jacobian, block of rows by block (no dense J or
+        # U: docs/speed.md), and the data rows' share of each direction as 1 less the penalty rows' (U's
+        # columns are unit vectors)
         if d.oriented:
             _, r, Js = d.residual_and_sparse_jacobian(model.coef_)
         else:
@@ -205,14 +204,14 @@ def prediction_covariance(J, cov) -> np.ndarray:
     return np.concatenate([np.matmul(JC, Jc.transpose(0, 2, 1)) for Jc, JC in _times_cov(J, cov)])
 
 
-#: poses a block of :func:`_times_cov` (12,000 poses x 6 rows x 876 parameters would be 0.5 GB at once)
+#: poses a block of :func:`_times_cov`: a large campaign's products are not made at once (docs/speed.md)
 _BLOCK = 2048
 
 
 def _times_cov(J, cov):
     """``(J_i, J_i C)`` by blocks of poses: ``J C`` as one matrix product a block. numpy's einsum of the
-    three operands ``J, C, J`` sums over both parameter indices at once, (m p)^2 products a pose: 40 times
-    slower at 600 parameters (24 s for 1,109 poses)."""
+    three operands ``J, C, J`` sums over both parameter indices at once, (m p)^2 products a pose (far slower:
+    docs/speed.md)."""
     J = np.asarray(J, float)
     n, m, p = J.shape
     cov = np.asarray(cov, float)

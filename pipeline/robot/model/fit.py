@@ -128,19 +128,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     target_all, sample_all = target, sample
     first = folds = None
     if wild is not None and sample.n and fitted_before_wild(effects, sample, orientation):
-        beside = isinstance(wild, WildSearch) and wild.running
-        steps = 4 if beside else 2
-        progress(f"[1/{steps}] {' + '.join(e.name for e in effects)} on all {sample.n} sample poses"
-                 + (" (the wild-point search runs beside it)" if beside else ""))
-        est = effects_estimator(robot, effects, orientation=orientation)
-        est.keep_designs = True       # the steps to the poses kept reuse its design
-        first = est.fit(sample)
-        first.conflict_, first.nested_ = "", []
-        folds = FoldsBeforeWild(robot, effects, sample, orientation, first.weight_, first=first)
-        if beside:
-            progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
-            folds.fit()                  # while the search runs
-            progress("[3/4] waiting for the wild-point search")
+        first, folds, steps = _fit_before_wild(robot, effects, sample, wild, orientation, progress)
     if isinstance(wild, WildSearch):
         wild = wild.result()
         if describe(wild):
@@ -185,6 +173,32 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         cv = cross_validate(robot, effects, sample, orientation=orientation,
                             orientation_weight=getattr(model, "weight_", None) if orientation else None, jobs=jobs)
         described = fold_description(sample)
+    _document(out, robot, effects, model, sample, cv, described, frame_info)
+    return out
+
+
+def _fit_before_wild(robot, effects, sample, wild, orientation, progress):
+    """The model fitted on every sample pose (its design kept), and its cross-validation folds (fitted
+    beside a wild search that runs): ``(first, folds, steps)``, ``steps`` the progress lines' count."""
+    beside = isinstance(wild, WildSearch) and wild.running
+    steps = 4 if beside else 2
+    progress(f"[1/{steps}] {' + '.join(e.name for e in effects)} on all {sample.n} sample poses"
+             + (" (the wild-point search runs beside it)" if beside else ""))
+    est = effects_estimator(robot, effects, orientation=orientation)
+    est.keep_designs = True       # the steps to the poses kept reuse its design
+    first = est.fit(sample)
+    first.conflict_, first.nested_ = "", []
+    folds = FoldsBeforeWild(robot, effects, sample, orientation, first.weight_, first=first)
+    if beside:
+        progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
+        folds.fit()                  # while the search runs
+        progress("[3/4] waiting for the wild-point search")
+    return first, folds, steps
+
+
+def _document(out: dict, robot, effects, model, sample, cv, described: str, frame_info) -> None:
+    """The fit document's cross-validation, model, uncertainty, rigid chains and verdict, added to ``out``
+    in the document's order."""
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))
@@ -214,7 +228,6 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     out["implausible"] = getattr(model, "implausible_", [])
     if getattr(model, "conflict_", ""):
         out["conflict"] = model.conflict_
-    return out
 
 
 def fit_problems(result: dict) -> list[str]:

@@ -81,3 +81,12 @@ def test_gram_of_a_sparse_jacobian_is_the_dense_products():
     H, g = normal.gram(scipy.sparse.csc_matrix(J), r)
     np.testing.assert_allclose(H, J.T @ J, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(g, J.T @ r, rtol=1e-12, atol=1e-9)
+
+
+def test_the_two_damped_factors_solve_the_damped_equations():
+    J, r = _problem(seed=6, k=5)
+    A, b = J.T @ J, J.T @ r
+    want = np.linalg.solve(A + 3.0 * np.eye(5), b)
+    for factor in (normal.damped_cholesky(A, 3.0), normal.levenberg_cholesky(A, 3.0)):
+        np.testing.assert_allclose(normal.cholesky_solve(factor, b), want, rtol=1e-9)
+    assert normal.damped_cholesky(A, 3.0)[1] is True and normal.levenberg_cholesky(A, 3.0)[1] is False

@@ -24,7 +24,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.linalg
 
 from . import normal
 from .lm import GAIN_REL_CONVERGED, LMResult
@@ -109,7 +108,7 @@ class NormalSteps:
         top = None
         if self.factor is not None:
             # every direction kept (as the eigen-solution would keep them): solved by the factor
-            self.y = scipy.linalg.cho_solve(self.factor, gs, check_finite=False)
+            self.y = normal.cholesky_solve(self.factor, gs)
             gain = float(gs @ self.y)
             self.hat = (self.Gf, sc, self.factor, None, None)
         else:
@@ -126,8 +125,7 @@ class NormalSteps:
             return -(self.Vt.T @ (sv / (sv**2 + lam) * self.c)) / self.sc
         if lam == 0.0:
             return -self.y / self.sc
-        damped = scipy.linalg.cho_factor(self.As + lam * np.eye(self.As.shape[0]), lower=True, check_finite=False)
-        return -scipy.linalg.cho_solve(damped, self.gs, check_finite=False) / self.sc
+        return -normal.cholesky_solve(normal.damped_cholesky(self.As, lam), self.gs) / self.sc
 
     def largest_curvature(self) -> float:
         return normal.largest_eigenvalue(self.As)
@@ -143,7 +141,7 @@ class NormalSteps:
             return float("nan")
         Gh, sch, fh, Vth, svh = self.hat
         Gd = (Gh - PtP) / np.outer(sch, sch)
-        return (float(np.trace(scipy.linalg.cho_solve(fh, Gd, check_finite=False))) if fh is not None
+        return (float(np.trace(normal.cholesky_solve(fh, Gd))) if fh is not None
                 else float(np.sum(np.sum((Vth @ Gd) * Vth, axis=1) / svh ** 2)))
 
 

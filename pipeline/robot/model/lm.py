@@ -76,7 +76,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy
-import scipy.linalg
+
+from . import normal
 
 
 #: A run counts as converged only where a full Gauss-Newton step would change the residual by
@@ -231,12 +232,10 @@ def _three_steps(fun, x, F, J, Js, Ds, A0, mu):
     """Eqs. 14-17 and the prediction of Eq. 19: the three steps of one factorised matrix ``A0 + mu I`` from
     x (F its residual, J its Jacobian), their sum s (p,), F(x + s) (N,) and the decrease the linear model
     predicts."""
-    A = A0.copy()
-    A[np.diag_indices_from(A)] += mu
-    cho = scipy.linalg.cho_factor(A, check_finite=False)
+    cho = normal.levenberg_cholesky(A0, mu)
 
     def solve(Fa):
-        return -scipy.linalg.cho_solve(cho, Js.T @ Fa, check_finite=False) / Ds
+        return -normal.cholesky_solve(cho, Js.T @ Fa) / Ds
 
     d1 = solve(F)
     y = x + d1

@@ -71,6 +71,24 @@ def well_conditioned_cholesky(As, rcond: float = CHOLESKY_RCOND):
     return factor if info == 0 and rc > rcond else None
 
 
+def cholesky_solve(factor, b) -> np.ndarray:
+    """The solution of ``A y = b`` (b (k,) or (k, m)) by a Cholesky ``factor`` of A (``scipy.linalg.cho_factor``'s)."""
+    return scipy.linalg.cho_solve(factor, b, check_finite=False)
+
+
+def damped_cholesky(As, lam: float):
+    """The Cholesky factor (lower) of the damped ``As + lam I`` (k, k): a Levenberg step of the fit's loop."""
+    return scipy.linalg.cho_factor(As + lam * np.eye(As.shape[0]), lower=True, check_finite=False)
+
+
+def levenberg_cholesky(A0, mu: float):
+    """The Cholesky factor (scipy's default, upper) of ``A0 + mu I`` (k, k), the diagonal raised in place of a
+    copy: the improved L-M's matrix, factorised once for its three steps (:mod:`pipeline.robot.model.lm`)."""
+    A = A0.copy()
+    A[np.diag_indices_from(A)] += mu
+    return scipy.linalg.cho_factor(A, check_finite=False)
+
+
 def largest_eigenvalue(As) -> float:
     """The largest eigenvalue of the symmetric matrix ``As`` (k, k)."""
     return float(scipy.linalg.eigh(As, eigvals_only=True, subset_by_index=[As.shape[0] - 1] * 2, check_finite=False)[0])
@@ -90,7 +108,7 @@ def min_norm_solve(As, bs, rtol: float = EIGEN_RTOL, floor: float = 0.0, cholesk
     in the eigen-directions above ``rtol`` (:func:`eigen_directions`)."""
     factor = well_conditioned_cholesky(As) if cholesky else None
     if factor is not None:
-        y = scipy.linalg.cho_solve(factor, bs, check_finite=False)
+        y = cholesky_solve(factor, bs)
         return y, float(bs @ y), int(As.shape[0])
     ev, V = eigen_directions(As, rtol, floor)
     t = V.T @ bs

@@ -69,3 +69,15 @@ def test_refit_without_needs_fitted_directions_unless_told_otherwise(fitted):
     # three poses cannot determine every fitted direction
     assert model.refit_without(data, np.arange(data.n) < 3) is None
     assert model.refit_without(data, np.arange(data.n) < 3, determined=False) is not None
+
+
+def test_held_out_residuals_land_on_their_folds_poses_whatever_the_labels():
+    from pipeline.robot.model.estimate import held_out
+
+    folds = np.array([7, 2, 7, 9, 2])                 # region folds: labels need not be 0..k-1
+    parts = [(np.full((2, 3), 2.0), np.full((2, 3), -2.0)), (np.full((2, 3), 7.0), np.full((2, 3), -7.0)),
+             (np.full((1, 3), 9.0), np.full((1, 3), -9.0))]
+    cv = held_out(folds, [2, 7, 9], parts, has_orientation=True)
+    np.testing.assert_array_equal(cv.residuals[:, 0], [7.0, 2.0, 7.0, 9.0, 2.0])
+    np.testing.assert_array_equal(cv.extra["orientation"][:, 1], [-7.0, -2.0, -7.0, -9.0, -2.0])
+    assert "orientation" not in held_out(folds, [2, 7, 9], parts, has_orientation=False).extra

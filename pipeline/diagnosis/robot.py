@@ -15,12 +15,12 @@ from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..core.memory import release_freed_memory
 from ..core.parallel import fork_imap
-from ..core.se3 import ARCSEC_PER_MRAD, orientation_errors
+from ..core.se3 import ARCSEC_PER_MRAD
 from ..robot.model.design import Design
 from ..robot.model.normal import scaled_svd
 from ..robot.model.weighting import start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
-from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
+from ..robot.model.estimate import N_FOLDS, cross_validate, fold_description, fold_ids
 from ..robot.arm.kinematics import gravity_torques
 from ..robot.model.budget import angle_budget, angle_variation, error_scale, lever_arms
 from ..robot.model.plausibility import describe_implausible, implausible_parameters
@@ -266,21 +266,9 @@ class RobotAdapter:
         if folds == "random":
             cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data))
             return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
-        ids = region_folds(data.q_deg, self.n_folds)
-        res = np.empty((data.n, 3))
-        ori = np.empty((data.n, 3)) if data.has_orientation else None
-        for f in np.unique(ids):
-            test = ids == f
-            held = data.subset(test)
-            m = fit_effects(self.robot, effects, data.subset(~test), orientation_weight=self.weight(data)) \
-                if effects else None
-            if ori is not None:
-                R, pred = m.predict_pose(held) if m is not None else Design(self.robot, [], held).predict_pose(np.zeros(0))
-                ori[test] = orientation_errors(R, held.measured_R)
-            else:
-                pred = m.predict(held) if m is not None else Design(self.robot, [], held).predict(np.zeros(0))
-            res[test] = data.measured_mm[test] - pred
-        return CVResult(self._full(res, ori, data), np.arange(data.n))
+        cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data),
+                            folds=region_folds(data.q_deg, self.n_folds))
+        return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
 
     def components(self, cv: CVResult, data) -> dict | None:
         """A 6-DoF campaign's full held-out residual split: the position RMS (mm) and the orientation RMS

@@ -209,7 +209,7 @@ def cpu_count() -> int:
 
 
 def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True,
-                   orientation_weight: float | None = None, jobs: int = 1) -> CVResult:
+                   orientation_weight: float | None = None, jobs: int = 1, folds=None) -> CVResult:
     """Held-out residuals (mm, shape (n, 3)) of ``effects`` fitted by :func:`fit_effects`, k-fold by pose.
 
     Each fold of poses (:func:`fold_ids`) is predicted by the model fitted on the others; without
@@ -218,22 +218,35 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bo
     ``orientation_weight`` (the whole sample's, from its own fit) weighs every fold's fit alike.
     ``jobs`` > 1 fits the folds in up to that many forked processes (Linux, not from inside a worker
     process): each fold's fit is the same computation as in one process, so the result is the same.
+    ``folds`` (n,) int: each pose's fold, when not :func:`fold_ids`' (diagnosis's folds by region).
     """
-    folds = fold_ids(data.n, n_folds)
-    res = np.empty((data.n, 3))
-    ori = np.empty((data.n, 3)) if data.has_orientation else None
+    if folds is None:
+        folds, labels = fold_ids(data.n, n_folds), list(range(n_folds))
+    else:
+        folds = np.asarray(folds)
+        labels = list(np.unique(folds))
     args = (robot, effects, data, folds, orientation, orientation_weight)
     jobs = min(int(jobs), n_folds)
     if jobs > 1 and effects and can_fork():
-        parts = fork_map(_cv_shared_fold, args, n_folds, jobs)
+        parts = fork_map(_cv_shared_fold, (args, labels), len(labels), jobs)
     else:
-        parts = [_cv_fold(*args, f) for f in range(n_folds)]
-    for f, (r, o) in enumerate(parts):
+        parts = [_cv_fold(*args, f) for f in labels]
+    return held_out(folds, labels, parts, data.has_orientation)
+
+
+def held_out(folds, labels, parts, has_orientation: bool) -> CVResult:
+    """The held-out residuals of every pose from its fold's: ``folds`` (n,) each pose's fold, ``parts`` the
+    (residuals (n_f, 3) mm, orientation errors (n_f, 3) mrad or None) of the fold ``labels[i]``; a
+    :class:`CVResult` with ``extra["orientation"]`` (n, 3) mrad where ``has_orientation``."""
+    n = len(folds)
+    res = np.empty((n, 3))
+    ori = np.empty((n, 3)) if has_orientation else None
+    for f, (r, o) in zip(labels, parts):
         test = folds == f
         res[test] = r
         if ori is not None:
             ori[test] = o
-    out = CVResult(res, np.arange(data.n))
+    out = CVResult(res, np.arange(n))
     if ori is not None:
         out.extra["orientation"] = ori
     return out
@@ -256,8 +269,9 @@ def _cv_fold(robot, effects, data, folds, orientation, orientation_weight, f):
     return data.measured_mm[test] - pred, o
 
 
-def _cv_shared_fold(args, f):
-    return _cv_fold(*args, f)
+def _cv_shared_fold(shared, k):
+    args, labels = shared
+    return _cv_fold(*args, labels[k])
 
 
 class FoldsBeforeWild:
@@ -366,18 +380,8 @@ RobotErrorModel.refit_without`, at its orientation weight, in its fitted directi
         return self._assemble(keep, parts)
 
     def _assemble(self, keep, parts) -> CVResult:
-        folds = fold_ids(self.data.n, self.n_folds)[keep]
-        n = int(keep.sum())
-        res = np.empty((n, 3))
-        ori = np.empty((n, 3)) if self.data.has_orientation else None
-        for f, (r, o) in enumerate(parts):
-            res[folds == f] = r
-            if ori is not None:
-                ori[folds == f] = o
-        out = CVResult(res, np.arange(n))
-        if ori is not None:
-            out.extra["orientation"] = ori
-        return out
+        return held_out(fold_ids(self.data.n, self.n_folds)[keep], range(self.n_folds), parts,
+                        self.data.has_orientation)
 
 
 def _shared_fold(shared, f):

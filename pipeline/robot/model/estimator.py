@@ -51,8 +51,8 @@ class RobotErrorModel:
     weak_tol : float or None
         Parameters whose determination (distance of their scaled Jacobian column from the span
         of the other kept ones, relative to the largest singular value) is below it stay at
-        nominal, the least determined first (see :data:`WEAK_TOL`); None keeps every parameter
-        of the numerical rank. Only with ``reduction="fix"``.
+        nominal, the least determined first (see :data:`~pipeline.robot.model.identify.WEAK_TOL`);
+        None keeps every parameter of the numerical rank. Only with ``reduction="fix"``.
     rank_tol : float
         Relative singular value (column-scaled Jacobian) below which a direction counts as
         not identifiable.
@@ -64,11 +64,12 @@ class RobotErrorModel:
         (contract section 13); False fits the positions alone.
     orientation_weight : float or None
         Weight of the orientation rows, mm per mrad; None: estimated by variance components
-        (:data:`VCE_RTOL`), stated in ``weighting_``.
+        (:data:`~pipeline.robot.model.weighting.VCE_RTOL`), stated in ``weighting_``.
     weight_start : float or None
         Where the variance components start (mm per mrad) when ``orientation_weight`` is None: the
         weight a fit of the same model on nearly the same poses ended with; default: the stated
-        uncertainties, else :data:`START_WEIGHT_MM_PER_MRAD` (:func:`start_weight`).
+        uncertainties, else :data:`~pipeline.robot.model.weighting.START_WEIGHT_MM_PER_MRAD`
+        (:func:`~pipeline.robot.model.weighting.start_weight`).
     reduction : {"fix", "svd"}
         What to do with the directions that are not identifiable: ``"fix"`` fixes the
         parameters beyond the rank at 0 (named, QR with pivoting / priority); ``"svd"``

@@ -172,7 +172,7 @@ def jointcal_fit(robot, sample, kind, repeat=REPEAT, min_repeat=JOINTCAL_MIN_REP
     ``budget_s`` together, as ``timeit`` does for a short call: the machine is shared, and
     the best of many runs of a 20 ms call is less disturbed than the best of five.
     """
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
 
     times = []
     while len(times) < repeat or (len(times) < min_repeat and sum(times) < budget_s):
@@ -190,7 +190,7 @@ def _errors(pred_mm, meas_mm) -> dict:
 JOINTCAL_PROCESS = """
 import time; t0 = time.perf_counter()
 import numpy as np
-from pipeline.robot.model.calibrate import RobotErrorModel
+from pipeline.robot.model.estimator import RobotErrorModel
 from pipeline.robot.arm.effects import Base, Compliance, Geometry
 from pipeline.robot.campaign.ingest import ingest_robot, robot_data
 from pipeline.robot.model.lm import limit_blas_threads

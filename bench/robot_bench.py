@@ -4,7 +4,7 @@ Both stages of ``specs/robot_paper.toml``, run by the code the CLI runs, on synt
 campaigns of 10^2, 10^3 and 10^4 poses of the KR210 (joint angles uniform in the robot's
 range, tracker noise 0.015 mm per axis):
 
-* ``mdh``: the kinematic stage, ``pipeline.robot.model.calibrate.calibrate_mdh`` with the spec's
+* ``mdh``: the kinematic stage, ``pipeline.robot.model.estimator.calibrate_mdh`` with the spec's
   ``kinematic_effects`` (geometry + base: 36 parameters, Gauss-Newton, identifiability),
   as ``jointcal robot calibrate`` runs it;
 * ``chebyshev``: the feedback stage's identification, ``pipeline.robot.model.chebyshev.chebyshev_estimator``
@@ -46,7 +46,7 @@ def stage_effects(spec, stage):
 def synthetic_campaign(robot, effects, n, seed=0, size=0.02):
     """``n`` poses uniform in the joint range; tracker positions of the model ``effects`` with
     parameters drawn N(0, size) (internal units: mm, mrad) plus N(0, 0.015 mm) noise."""
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
     from pipeline.robot.arm.effects import RobotData
     from pipeline.robot.arm.kinematics import gravity_torques
 
@@ -84,7 +84,7 @@ def _series(what, sizes, fit_once):
 
 def mdh_series(sizes=SIZES) -> dict:
     """The kinematic stage (``calibrate_mdh``, Gauss-Newton on geometry + base)."""
-    from pipeline.robot.model.calibrate import calibrate_mdh
+    from pipeline.robot.model.estimator import calibrate_mdh
 
     spec, robot = _spec_and_robot()
     effects = stage_effects(spec, "kinematic")

@@ -141,7 +141,7 @@ def _scipy(problem, **options):
 
 def _gauss_newton(robot, effects, data):
     """The pipeline's MDH solver: whole fit minus the fit without iterations (set-up + final residual)."""
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
 
     def fit(max_iter):
         t = time.perf_counter()
@@ -222,7 +222,7 @@ def format_table(rows: list[dict]) -> str:
 def run() -> dict:
     from bench.robot_bench import _spec_and_robot, stage_effects, synthetic_campaign
     from pipeline.core.spec import load_spec
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
     from pipeline.robot.model.chebyshev import LM_DEFAULTS, chebyshev_estimator
     from pipeline.robot.campaign.ingest import has_gratings, ingest_robot, robot_data
     from pipeline.robot.model.lm import limit_blas_threads

@@ -177,7 +177,7 @@ def test_a_jacobian_of_some_columns_is_those_columns_of_the_whole(oriented):
     6-DoF rows)."""
     from pipeline.robot.arm.effects import RobotData
     from pipeline.robot.arm.kinematics import gravity_torques
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
     rng = np.random.default_rng(2)
@@ -198,13 +198,13 @@ def test_a_jacobian_of_some_columns_is_those_columns_of_the_whole(oriented):
 
 
 def test_a_six_dof_sparse_jacobian_is_the_dense_one():
-    """A 6-DoF design's sparse Jacobian, laid out from its nonzeros (calibrate._pose6_csc_structure), is the
+    """A 6-DoF design's sparse Jacobian, laid out from its nonzeros (design.pose6_csc_structure), is the
     general layout of its entries (_csc_structure) and, densified, the dense Jacobian's rows (positions, then
     weighted turns); with a (pose, column) of several nonzeros too (the general way, summed)."""
     from pipeline.robot.arm.effects import RobotData
     from pipeline.robot.arm.kinematics import gravity_torques
-    from pipeline.robot.model import calibrate
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model import design
+    from pipeline.robot.model.design import Design
 
     robot = load_robot(ROOT / "raw" / "robot" / "kr210" / "robot.toml")
     rng = np.random.default_rng(4)
@@ -225,8 +225,8 @@ def test_a_six_dof_sparse_jacobian_is_the_dense_one():
     for cols in (d.p_idx[ee], np.minimum(d.p_idx[ee], 5)):        # the second: many nonzeros per (pose, column)
         rows = np.concatenate([(3 * ii[:, None] + np.arange(3)).ravel(),
                                (3 * data.n + 3 * ii[:, None] + np.arange(3)).ravel()])
-        general = calibrate._csc_structure(rows, np.concatenate([np.repeat(cols, 3)] * 2), 6 * data.n, d.p)
-        fast = calibrate._pose6_csc_structure(ii, cols, data.n, d.p)
+        general = design.csc_structure(rows, np.concatenate([np.repeat(cols, 3)] * 2), 6 * data.n, d.p)
+        fast = design.pose6_csc_structure(ii, cols, data.n, d.p)
         for a, b in zip(fast, general):
             assert (a is None and b is None) or np.array_equal(np.asarray(a), np.asarray(b))
 
@@ -237,7 +237,7 @@ def test_scaled_svd_in_row_blocks_is_the_dense_svd(monkeypatch, sparse):
     right vectors of the whole scaled J, zeroed columns and a redundant column included."""
     import scipy.sparse
 
-    from pipeline.robot.model import calibrate
+    from pipeline.robot.model import normal
 
     rng = np.random.default_rng(5)
     J = rng.normal(size=(2000, 30)) * rng.uniform(0.01, 100.0, size=30)
@@ -249,8 +249,8 @@ def test_scaled_svd_in_row_blocks_is_the_dense_svd(monkeypatch, sparse):
     A = J / norms
     A[:, zero] = 0.0
     _, want_sv, want_Vt = np.linalg.svd(A, full_matrices=False)
-    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 300 * 30)
-    sv, Vt = calibrate.scaled_svd(scipy.sparse.csc_matrix(J) if sparse else J, norms, zero)
+    monkeypatch.setattr(normal, "DENSE_SVD_MAX", 300 * 30)
+    sv, Vt = normal.scaled_svd(scipy.sparse.csc_matrix(J) if sparse else J, norms, zero)
     np.testing.assert_allclose(sv, want_sv, rtol=1e-12, atol=1e-12 * want_sv[0])
     r = int(np.sum(want_sv > 1e-9 * want_sv[0]))
     assert r == 27
@@ -262,7 +262,7 @@ def test_training_rows_products_in_blocks_are_the_whole_product(monkeypatch):
     """A large baseline's training-row products, summed over row blocks (no copy of four fifths of J), equal
     the one product over the training rows; a small J takes the one product itself."""
     from pipeline.diagnosis import linear
-    from pipeline.robot.model import calibrate
+    from pipeline.robot.model import normal
 
     rng = np.random.default_rng(11)
     J, r = rng.normal(size=(5003, 17)), rng.normal(size=5003)
@@ -271,7 +271,7 @@ def test_training_rows_products_in_blocks_are_the_whole_product(monkeypatch):
     want_G, want_g = Jt.T @ Jt, Jt.T @ r[train]
     G, g = linear._train_products(J, r, train)
     assert np.array_equal(G, want_G) and np.array_equal(g, want_g)
-    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 17 * 400)        # 13 blocks of 400 rows
+    monkeypatch.setattr(normal, "DENSE_SVD_MAX", 17 * 400)        # 13 blocks of 400 rows
     G, g = linear._train_products(J, r, train)
     np.testing.assert_allclose(G, want_G, rtol=1e-12, atol=1e-10)
     np.testing.assert_allclose(g, want_g, rtol=1e-12, atol=1e-10)
@@ -308,23 +308,23 @@ def test_normal_equations_solved_by_cholesky_where_well_conditioned_are_the_eige
     """Issue 32: a well-conditioned scaled matrix is solved by its Cholesky factor, with the step, gain and rank
     of the eigen-solution; a rank-deficient or nearly singular one is not (the eigen-solution leaves the
     missing direction out: the minimum-norm step)."""
-    from pipeline.robot.model import calibrate
+    from pipeline.robot.model import normal
 
     rng = np.random.default_rng(3)
     J = rng.normal(size=(400, 25)) * rng.uniform(0.01, 100.0, size=25)
     A, b = J.T @ J, J.T @ rng.normal(size=400)
-    assert calibrate.well_conditioned_cholesky(A / np.outer(np.sqrt(np.diag(A)), np.sqrt(np.diag(A)))) is not None
-    fast = calibrate.scaled_min_norm_step(A, b, with_rank=True)
-    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: None)
-    slow = calibrate.scaled_min_norm_step(A, b, with_rank=True)
+    assert normal.well_conditioned_cholesky(A / np.outer(np.sqrt(np.diag(A)), np.sqrt(np.diag(A)))) is not None
+    fast = normal.scaled_min_norm_step(A, b, with_rank=True)
+    monkeypatch.setattr(normal, "well_conditioned_cholesky", lambda As: None)
+    slow = normal.scaled_min_norm_step(A, b, with_rank=True)
     monkeypatch.undo()
     np.testing.assert_allclose(fast[0], slow[0], rtol=1e-9, atol=1e-12 * np.abs(slow[0]).max())
     assert fast[1] == pytest.approx(slow[1], rel=1e-10) and fast[2] == slow[2] == 25
     J[:, 7] = J[:, 3] - 2.0 * J[:, 5]           # a redundant column: singular
     A, b = J.T @ J, J.T @ rng.normal(size=400)
     sc = np.sqrt(np.diag(A))
-    assert calibrate.well_conditioned_cholesky(A / np.outer(sc, sc)) is None
-    dz, gain, rank = calibrate.scaled_min_norm_step(A, b, with_rank=True)
+    assert normal.well_conditioned_cholesky(A / np.outer(sc, sc)) is None
+    dz, gain, rank = normal.scaled_min_norm_step(A, b, with_rank=True)
     assert rank == 24
     want = -np.linalg.pinv(A / np.outer(sc, sc), rcond=1e-12, hermitian=True) @ (b / sc) / sc
     np.testing.assert_allclose(dz, want, rtol=1e-6, atol=1e-9 * np.abs(want).max())
@@ -336,18 +336,18 @@ def test_a_large_fit_by_cholesky_steps_is_the_fit_by_eigen_steps(monkeypatch, tm
     iteration reaches."""
     from pipeline.core.spec import parse_spec
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model import calibrate
+    from pipeline.robot.model import normal
     from pipeline.robot.model.estimate import fit_effects
 
     robot, (sample,) = robot_data_sets(ROOT / "raw" / "robot" / "kr210", ("sample",))
     effects = list(parse_spec('[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n\n[[effect]]\nname = "base"\n\n'
                               '[[effect]]\nname = "joint_map"\njoints = [2, 3]\n', "<test>").effects)
     solved = []
-    factor = calibrate.well_conditioned_cholesky
-    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: solved.append(factor(As)) or solved[-1])
+    factor = normal.well_conditioned_cholesky
+    monkeypatch.setattr(normal, "well_conditioned_cholesky", lambda As: solved.append(factor(As)) or solved[-1])
     fast = fit_effects(robot, effects, sample, checks=False)
-    assert fast._large(sample) and solved and all(f is not None for f in solved)
-    monkeypatch.setattr(calibrate, "well_conditioned_cholesky", lambda As: None)
+    assert fast.solves_on_normal_equations(sample) and solved and all(f is not None for f in solved)
+    monkeypatch.setattr(normal, "well_conditioned_cholesky", lambda As: None)
     slow = fit_effects(robot, effects, sample, checks=False)
     np.testing.assert_allclose(fast.coef_, slow.coef_, rtol=1e-7, atol=1e-9 * np.abs(slow.coef_).max())
     assert fast.rms_mm_ == pytest.approx(slow.rms_mm_, rel=1e-9)

@@ -38,11 +38,11 @@ joints = [2]
 def synthetic_model(robot, spec_text, seed, angle_arcsec=60.0, length_mm=0.5):
     """A 'fitted' model: every parameter drawn at a realistic size (seeded)."""
     from pipeline.core.spec import parse_spec
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
 
     effects = list(parse_spec(spec_text, "spec").effects)
     from pipeline.export.chain import model_data
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
 
     nj = len(robot.joints)
     d = Design(robot, effects, model_data(robot, np.zeros((1, nj)), np.ones((1, nj), int), np.zeros(1),
@@ -347,7 +347,7 @@ def test_user_urdf_keeps_its_link_frames(tmp_path, case):
     q = np.random.default_rng(12).uniform(lo, hi, (60, 6))
     # the calibration's size: how far the model moves its own frames (every link's, the flange, the SMR)
     from pipeline.export.chain import model_data
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
 
     emodel, idx = build_error_model(robot)
     d = Design(robot, list(model.effects), model_data(robot, q, np.ones(q.shape, int), np.zeros(len(q)),

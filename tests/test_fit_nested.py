@@ -51,14 +51,14 @@ def test_a_chebyshev_fit_too_big_for_dense_svds_fits_alike(invoke, tmp_path, mon
     poses it keeps the same directions and predicts what the dense SVDs' fit predicts."""
     from pipeline.core.spec import parse_spec
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model import calibrate
+    from pipeline.robot.model import normal
     from pipeline.robot.model.estimate import fit_effects
 
     _import_b(invoke, tmp_path, 300)
     robot, (sample,) = robot_data_sets(tmp_path / "B", ("sample",))
     effects = list(parse_spec(HEAD + '\n[[effect]]\nname = "joint_map"\njoints = [1, 2]\n' + CHEB4, "t").effects)
     dense = fit_effects(robot, effects, sample, checks=False)
-    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 0)
+    monkeypatch.setattr(normal, "DENSE_SVD_MAX", 0)
     big = fit_effects(robot, list(parse_spec(HEAD + '\n[[effect]]\nname = "joint_map"\njoints = [1, 2]\n' + CHEB4,
                                              "t").effects), sample, checks=False)
     assert big.basis_.shape == dense.basis_.shape and big.converged_ == dense.converged_

@@ -102,7 +102,7 @@ def test_orientations_are_fitted_and_held_out(cell):
 def test_the_weight_does_not_hinge_on_where_it_starts(cell):
     """Variance components from a start 100 times off end at the same weight and predictions."""
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
     from pipeline.core.spec import parse_spec
 
     robot, (sample, target) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
@@ -122,7 +122,7 @@ def test_the_variance_components_secant_ends_where_the_plain_iteration_does():
     """A ratio that closes a fixed fraction of the gap a step (as the real series' do, 0.2 on Series A):
     the secant steps end at the same weight as the plain ones, in fewer fits; a secant pointing against
     the plain step is not taken."""
-    from pipeline.robot.model.calibrate import VCE_RTOL, vce_next
+    from pipeline.robot.model.weighting import VCE_RTOL, vce_next
 
     w_star, c = 0.2958, 0.2
 
@@ -154,7 +154,8 @@ def test_a_refit_on_nearly_the_same_poses_starts_from_the_weight_before(cell):
     """A refit without a few poses (``weight_start``): started from the weight the fit before ended with,
     its variance components end at once, where a fit from the usual start ends."""
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model.calibrate import RobotErrorModel, VCE_RTOL
+    from pipeline.robot.model.estimator import RobotErrorModel
+    from pipeline.robot.model.weighting import VCE_RTOL
     from pipeline.core.spec import parse_spec
 
     robot, (sample, _) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
@@ -176,7 +177,9 @@ def test_the_linearised_weight_ends_the_variance_components_in_two_fits(cell):
     fit linearised at its solution ends the iteration: the second fit passes the iteration's test on its own
     residuals."""
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model.calibrate import RobotErrorModel, VCE_RTOL, orientation_errors
+    from pipeline.core.se3 import orientation_errors
+    from pipeline.robot.model.estimator import RobotErrorModel
+    from pipeline.robot.model.weighting import VCE_RTOL
     from pipeline.core.spec import parse_spec
 
     robot, (sample,) = robot_data_sets(cell["tmp"] / "meas", ("sample",))
@@ -402,7 +405,7 @@ def test_a_target_row_may_give_the_orientation_to_reach(cell):
     ok = res.status == "ok"
     assert ok.sum() >= 15 and set(res.orientation_held[ok]) == {"all"}
     R, P, _ = kin.pose(res.q_deg[ok], res.dirs[ok], tg.payload_kg[ok], tg.temperature_c[ok])
-    from pipeline.robot.model.calibrate import angle_arcsec, orientation_errors
+    from pipeline.core.se3 import angle_arcsec, orientation_errors
 
     assert angle_arcsec(orientation_errors(R, R_aim[ok])).max() < 2.0           # reached, to the damping
     assert np.linalg.norm(P - P_nom[ok], axis=1).max() < 1e-3

@@ -151,7 +151,7 @@ def test_correction_is_the_smallest_that_reaches_the_point_where_no_orientation_
 
 def _synthetic(robot_path, x_true: dict, effects, n=80, seed=1):
     """Poses of a robot and the SMR positions a model with parameters ``x_true`` (internal units) predicts."""
-    from pipeline.robot.model.calibrate import Design
+    from pipeline.robot.model.design import Design
     from pipeline.robot.arm.effects import RobotData
     from pipeline.robot.arm.kinematics import gravity_torques, load_robot
 
@@ -169,7 +169,7 @@ def _synthetic(robot_path, x_true: dict, effects, n=80, seed=1):
 
 def test_genuinely_implausible_robot_is_still_refused():
     """A link frame twisted by 8 deg is no robot's error, whatever parameters carry it."""
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
     from pipeline.robot.arm.effects import Base, Geometry, Tool
 
     effects = [Geometry(), Base(), Tool()]
@@ -184,7 +184,7 @@ def test_genuinely_implausible_robot_is_still_refused():
 
 def test_unseen_directions_change_no_prediction():
     """The physical representative predicts what the old one (fix the redundant parameters) predicts."""
-    from pipeline.robot.model.calibrate import RobotErrorModel
+    from pipeline.robot.model.estimator import RobotErrorModel
     from pipeline.robot.arm.effects import Base, Geometry, Tool
 
     effects = [Geometry(), Base(), Tool()]

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from pipeline.robot.model.calibrate import Design, RobotErrorModel, calibrate_mdh
+from pipeline.robot.model.design import Design
+from pipeline.robot.model.estimator import RobotErrorModel, calibrate_mdh
 from pipeline.robot.model.chebyshev import identify
 from pipeline.robot.paper.closedloop import KD, KP, JointPlant, pd_poles, run_loop
 from pipeline.robot.arm.effects import Base, Chebyshev, Geometry, RobotData

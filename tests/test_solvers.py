@@ -8,12 +8,13 @@ import pytest
 from click.testing import CliRunner
 
 from pipeline.cli import cli
-from pipeline.robot.model.calibrate import RobotErrorModel
+from pipeline.robot.model.estimator import RobotErrorModel
 from pipeline.robot.model.chebyshev import LM_DEFAULTS, chebyshev_estimator, identify
 from pipeline.robot.arm.effects import Base, Chebyshev, Geometry, RobotData
 from pipeline.robot.arm.kinematics import build_model, gravity_torques, load_robot, positions
 import pipeline.robot.model.lm as lm_module
-from pipeline.robot.model.lm import implausible_parameters, improved_lm, limit_blas_threads, scipy_least_squares
+from pipeline.robot.model.lm import improved_lm, limit_blas_threads, scipy_least_squares
+from pipeline.robot.model.plausibility import implausible_parameters
 from pipeline.robot.cell.simulate import ROBOT_FIXTURE, draw_poses
 
 from conftest import ROOT

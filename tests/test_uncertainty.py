@@ -254,7 +254,7 @@ def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypa
     sv and V from a QR, the fitted degrees of freedom from the penalty rows): the dense SVD's numbers."""
     from pipeline.core.spec import parse_spec
     from pipeline.robot.campaign.ingest import robot_data_sets
-    from pipeline.robot.model import calibrate, uncertainty
+    from pipeline.robot.model import normal, uncertainty
     from pipeline.robot.model.estimate import fit_effects
 
     camp = KR210 if probe != "6dof" else six_dof_cell(tmp_path / "cell", tmp_path / "truth.json", 3)
@@ -264,7 +264,7 @@ def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypa
     model = fit_effects(robot, list(spec.effects), sample, checks=False)
     assert np.asarray(model.penalty_).shape[0] > 0          # the joint map's smoothness rows take part
     dense = uncertainty.parameter_covariance(model, sample)
-    monkeypatch.setattr(calibrate, "DENSE_SVD_MAX", 1000)   # every campaign is large: blocks of rows too
+    monkeypatch.setattr(normal, "DENSE_SVD_MAX", 1000)   # every campaign is large: blocks of rows too
     large = uncertainty.parameter_covariance(model, sample)
     C0, C1 = dense["covariance"], large["covariance"]
     assert np.abs(C0).max() > 0

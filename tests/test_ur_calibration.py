@@ -31,10 +31,10 @@ TYPED = {"ur10": ([0, -0.612, -0.5723, 0, 0, 0], [0.1273, 0, 0, 0.163941, 0.1157
 
 def _zero_model(robot):
     from pipeline.core.spec import parse_spec
-    from pipeline.robot.model.calibrate import RobotErrorModel, _empty_data
+    from pipeline.robot.model.estimator import RobotErrorModel, empty_data
 
     effects = list(parse_spec(CHAIN_SPEC, "spec").effects)
-    names = RobotErrorModel(robot, effects).design(_empty_data(robot)).names
+    names = RobotErrorModel(robot, effects).design(empty_data(robot)).names
     return RobotErrorModel.from_parameters(robot, effects, [{"name": n, "value": 0.0} for n in names])
 
 

@@ -224,7 +224,7 @@ def _three_thrown(tmp_path, probe="smr", bad=(3, 17, 40)):
 
 @pytest.mark.parametrize("probe", ["smr", "6dof"])
 def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
-    """The wild search's refit without the poses it names (stepped_without): one Gauss-Newton step from the
+    """The wild search's refit without the poses it names (refit_without): one Gauss-Newton step from the
     fit on all poses, on the normal equations of the rest, lands where a full refit on the rest does."""
     from pipeline.core.spec import parse_spec
     from pipeline.robot.model.estimate import fit_effects
@@ -235,7 +235,7 @@ def test_a_refit_without_a_few_poses_is_one_gauss_newton_step(probe, tmp_path):
     full = fit_effects(robot, list(spec.effects), sample, checks=False)
     w = (full.weighting_ or {}).get("orientation_weight_mm_per_mrad")
     refit = fit_effects(robot, list(spec.effects), sample.subset(keep), checks=False, orientation_weight=w)
-    step = full.stepped_without(sample, keep)
+    step = full.refit_without(sample, keep, determined=False)
     kept = sample.subset(keep)
     moved = np.abs(full.predict(kept) - refit.predict(kept)).max()
     off = np.abs(step.predict(kept) - refit.predict(kept)).max()
@@ -292,29 +292,29 @@ def test_on_a_large_campaign_the_search_runs_beside_a_fit_stepped_to_the_poses_k
 
 
 def test_a_6dof_fit_stepped_to_the_poses_kept_is_the_fit_on_them(tmp_path):
-    """refitted_without on a 6-DoF campaign: the model fitted on every pose (variance components), stepped to the
+    """refit_without on a 6-DoF campaign: the model fitted on every pose (variance components), stepped to the
     poses kept, predicts as the fit on them does, at a weight within the weighting's 1 %, with their RMS; where
     the kept poses ask for another weight it gives way (None) to a fit on them."""
     from pipeline.core.spec import load_spec
-    from pipeline.robot.model.calibrate import VCE_RTOL
+    from pipeline.robot.model.weighting import VCE_RTOL
     from pipeline.robot.model.estimate import effects_estimator, fit_effects
 
     robot, sample, keep = _three_thrown(tmp_path, "6dof")
     effects = list(load_spec(SPEC).effects)
     kept = sample.subset(keep)
     est = effects_estimator(robot, effects)
-    est._retain_designs = True
+    est.keep_designs = True
     full = est.fit(sample)
     ref = fit_effects(robot, effects, kept)
     moved = np.abs(full.predict(kept) - ref.predict(kept)).max()
     # three poses of 100 thrown off by millimetres: the kept ones weigh the orientations otherwise
-    assert abs(np.log(ref._weight / full._weight)) > VCE_RTOL
-    assert full.refitted_without(sample, keep, kept) is None
+    assert abs(np.log(ref.weight_ / full.weight_)) > VCE_RTOL
+    assert full.refit_without(sample, keep, kept) is None
     # at the weight the kept poses give, the steps are the fit on them
-    est = effects_estimator(robot, effects, orientation_weight=ref._weight)
-    est._retain_designs = True
+    est = effects_estimator(robot, effects, orientation_weight=ref.weight_)
+    est.keep_designs = True
     full = est.fit(sample)
-    step = full.refitted_without(sample, keep, kept)
+    step = full.refit_without(sample, keep, kept)
     off = np.abs(step.predict(kept) - ref.predict(kept)).max()
     assert moved > 1e-2 and off < 1e-3 * moved
     assert step.rms_mm_ == pytest.approx(ref.rms_mm_, rel=1e-6)
@@ -354,7 +354,7 @@ def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones
     assert np.abs(a.residuals - ref).max() < 1e-3 * moved
     # each fold's model stepped from the model of every pose (given as first), not fitted: the same folds
     est = effects_estimator(robot, effects, checks=False)
-    est._retain_designs = True
+    est.keep_designs = True
     first = est.fit(sample)
     e = FoldsBeforeWild(robot, effects, sample, first=first).fit()
     assert all(train is None for train, _ in e.models_)

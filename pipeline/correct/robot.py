@@ -29,10 +29,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..core.se3 import rotation_vectors
 from ..core.units import REFERENCE_TEMPERATURE_C
-from ..robot.model.calibrate import Design
+from ..robot.model.design import Design
 from ..robot.arm.effects import RobotData
 from ..robot.arm.kinematics import build_error_model, build_model, gravity_torques, placements, pose_jacobians
 from ..robot.model.predict import outside_range
@@ -155,7 +155,7 @@ class ModelKinematics:
 
     def unseen_rotations(self, q_deg, dirs, payload_kg, temperature_c) -> np.ndarray:
         """How the model's flange turns along each direction of its parameters that the fit's
-        measurements did not determine (:meth:`pipeline.robot.model.calibrate.RobotErrorModel.undetermined`),
+        measurements did not determine (:meth:`pipeline.robot.model.estimator.RobotErrorModel.undetermined`),
         at commanded poses: shape (n, 3, m), rad per unit of the direction, world-aligned."""
         self._built()
         D = self.model.undetermined() if hasattr(self.model, "undetermined") else np.zeros((0, 0))
@@ -401,7 +401,7 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
         R, P, J = kin.pose(q[idx], dirs[idx], payload[idx], temp[idx])
         e_pos = target[idx] - P
         res[idx] = np.linalg.norm(e_pos, axis=1) * 1000.0
-        e_rot = Rotation.from_matrix(R_nom[idx] @ np.transpose(R, (0, 2, 1))).as_rotvec()
+        e_rot = rotation_vectors(R_nom[idx] @ np.transpose(R, (0, 2, 1)))
         if it == max_iter:
             break
         step = np.rad2deg(_prioritised_step(J, e_pos, e_rot, np.deg2rad(q[idx] - q0[idx]), W=W[idx]))
@@ -419,7 +419,7 @@ def correct_commands(kin: ModelKinematics, q_deg, target_mm=None, dirs=None, pay
     if solved.size:
         R, P, _ = kin.pose(q[solved], dirs[solved], payload[solved], temp[solved])
         res[solved] = np.linalg.norm(target[solved] - P, axis=1) * 1000.0
-        rv = Rotation.from_matrix(R_nom[solved] @ np.transpose(R, (0, 2, 1))).as_rotvec()
+        rv = rotation_vectors(R_nom[solved] @ np.transpose(R, (0, 2, 1)))
         orient[solved] = np.rad2deg(np.linalg.norm(np.einsum("nij,nj->ni", W[solved], rv), axis=1)) * 3600.0
     dq = q - q0
     for k in solved:

@@ -25,7 +25,6 @@ not ranked; they are listed under ``not_revealable`` with the reason.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 
 import numpy as np
@@ -33,6 +32,7 @@ import numpy as np
 from scipy import special
 
 from ..core.crossval import CVResult
+from ..core.parallel import fork_map
 
 ALPHA = 0.01
 MIN_GAIN = 0.01
@@ -80,25 +80,16 @@ def _cv_one(job):
         return None
 
 
-_SHARED = None
-
-
-def _cv_shared(k):
-    adapter, data, base_effects, cands = _SHARED
+def _cv_shared(shared, k):
+    adapter, data, base_effects, cands = shared
     return _cv_one((adapter, data, base_effects, cands[k]))
 
 
 def _cross_validate_all(adapter, data, base_effects, cands, jobs):
     """Cross-validate the model with each candidate added; in ``jobs`` forked processes."""
-    global _SHARED
     if jobs <= 1 or len(cands) < 2:
         return [_cv_one((adapter, data, base_effects, c)) for c in cands]
-    _SHARED = (adapter, data, base_effects, cands)
-    try:
-        with mp.get_context("fork").Pool(jobs) as pool:
-            return pool.map(_cv_shared, range(len(cands)), chunksize=1)
-    finally:
-        _SHARED = None
+    return fork_map(_cv_shared, (adapter, data, base_effects, cands), len(cands), jobs)
 
 
 def diagnose(adapter, spec, data, alpha: float = ALPHA, min_gain: float = MIN_GAIN, progress=None,

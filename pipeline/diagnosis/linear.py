@@ -27,8 +27,11 @@ import numpy as np
 
 # configurations drawn in the sampled joint box (the robot's error budget, shared with every fit)
 from ..robot.model.budget import N_BOX, box_configurations  # noqa: F401 (re-exported)
-from ..robot.model import calibrate
-from ..robot.model.calibrate import WEAK_TOL, Design, orientation_errors, start_weight
+from ..robot.model import normal
+from ..core.se3 import orientation_errors
+from ..robot.model.design import Design
+from ..robot.model.identify import WEAK_TOL
+from ..robot.model.weighting import start_weight
 from ..robot.model.estimate import fit_effects
 from ..robot.arm.kinematics import pose_jacobians, positions_and_jacobians
 
@@ -176,13 +179,13 @@ def _count_nonzero(A) -> np.ndarray:
 def _train_products(J: np.ndarray, r: np.ndarray, train: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``J[train].T @ J[train]`` (k, k) and ``J[train].T @ r[train]`` (k,) of J (m, k), r (m,), train (m,) bool.
 
-    A J beyond :data:`pipeline.robot.model.calibrate.DENSE_SVD_MAX` entries is summed over blocks of rows of
+    A J beyond :data:`pipeline.robot.model.normal.DENSE_SVD_MAX` entries is summed over blocks of rows of
     that size, so that the training rows (four fifths of a 6-DoF baseline's 43,000 x 800: 220 MB) are never
     copied at once (issue 32); a smaller one (every fixture) in one product, as before."""
-    if J.size <= calibrate.DENSE_SVD_MAX:
+    if J.size <= normal.DENSE_SVD_MAX:
         Jb = J[train]
         return Jb.T @ Jb, Jb.T @ r[train]
-    rows = max(1, calibrate.DENSE_SVD_MAX // max(J.shape[1], 1))
+    rows = max(1, normal.DENSE_SVD_MAX // max(J.shape[1], 1))
     G, g = np.zeros((J.shape[1], J.shape[1])), np.zeros(J.shape[1])
     for a in range(0, J.shape[0], rows):
         t = train[a:a + rows]
@@ -293,12 +296,11 @@ class LinearProblem:
             if b.pen is not None:
                 G[off:off + b.k, off:off + b.k] += b.pen.T @ b.pen
             off += b.k
-        s = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        s = normal.column_scale(np.diag(G), floor=1e-300)
         Gs = G / s[:, None] / s[None, :]
-        # minimum-norm solution of the scaled normal equations (redundant columns stay at 0)
-        w, V = np.linalg.eigh(Gs)
-        keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
-        z = V[:, keep] @ ((V[:, keep].T @ (g / s)) / w[keep])
+        # minimum-norm solution of the scaled normal equations (redundant columns stay at 0), at the weaker
+        # cut-off EIG_TOL
+        z, _, _ = normal.min_norm_solve(Gs, g / s, rtol=EIG_TOL, floor=1e-300, cholesky=False)
         return z / s
 
     def _base_fold(self, folds, f):
@@ -310,10 +312,8 @@ class LinearProblem:
             G, gb = _train_products(self.base.J, self.r, train)
             if self.base.pen is not None:
                 G += self.base.pen.T @ self.base.pen
-            s = np.sqrt(np.maximum(np.diag(G), 1e-300))
-            w, V = np.linalg.eigh(G / s[:, None] / s[None, :])
-            keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
-            Ginv = (V[:, keep] / w[keep]) @ V[:, keep].T / s[:, None] / s[None, :]
+            s = normal.column_scale(np.diag(G), floor=1e-300)
+            Ginv = normal.pseudo_inverse(G / s[:, None] / s[None, :], rtol=EIG_TOL, floor=1e-300) / s[:, None] / s[None, :]
             self._gram[key] = (train, Ginv, gb)
         return self._gram[key]
 
@@ -361,10 +361,9 @@ class LinearProblem:
                 # scaled by the candidate's own column norms: a direction of it that the baseline
                 # nearly explains (outside fraction below sqrt(EIG_TOL)) is left out, as in a full fit
                 own = np.maximum(np.diag(Gcc), 0.0) + (np.sum(c.pen ** 2, axis=0) if c.pen is not None else 0.0)
-                sc = np.sqrt(np.maximum(own, 1e-300))
-                w, V = np.linalg.eigh(S / sc[:, None] / sc[None, :])
-                keep = w > EIG_TOL * max(w.max(initial=0.0), 1e-300)
-                dc = (V[:, keep] @ ((V[:, keep].T @ (rhs / sc)) / w[keep])) / sc
+                sc = normal.column_scale(own, floor=1e-300)
+                dc = normal.min_norm_solve(S / sc[:, None] / sc[None, :], rhs / sc, rtol=EIG_TOL, floor=1e-300,
+                                           cholesky=False)[0] / sc
                 db = Ginv @ (gb - Gbc @ dc)
                 out[test] = rt - Jbt @ db - Jct @ dc
             return out.reshape(-1, self.dim)

@@ -26,7 +26,9 @@ from ..core.memory import release_freed_memory
 from ..core.spec import load_spec, parse_spec
 from ..robot.arm.effects import jh_orders
 from ..robot.model.estimate import fit_effects
-from ..robot.campaign.frame import apply, rigid_fit
+from ..core.parallel import can_fork, fork_map
+from ..core.se3 import rigid_fit
+from ..robot.campaign.frame import apply
 from ..robot.campaign.ingest import robot_data_sets
 from ..robot.model.fit import check_spec_joints
 from ..robot.model.outliers import describe, find_wild
@@ -52,7 +54,7 @@ def _stats(err) -> dict:
 def _pose_stats(model, target, register_on=None) -> dict:
     """:func:`_stats` of a model's held-out errors on ``target``, with the orientation's (arcsec) on a 6-DoF
     campaign; ``register_on``: another series' sample poses to re-register its tracker on first."""
-    from ..robot.model.calibrate import angle_arcsec, orientation_errors
+    from ..core.se3 import angle_arcsec, orientation_errors
 
     Rt = np.eye(3)
     if register_on is None:
@@ -126,11 +128,8 @@ def _with_effects(text: str, lines: list[str]) -> str:
     return head.rstrip() + "\n\n" + "\n\n".join(x.rstrip() for x in lines) + "\n"
 
 
-_SCREEN = None
-
-
-def _screen_one(k):
-    robot, trials, sample = _SCREEN
+def _screen_one(shared, k):
+    robot, trials, sample = shared
     return model_cv(robot, list(parse_spec(trials[k], "<loop spec>").effects), sample)
 
 
@@ -139,22 +138,12 @@ def _screen(robot, trials: list[str], sample, jobs: int | None = None) -> list[t
     (default: the CPUs this process may use; Linux, not from inside a worker). Each screen is the same
     computation as in one process, so the numbers are the same (what a screen costs: docs/speed.md
     "Measurements behind the code")."""
-    global _SCREEN
-    import multiprocessing as mp
-    import sys
-
     from ..robot.model.estimate import cpu_count
 
     jobs = min(cpu_count() if jobs is None else int(jobs), len(trials))
-    if (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
-            and "fork" in mp.get_all_start_methods()):
-        _SCREEN = (robot, trials, sample)
+    if jobs > 1 and can_fork():
         release_freed_memory()   # what the parent no longer holds is not inherited by every worker
-        try:
-            with mp.get_context("fork").Pool(jobs) as pool:
-                return pool.map(_screen_one, range(len(trials)), chunksize=1)
-        finally:
-            _SCREEN = None
+        return fork_map(_screen_one, (robot, trials, sample), len(trials), jobs)
     return [model_cv(robot, list(parse_spec(x, "<loop spec>").effects), sample) for x in trials]
 
 

@@ -1,6 +1,6 @@
 """The robot side of diagnosis: folds by pose over the sample set, candidates per joint.
 
-The model is :class:`pipeline.robot.model.calibrate.RobotErrorModel` (Gauss-Newton over the sum of the
+The model is :class:`pipeline.robot.model.estimator.RobotErrorModel` (Gauss-Newton over the sum of the
 effects, pinocchio Jacobians). Poses are independent (each is its own tracker measurement),
 so a candidate's held-out gain is tested with a paired t test over poses.
 """
@@ -14,12 +14,16 @@ import numpy as np
 from ..core.crossval import CVResult
 from ..core.effect import REGISTRY
 from ..core.memory import release_freed_memory
-from ..robot.model.calibrate import ARCSEC_PER_MRAD, Design, orientation_errors, scaled_svd, start_weight
+from ..core.parallel import fork_imap
+from ..core.se3 import ARCSEC_PER_MRAD
+from ..robot.model.design import Design
+from ..robot.model.normal import scaled_svd
+from ..robot.model.weighting import start_weight
 from ..robot.arm.effects import JH_MAX_ORDER, effect_classes, jh_orders  # noqa: F401 (re-exported)
-from ..robot.model.estimate import N_FOLDS, cross_validate, fit_effects, fold_description, fold_ids
+from ..robot.model.estimate import N_FOLDS, cross_validate, fold_description, fold_ids
 from ..robot.arm.kinematics import gravity_torques
 from ..robot.model.budget import angle_budget, angle_variation, error_scale, lever_arms
-from ..robot.model.lm import describe_implausible, implausible_parameters
+from ..robot.model.plausibility import describe_implausible, implausible_parameters
 from ..robot.model.noise import noise_estimate
 from .linear import BOX_FACTOR, LinearProblem, box_configurations, channel_jacobian, effect_columns, region_folds
 from .engine import paired_test
@@ -32,7 +36,7 @@ def span_weights(J) -> np.ndarray:
     of any X (m, c) in an orthonormal basis of the span are ``W.T @ (J.T @ X)``.
 
     The span is that of J's columns scaled to unit norm, with singular values above 1e-9 of the largest
-    (:func:`pipeline.robot.model.calibrate.scaled_svd`: a 6-DoF baseline's U would be as large as J again,
+    (:func:`pipeline.robot.model.normal.scaled_svd`: a 6-DoF baseline's U would be as large as J again,
     docs/speed.md "Measurements behind the code")."""
     m, k = J.shape
     if k == 0 or m == 0:
@@ -43,12 +47,9 @@ def span_weights(J) -> np.ndarray:
     return (Vt[keep].T / sv[keep]) / norms[:, None]
 
 
-_EVAL = None
-
-
-def _evaluate_one(k):
+def _evaluate_one(shared, k):
     """One candidate in a forked worker (the adapter and its shared fit come with the fork)."""
-    adapter, base_effects, cands, data = _EVAL
+    adapter, base_effects, cands, data = shared
     return adapter._evaluate(cands[k], data, base_effects)
 
 
@@ -265,21 +266,9 @@ class RobotAdapter:
         if folds == "random":
             cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data))
             return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
-        ids = region_folds(data.q_deg, self.n_folds)
-        res = np.empty((data.n, 3))
-        ori = np.empty((data.n, 3)) if data.has_orientation else None
-        for f in np.unique(ids):
-            test = ids == f
-            held = data.subset(test)
-            m = fit_effects(self.robot, effects, data.subset(~test), orientation_weight=self.weight(data)) \
-                if effects else None
-            if ori is not None:
-                R, pred = m.predict_pose(held) if m is not None else Design(self.robot, [], held).predict_pose(np.zeros(0))
-                ori[test] = orientation_errors(R, held.measured_R)
-            else:
-                pred = m.predict(held) if m is not None else Design(self.robot, [], held).predict(np.zeros(0))
-            res[test] = data.measured_mm[test] - pred
-        return CVResult(self._full(res, ori, data), np.arange(data.n))
+        cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data),
+                            folds=region_folds(data.q_deg, self.n_folds))
+        return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
 
     def components(self, cv: CVResult, data) -> dict | None:
         """A 6-DoF campaign's full held-out residual split: the position RMS (mm) and the orientation RMS
@@ -304,22 +293,15 @@ class RobotAdapter:
         self.linear(base_effects, data)     # the baseline fitted here, once: forked workers share it
         out, t0, last = [], time.perf_counter(), 0.0
         if self.workers > 1 and len(cands) > 1:
-            import multiprocessing as mp
-
-            global _EVAL
-            _EVAL = (self, base_effects, cands, data)
-            try:
-                with mp.get_context("fork").Pool(self.workers) as pool:
-                    for k, res in enumerate(pool.imap(_evaluate_one, range(len(cands)), chunksize=4)):
-                        out.append({"with": CVResult(res[0], np.arange(data.n)),
-                                    "region": CVResult(res[1], np.arange(data.n)), "refused": res[2]})
-                        now = time.perf_counter() - t0
-                        if now - last > 2.0 or k + 1 == len(cands):
-                            last = now
-                            say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about "
-                                f"{now / (k + 1) * (len(cands) - k - 1):.0f} s left)")
-            finally:
-                _EVAL = None
+            results = fork_imap(_evaluate_one, (self, base_effects, cands, data), len(cands), self.workers, chunksize=4)
+            for k, res in enumerate(results):
+                out.append({"with": CVResult(res[0], np.arange(data.n)),
+                            "region": CVResult(res[1], np.arange(data.n)), "refused": res[2]})
+                now = time.perf_counter() - t0
+                if now - last > 2.0 or k + 1 == len(cands):
+                    last = now
+                    say(f"candidates fitted: {k + 1}/{len(cands)} ({now:.0f} s, about "
+                        f"{now / (k + 1) * (len(cands) - k - 1):.0f} s left)")
             return out
         for k, cand in enumerate(cands):
             r1, r2, why = self._evaluate(cand, data, base_effects)

@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..core.units import REFERENCE_TEMPERATURE_C
-from ..robot.model.calibrate import Design
+from ..robot.model.design import Design
 from ..robot.arm.effects import RobotData
 from ..robot.arm.kinematics import build_error_model, build_model, gravity_torques
 from ..robot.model.rigid import CHAIN_EFFECTS, TABLE_EFFECTS, chain_predict, fit_rigid_chain, has_tables, load_chain

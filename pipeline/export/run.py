@@ -186,7 +186,7 @@ def _urdf_text(robot, chain_model, comments: list[str], urdf) -> str:
 def _ur_texts(robot, effects, doc: dict, chain: dict, comments: list[str]) -> list[tuple[str, str]]:
     """``calibration.conf`` deltas against UR's published DH (a robot imported from one) or the nominal
     robot's, and the ROS driver's kinematics YAML."""
-    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.model.estimator import RobotErrorModel
     from .ur import calibration_conf, kinematics_yaml, published_reference, standard_dh
 
     nominal = published_reference(robot, effects, doc["parameters"], folded_chain)   # a UR's own calibration

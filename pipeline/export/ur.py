@@ -212,7 +212,7 @@ def published_reference(robot, effects, parameters, folded) -> dict | None:
     if not getattr(robot, "ur_model", ""):
         return None
     from ..robot.campaign.ur import KEYS, robot_from_calibration
-    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.model.estimator import RobotErrorModel
 
     pub = robot_from_calibration({k: np.zeros(6) for k in KEYS}, robot.ur_model, robot.tool_xyz_mm)
     zero = RobotErrorModel.from_parameters(pub, effects, [dict(p, value=0.0) for p in parameters])

@@ -1,6 +1,6 @@
 """Choosing the poses to measure (contract section 9): D-optimal and Ds-optimal designs over a pool.
 
-The problem is the fit's own: :meth:`pipeline.robot.model.calibrate.RobotErrorModel.identification` of
+The problem is the fit's own: :meth:`pipeline.robot.model.estimator.RobotErrorModel.identification` of
 the estimator ``jointcal fit`` uses for the spec (:func:`pipeline.robot.model.estimate.effects_estimator`)
 gives the identification Jacobian at the nominal robot (3 rows a pose, mm per internal unit) and
 the parameters the poses can determine (rank, weak determination: the fit's own tolerances). Only
@@ -33,6 +33,7 @@ from ..robot.arm.effects import RobotData
 from ..robot.model.estimate import effects_estimator
 from ..robot.model.uncertainty import prediction_covariance
 from ..robot.arm.kinematics import Robot, gravity_torques
+from ..core.se3 import ARCSEC_PER_MRAD
 from ..core.units import REFERENCE_TEMPERATURE_C
 
 #: Ridge added to the information matrix (scaled units: a pose adds about 1 per parameter)
@@ -456,7 +457,7 @@ def potential_blocks(robot: Robot, data: RobotData, A_model) -> np.ndarray:
     columns ``A_model`` (n, 3, q) over the same poses, each scaled to unit RMS per pose; columns
     that vanish after the projection (the model has them) are dropped.
     """
-    from ..robot.model.calibrate import RobotErrorModel
+    from ..robot.model.estimator import RobotErrorModel
     from ..robot.arm.effects import Chebyshev
 
     nj = len(robot.joints)
@@ -543,7 +544,7 @@ def plan_poses(robot: Robot, effects, pool: RobotData, n: int, measured: RobotDa
     union = pool if measured is None else concat_data(measured, pool)
     weight = None
     if noise_arcsec is not None:
-        weight = noise_mm / (noise_arcsec / 206.264806)
+        weight = noise_mm / (noise_arcsec / ARCSEC_PER_MRAD)
         union, pool = with_probe(union, weight), with_probe(pool, weight)
         if measured is not None:
             measured = with_probe(measured, weight)

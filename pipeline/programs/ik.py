@@ -24,8 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..core.se3 import rotation_vectors
 from ..robot.arm.kinematics import Robot
 
 #: a Newton solution is accepted within these of the pose (mm, rad)
@@ -112,7 +112,7 @@ def jacobian(F: np.ndarray) -> np.ndarray:
 
 def _errors(F_end, T):
     e_p = T[:, :3, 3] - F_end[:, :3, 3]
-    e_r = Rotation.from_matrix(T[:, :3, :3] @ np.transpose(F_end[:, :3, :3], (0, 2, 1))).as_rotvec()
+    e_r = rotation_vectors(T[:, :3, :3] @ np.transpose(F_end[:, :3, :3], (0, 2, 1)))
     return e_p, e_r
 
 

@@ -27,10 +27,11 @@ import numpy as np
 import pinocchio as pin
 
 from ...core.effect import REGISTRY, Effect
+from ...core.se3 import ARCSEC_PER_MRAD
 from ...core.units import REFERENCE_TEMPERATURE_C
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
 
-MRAD_ARCSEC = 206.264806  # arcsec per mrad
+MRAD_ARCSEC = ARCSEC_PER_MRAD  # arcsec per mrad (pipeline.core.se3)
 #: Joint numbers of a six-axis robot
 #: the joints of the papers' six-joint robots (the default when an effect is not told the robot)
 ALL_JOINTS = (1, 2, 3, 4, 5, 6)
@@ -261,7 +262,7 @@ class RobotEffect(Effect):
     def typical_sizes(self, robot: Robot) -> list[float]:
         """Typical size of each parameter on a real robot, in its reported unit (:meth:`units`):
         the yardstick of "nearest the nominal robot" where the measurements cannot tell parameters
-        apart (contract section 8; :func:`pipeline.robot.model.calibrate.physical_sizes`). By default
+        apart (contract section 8; :func:`pipeline.robot.model.identify.physical_subspace`). By default
         from the unit (:data:`TYPICAL_SIZE`); an effect whose parameters are of another size says so."""
         return [TYPICAL_SIZE.get(u, 1.0) for u, _ in self.units(robot)]
 
@@ -309,7 +310,7 @@ class Geometry(RobotEffect):
     def checked_values(self, robot, parameters, q_deg):
         """None one by one: where the measurements cannot tell them apart, a parameter may carry what
         another would; the fit judges how far the frames move and turn instead
-        (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
+        (:func:`pipeline.robot.model.plausibility.frame_deviations`)."""
         return []
 
     def parameter_names(self, robot):
@@ -357,7 +358,7 @@ class Base(RobotEffect):
         return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
 
     def checked_values(self, robot, parameters, q_deg):
-        """Judged as the base frame's shift and turn (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
+        """Judged as the base frame's shift and turn (:func:`pipeline.robot.model.plausibility.frame_deviations`)."""
         return []
 
     def basis(self, robot, idx, data):
@@ -429,7 +430,7 @@ class Tool(RobotEffect):
         return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
 
     def checked_values(self, robot, parameters, q_deg):
-        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.model.calibrate.frame_deviations`)."""
+        """Judged as the SMR's shift on the flange (:func:`pipeline.robot.model.plausibility.frame_deviations`)."""
         return []
 
     def basis(self, robot, idx, data):

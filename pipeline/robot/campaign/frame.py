@@ -30,6 +30,9 @@ from itertools import combinations
 
 import numpy as np
 
+# the rigid fit and the rotation angle live with the other frame maths (core/se3); named here too for the
+# frame's callers
+from ...core.se3 import rigid_fit, rotation_angle_deg  # noqa: F401
 from ..arm.kinematics import build_model, placements
 
 # --------------------------------------------------------------------------- thresholds
@@ -54,59 +57,6 @@ EXPLAINS_FRACTION = 0.5
 
 
 # ------------------------------------------------------------------------ rigid transforms
-def rigid_fit(src, dst, weights=None):
-    """Best rigid transform (rotation and translation, no scale) of ``src`` onto ``dst``.
-
-    Minimises ``sum_i w_i |R src_i + t - dst_i|^2`` (Kabsch / Umeyama without scale, SVD with
-    the determinant sign fixed so that ``R`` is a proper rotation).
-
-    Parameters
-    ----------
-    src : array_like, shape (n, 3)
-        Points to be moved, e.g. mm in the tracker's frame. n >= 3, not all on one line.
-    dst : array_like, shape (n, 3)
-        Where they should land, same unit, e.g. nominal SMR positions in the base frame (mm).
-    weights : array_like, shape (n,), optional
-        Non-negative weight of each pair (default all 1).
-
-    Returns
-    -------
-    R : ndarray, shape (3, 3)
-        Rotation, ``det(R) = +1``.
-    t : ndarray, shape (3,)
-        Translation, unit of the points; ``dst ~= apply(R, t, src) = src @ R.T + t``.
-
-    Raises
-    ------
-    ValueError
-        Shapes differ, fewer than 3 pairs, non-finite values, or the points are (nearly)
-        collinear so that the rotation is not determined.
-    """
-    src = np.asarray(src, float)
-    dst = np.asarray(dst, float)
-    if src.ndim != 2 or src.shape[1] != 3 or src.shape != dst.shape:
-        raise ValueError(f"rigid_fit needs two (n, 3) arrays of the same shape, got {src.shape} and {dst.shape}")
-    if len(src) < 3:
-        raise ValueError(f"rigid_fit needs at least 3 point pairs, got {len(src)}")
-    if not (np.isfinite(src).all() and np.isfinite(dst).all()):
-        raise ValueError("rigid_fit: non-finite coordinates")
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, float)
-    if w.shape != (len(src),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-        raise ValueError("rigid_fit: weights must be (n,) finite, non-negative and not all zero")
-    w = w / w.sum()
-    cs, cd = w @ src, w @ dst
-    a, b = src - cs, dst - cd
-    H = (a * w[:, None]).T @ b
-    U, S, Vt = np.linalg.svd(H)
-    scale = max(S[0], np.finfo(float).tiny)
-    if S[1] <= 1e-12 * scale:
-        raise ValueError("rigid_fit: the points are (nearly) collinear; the rotation is not determined")
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-    R = Vt.T @ D @ U.T
-    t = cd - R @ cs
-    return R, t
-
-
 def apply(R, t, pts):
     """Move points by the rigid transform ``(R, t)``.
 
@@ -150,12 +100,6 @@ def from_matrix(T):
     if T.shape != (4, 4):
         raise ValueError(f"expected a 4x4 matrix, got shape {T.shape}")
     return T[:3, :3].copy(), T[:3, 3].copy()
-
-
-def rotation_angle_deg(R) -> float:
-    """Angle (deg) of the rotation ``R`` about its axis, in [0, 180]."""
-    c = (np.trace(np.asarray(R, float)) - 1.0) / 2.0
-    return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
 def describe(R, t) -> str:

@@ -27,6 +27,8 @@ import itertools
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ...core.se3 import chordal_mean, rotation_angle  # noqa: F401 (chordal_mean: named here for the campaign's callers)
+
 #: every Euler sequence (Tait-Bryan and proper), intrinsic (upper case) then extrinsic (lower case)
 SEQUENCES = tuple("".join(p) for p in itertools.product("XYZ", repeat=3) if p[0] != p[1] and p[1] != p[2])
 SEQUENCES = SEQUENCES + tuple(s.lower() for s in SEQUENCES)
@@ -116,16 +118,8 @@ def rpy_matrix(rpy) -> np.ndarray:
 
 
 def angles_deg(Ra, Rb) -> np.ndarray:
-    """Angle (deg) between rotations Ra and Rb, batched over (..., 3, 3)."""
-    c = (np.einsum("...ji,...ji->...", Ra, Rb) - 1.0) / 2.0
-    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
-
-
-def chordal_mean(R) -> np.ndarray:
-    """The rotation nearest (Frobenius) the mean of rotations (n, 3, 3)."""
-    U, _, Vt = np.linalg.svd(np.asarray(R, float).mean(axis=0))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    """Angle (deg) between rotations Ra and Rb, batched over (..., 3, 3) (:func:`pipeline.core.se3.rotation_angle`)."""
+    return np.degrees(rotation_angle(Ra, Rb))
 
 
 def mounting(R_flange, R_meas_base, rows=None):

@@ -29,6 +29,7 @@ import pandas as pd
 import pinocchio as pin
 
 from ...core.files import to_resolution
+from ...core.se3 import kabsch_rotation
 from ..paper.closedloop import JointPlant, run_loop
 from ..arm.effects import effect_class, effect_classes
 from ..arm.kinematics import Robot, build_model, directions_from_sequence, gravity_torques, inverse_kinematics, placements, positions
@@ -156,9 +157,7 @@ class VirtualCell:
         true = positions(self.model_true, np.deg2rad(Q + self.repeatable_offset_deg(Q, payload)))
         nom = positions(self.model_nominal, np.deg2rad(Q))
         a, b = true - true.mean(0), nom - nom.mean(0)
-        U, _, Vt = np.linalg.svd(a.T @ b)
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-        R = Vt.T @ D @ U.T
+        R, _ = kabsch_rotation(a.T @ b)
         return R, nom.mean(0) - true.mean(0) @ R.T
 
     # -------------------------------------------------------------------------- physics

@@ -14,7 +14,7 @@ from ...core.errors import InputError
 from ...core.tables import FLOAT, STR, read_table
 from ..arm.kinematics import directions_from_sequence
 from ..campaign.ingest import robot_data
-from ..model.calibrate import RobotErrorModel
+from ..model.estimator import RobotErrorModel
 from ..model.fit import stage_effects
 from ..paper.closedloop import CYCLE_S, KD, KP, ROUGH_LIMIT_DEG, ROUGH_STEP_DEG, pd_poles
 from ..paper.evaluate import table2, vap

@@ -69,7 +69,7 @@ def model_over_budget(robot, design_class, effects, coef_by_name: dict, data, Je
 
     Parameters
     ----------
-    design_class : the model's design (``pipeline.robot.model.calibrate.Design``), passed in to keep this
+    design_class : the model's design (``pipeline.robot.model.design.Design``), passed in to keep this
         module free of the estimator.
     effects : list of RobotEffect (prepared)
     coef_by_name : dict parameter name -> internal value

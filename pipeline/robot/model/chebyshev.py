@@ -35,8 +35,8 @@ fitted coefficient no real robot can have (:data:`pipeline.robot.model.lm.PLAUSI
 
 from __future__ import annotations
 
-from .calibrate import RobotErrorModel
-from .lm import describe_implausible
+from .estimator import RobotErrorModel
+from .plausibility import describe_implausible
 
 #: numerical rank tolerance of the Chebyshev identification: the scaled Jacobian's singular
 #: values fall from 1e-3.2 to 1e-4 and then trail off to 1e-8 (weakly identified directions that

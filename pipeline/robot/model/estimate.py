@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.crossval import CVResult
-from .calibrate import Design, RobotErrorModel, angle_arcsec, orientation_errors
+from ...core.parallel import can_fork, fork_map, fork_map_async
+from ...core.se3 import angle_arcsec, orientation_errors
+from .design import Design
+from .estimator import RobotErrorModel
 from .chebyshev import chebyshev_estimator
 
 
@@ -21,7 +24,7 @@ def effects_estimator(robot, effects, start=None, checks: bool = True, orientati
     """The estimator (not fitted) :func:`fit_effects` fits: ``jointcal plan`` asks it which
     parameters a set of poses identifies. ``start``: parameter name -> value (internal units) to
     start the solver from (a nested model's solution). ``checks``: judge the fitted model's plausibility
-    (:class:`~pipeline.robot.model.calibrate.RobotErrorModel`); off for a fit used only to predict.
+    (:class:`~pipeline.robot.model.estimator.RobotErrorModel`); off for a fit used only to predict.
     ``orientation``: fit a 6-DoF campaign's orientations too (False: its positions alone);
     ``orientation_weight`` (mm per mrad): their weight, None to estimate it (variance components), starting
     from ``weight_start`` when given (the weight a fit of the same model on nearly the same poses ended with)."""
@@ -193,7 +196,6 @@ def fold_description(data, n_folds: int = N_FOLDS) -> str:
 #: sample poses from which ``jointcal fit`` cross-validates its folds in forked processes (fewer: one process;
 #: a fork costs about 0.1 s, a fold's fit of 1,000 6-DoF poses about as much)
 PARALLEL_CV_MIN_POSES = 2000
-_CV_SHARED = None
 
 
 def cpu_count() -> int:
@@ -207,7 +209,7 @@ def cpu_count() -> int:
 
 
 def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bool = True,
-                   orientation_weight: float | None = None, jobs: int = 1) -> CVResult:
+                   orientation_weight: float | None = None, jobs: int = 1, folds=None) -> CVResult:
     """Held-out residuals (mm, shape (n, 3)) of ``effects`` fitted by :func:`fit_effects`, k-fold by pose.
 
     Each fold of poses (:func:`fold_ids`) is predicted by the model fitted on the others; without
@@ -216,32 +218,35 @@ def cross_validate(robot, effects, data, n_folds: int = N_FOLDS, orientation: bo
     ``orientation_weight`` (the whole sample's, from its own fit) weighs every fold's fit alike.
     ``jobs`` > 1 fits the folds in up to that many forked processes (Linux, not from inside a worker
     process): each fold's fit is the same computation as in one process, so the result is the same.
+    ``folds`` (n,) int: each pose's fold, when not :func:`fold_ids`' (diagnosis's folds by region).
     """
-    global _CV_SHARED
-    import multiprocessing as mp
-    import sys
-
-    folds = fold_ids(data.n, n_folds)
-    res = np.empty((data.n, 3))
-    ori = np.empty((data.n, 3)) if data.has_orientation else None
+    if folds is None:
+        folds, labels = fold_ids(data.n, n_folds), list(range(n_folds))
+    else:
+        folds = np.asarray(folds)
+        labels = list(np.unique(folds))
     args = (robot, effects, data, folds, orientation, orientation_weight)
     jobs = min(int(jobs), n_folds)
-    if (jobs > 1 and effects and sys.platform.startswith("linux") and not mp.current_process().daemon
-            and "fork" in mp.get_all_start_methods()):
-        _CV_SHARED = args
-        try:
-            with mp.get_context("fork").Pool(jobs) as pool:
-                parts = pool.map(_cv_shared_fold, range(n_folds), chunksize=1)
-        finally:
-            _CV_SHARED = None
+    if jobs > 1 and effects and can_fork():
+        parts = fork_map(_cv_shared_fold, (args, labels), len(labels), jobs)
     else:
-        parts = [_cv_fold(*args, f) for f in range(n_folds)]
-    for f, (r, o) in enumerate(parts):
+        parts = [_cv_fold(*args, f) for f in labels]
+    return held_out(folds, labels, parts, data.has_orientation)
+
+
+def held_out(folds, labels, parts, has_orientation: bool) -> CVResult:
+    """The held-out residuals of every pose from its fold's: ``folds`` (n,) each pose's fold, ``parts`` the
+    (residuals (n_f, 3) mm, orientation errors (n_f, 3) mrad or None) of the fold ``labels[i]``; a
+    :class:`CVResult` with ``extra["orientation"]`` (n, 3) mrad where ``has_orientation``."""
+    n = len(folds)
+    res = np.empty((n, 3))
+    ori = np.empty((n, 3)) if has_orientation else None
+    for f, (r, o) in zip(labels, parts):
         test = folds == f
         res[test] = r
         if ori is not None:
             ori[test] = o
-    out = CVResult(res, np.arange(data.n))
+    out = CVResult(res, np.arange(n))
     if ori is not None:
         out.extra["orientation"] = ori
     return out
@@ -264,8 +269,9 @@ def _cv_fold(robot, effects, data, folds, orientation, orientation_weight, f):
     return data.measured_mm[test] - pred, o
 
 
-def _cv_shared_fold(f):
-    return _cv_fold(*_CV_SHARED, f)
+def _cv_shared_fold(shared, k):
+    args, labels = shared
+    return _cv_fold(*args, labels[k])
 
 
 class FoldsBeforeWild:
@@ -288,8 +294,8 @@ class FoldsBeforeWild:
         mm per mrad, every fold's (the whole sample's weight).
     first : RobotErrorModel or None
         The model fitted on every pose of ``data`` (its design kept), or None. Given, each fold's model is it
-        taken to the other folds' poses by Gauss-Newton steps (:meth:`~pipeline.robot.model.calibrate.\
-RobotErrorModel.determined_without`, at its orientation weight, in its fitted directions): the fit on them
+        taken to the other folds' poses by Gauss-Newton steps (:meth:`~pipeline.robot.model.estimator.\
+RobotErrorModel.refit_without`, at its orientation weight, in its fitted directions): the fit on them
         to the steps' 1e-5 mm^2, from the fit on all the poses (four fifths of them the fold's), instead of a
         design, an identification and an iteration from nominal; fitted where the other folds' poses leave a fitted
         direction undetermined.
@@ -306,13 +312,13 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         design of every pose, fitted on the other folds'), (train, model) for a model fitted on ``train``."""
         folds = fold_ids(self.data.n, self.n_folds)
         if self.first is not None:
-            m = self.first.determined_without(self.data, folds != f)
+            m = self.first.refit_without(self.data, folds != f)
             if m is not None:
                 return None, m
         train = self.data.subset(folds != f)
         est = effects_estimator(self.robot, self.effects, checks=False, orientation=self.orientation,
                                 orientation_weight=self.orientation_weight)
-        est._retain_designs = True       # the steps to the kept poses reuse its design
+        est.keep_designs = True       # the steps to the kept poses reuse its design
         return train, est.fit(train)
 
     def fit(self) -> "FoldsBeforeWild":
@@ -327,13 +333,13 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         train, m = fitted if fitted is not None else self._fit_fold(f)
         if not keep[folds != f].all():
             # stepped from the whole sample's model: on its design of every pose, the other folds' kept ones
-            step = (m.determined_without(self.data, (folds != f) & keep) if train is None
-                    else m.determined_without(train, keep[folds != f]))
+            step = (m.refit_without(self.data, (folds != f) & keep) if train is None
+                    else m.refit_without(train, keep[folds != f]))
             if step is None:
                 step = fit_effects(self.robot, self.effects, self.data.subset((folds != f) & keep), checks=False,
                                    orientation=self.orientation, orientation_weight=self.orientation_weight)
             m = step
-        m._designs = None
+        m.release_designs()
         held = self.data.subset((folds == f) & keep)
         o = None
         if self.data.has_orientation:
@@ -348,28 +354,15 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         (Linux, not from inside a worker process; else here, when asked): returns a function that gives its
         :class:`CVResult`. Folds fitted by :meth:`fit` are stepped there; the others fitted and stepped. The
         caller goes on meanwhile (the model's own steps, its held-out errors)."""
-        global _FOLDS_SHARED
-        import multiprocessing as mp
-        import sys
-
         keep = np.asarray(keep, bool)
         jobs = min(int(jobs), self.n_folds)
-        if not (jobs > 1 and sys.platform.startswith("linux") and not mp.current_process().daemon
-                and "fork" in mp.get_all_start_methods()):
+        if not (jobs > 1 and can_fork()):
             return lambda: self.cross_validate(keep)
-        _FOLDS_SHARED = (self, keep)
-        try:
-            pool = mp.get_context("fork").Pool(jobs)      # the workers fork here, with the folds' models
-        finally:
-            _FOLDS_SHARED = None
-        pending = pool.map_async(_shared_fold, range(self.n_folds), chunksize=1)
+        # the workers fork here, with the folds' models
+        pending = fork_map_async(_shared_fold, (self, keep), self.n_folds, jobs)
 
         def result() -> CVResult:
-            try:
-                parts = pending.get()
-            finally:
-                pool.terminate()
-                pool.join()
+            parts = pending()
             self.models_ = None
             return self._assemble(keep, parts)
 
@@ -387,24 +380,11 @@ RobotErrorModel.determined_without`, at its orientation weight, in its fitted di
         return self._assemble(keep, parts)
 
     def _assemble(self, keep, parts) -> CVResult:
-        folds = fold_ids(self.data.n, self.n_folds)[keep]
-        n = int(keep.sum())
-        res = np.empty((n, 3))
-        ori = np.empty((n, 3)) if self.data.has_orientation else None
-        for f, (r, o) in enumerate(parts):
-            res[folds == f] = r
-            if ori is not None:
-                ori[folds == f] = o
-        out = CVResult(res, np.arange(n))
-        if ori is not None:
-            out.extra["orientation"] = ori
-        return out
+        return held_out(fold_ids(self.data.n, self.n_folds)[keep], range(self.n_folds), parts,
+                        self.data.has_orientation)
 
 
-_FOLDS_SHARED = None
-
-
-def _shared_fold(f):
-    folds, keep = _FOLDS_SHARED
+def _shared_fold(shared, f):
+    folds, keep = shared
     fitted = getattr(folds, "models_", None)
     return folds._fold(f, keep, fitted[f] if fitted else None)

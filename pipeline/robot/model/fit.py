@@ -11,11 +11,11 @@ import numpy as np
 
 from ...core.errors import InputError
 from ...core.spec import _locate
-from .calibrate import angle_arcsec
+from ...core.se3 import angle_arcsec
 from .estimate import (N_FOLDS, PARALLEL_CV_MIN_POSES, FoldsBeforeWild, cpu_count, cross_validate, effects_estimator,
                        fit_effects, fold_description, heldout_fit)
 from ..campaign.ingest import robot_data_sets
-from .lm import describe_implausible
+from .plausibility import describe_implausible
 from . import outliers
 from .outliers import WildSearch, describe
 from .predict import model_document, outside_calibrated_range, outside_message, outside_range, sampled_range
@@ -88,7 +88,7 @@ def fit_campaign(campaign, spec, keep_outliers: bool = False, warn=_silent, orie
 
 def fitted_before_wild(effects, sample, orientation: bool = True) -> bool:
     """Whether :func:`robot_fit_result` fits the model on every sample pose, wild or not, and then takes it to
-    the poses kept by Gauss-Newton steps (:meth:`~pipeline.robot.model.calibrate.RobotErrorModel.refitted_without`):
+    the poses kept by Gauss-Newton steps (:meth:`~pipeline.robot.model.estimator.RobotErrorModel.refit_without`):
     on :data:`~pipeline.robot.model.outliers.BACKGROUND_MIN_POSES` sample poses or more, for a model of the
     effects on the whole robot (geometry, base, tool, thermal: nothing prepared from the poses' joint ranges,
     no nested model), positions or positions and orientations weighed by variance components. The fit then
@@ -128,19 +128,7 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     target_all, sample_all = target, sample
     first = folds = None
     if wild is not None and sample.n and fitted_before_wild(effects, sample, orientation):
-        beside = isinstance(wild, WildSearch) and wild.running
-        steps = 4 if beside else 2
-        progress(f"[1/{steps}] {' + '.join(e.name for e in effects)} on all {sample.n} sample poses"
-                 + (" (the wild-point search runs beside it)" if beside else ""))
-        est = effects_estimator(robot, effects, orientation=orientation)
-        est._retain_designs = True       # the steps to the poses kept reuse its design
-        first = est.fit(sample)
-        first.conflict_, first.nested_ = "", []
-        folds = FoldsBeforeWild(robot, effects, sample, orientation, getattr(first, "_weight", None), first=first)
-        if beside:
-            progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
-            folds.fit()                  # while the search runs
-            progress("[3/4] waiting for the wild-point search")
+        first, folds, steps = _fit_before_wild(robot, effects, sample, wild, orientation, progress)
     if isinstance(wild, WildSearch):
         wild = wild.result()
         if describe(wild):
@@ -160,10 +148,10 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
         progress(f"[{steps}/{steps}] the model and the {N_FOLDS} cross-validation folds taken to the {int(keep.sum())} "
                  "sample poses kept; uncertainty")
         cv_pending = folds.start(keep, jobs)
-        model = first.refitted_without(sample_all, keep, sample)
-        first._designs = None
+        model = first.refit_without(sample_all, keep, sample)
+        first.release_designs()
         if model is not None:
-            model._designs = None
+            model.release_designs()
     from_first = model is not None
     if model is None:
         model = fit_effects(robot, effects, sample, check_nested=True, orientation=orientation)
@@ -183,8 +171,34 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
                                                  "wild ones in none)" if sample_all.n > sample.n else "")
     else:
         cv = cross_validate(robot, effects, sample, orientation=orientation,
-                            orientation_weight=getattr(model, "_weight", None) if orientation else None, jobs=jobs)
+                            orientation_weight=getattr(model, "weight_", None) if orientation else None, jobs=jobs)
         described = fold_description(sample)
+    _document(out, robot, effects, model, sample, cv, described, frame_info)
+    return out
+
+
+def _fit_before_wild(robot, effects, sample, wild, orientation, progress):
+    """The model fitted on every sample pose (its design kept), and its cross-validation folds (fitted
+    beside a wild search that runs): ``(first, folds, steps)``, ``steps`` the progress lines' count."""
+    beside = isinstance(wild, WildSearch) and wild.running
+    steps = 4 if beside else 2
+    progress(f"[1/{steps}] {' + '.join(e.name for e in effects)} on all {sample.n} sample poses"
+             + (" (the wild-point search runs beside it)" if beside else ""))
+    est = effects_estimator(robot, effects, orientation=orientation)
+    est.keep_designs = True       # the steps to the poses kept reuse its design
+    first = est.fit(sample)
+    first.conflict_, first.nested_ = "", []
+    folds = FoldsBeforeWild(robot, effects, sample, orientation, first.weight_, first=first)
+    if beside:
+        progress(f"[2/4] the {N_FOLDS} cross-validation folds, each on the others' poses")
+        folds.fit()                  # while the search runs
+        progress("[3/4] waiting for the wild-point search")
+    return first, folds, steps
+
+
+def _document(out: dict, robot, effects, model, sample, cv, described: str, frame_info) -> None:
+    """The fit document's cross-validation, model, uncertainty, rigid chains and verdict, added to ``out``
+    in the document's order."""
     out["cv_rms_mm"] = cv.rms
     if "orientation" in cv.extra:
         out["cv_orientation_rms_arcsec"] = float(np.sqrt(np.mean(angle_arcsec(cv.extra["orientation"]) ** 2)))
@@ -214,7 +228,6 @@ def robot_fit_result(campaign, spec, loaded=None, wild=None, orientation: bool =
     out["implausible"] = getattr(model, "implausible_", [])
     if getattr(model, "conflict_", ""):
         out["conflict"] = model.conflict_
-    return out
 
 
 def fit_problems(result: dict) -> list[str]:

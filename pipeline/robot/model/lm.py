@@ -76,7 +76,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy
-import scipy.linalg
+
+from . import normal
 
 
 #: A run counts as converged only where a full Gauss-Newton step would change the residual by
@@ -148,23 +149,15 @@ def improved_lm(fun, jac, x0, *, v1=1.0, m=1e-6, p0=1e-4, p1=0.25, p2=0.75, phi=
     LMResult; ``converged`` is False when the run hit ``max_iter``, stalled (v_k > V_MAX) or
     never accepted a step; ``reason`` says which.
     """
-    if not (0 < p0 < p1 < p2 < 1) or not (v1 > m > 0):
-        raise ValueError("the improved L-M needs 0 < P0 < P1 < P2 < 1 and v1 > m > 0")
-    if int(max_iter) < 1:
-        raise ValueError("the improved L-M needs max_iter >= 1")
+    _check_constants(v1, m, p0, p1, p2, max_iter)
     t0 = time.perf_counter()
-    x = np.array(x0, float)
-    v = float(v1)
+    x, v = np.array(x0, float), float(v1)
     nfev = njev = 0
 
     def evaluate(at):
         nonlocal nfev, njev
-        if fun_and_jac is not None:
-            Fa, Ja = fun_and_jac(at)
-        else:
-            Fa, Ja = fun(at), jac(at)
-        nfev += 1
-        njev += 1
+        Fa, Ja = fun_and_jac(at) if fun_and_jac is not None else (fun(at), jac(at))
+        nfev, njev = nfev + 1, njev + 1
         return np.asarray(Fa, float), np.asarray(Ja, float)
 
     def done(converged, reason, k):
@@ -179,54 +172,18 @@ def improved_lm(fun, jac, x0, *, v1=1.0, m=1e-6, p0=1e-4, p1=0.25, p2=0.75, phi=
     if FF0 == 0.0:
         return done(True, "zero residual at the start", 0)
     D = np.zeros(x.size)
-    moved = False
+    moved, converged, k, new_point = False, False, 0, True
     reason = f"iteration limit ({int(max_iter)}) reached"
-    converged = False
-    k = 0
-    new_point = True
     for k in range(1, int(max_iter) + 1):
         if new_point:
             FF = float(F @ F)
-            if scale:
-                D = np.maximum(D, np.linalg.norm(J, axis=0))
-                Ds = np.where(D > 0, D, 1.0)
-            else:
-                Ds = np.ones(x.size)
-            Js = J / Ds
-            A0 = Js.T @ Js
-            curvature = float(np.max(np.diag(A0), initial=0.0)) or 1.0
+            D, Ds, Js, A0, curvature = _scaled(J, D, scale)
             new_point = False
         mu = v * (FF / FF0) * curvature if scale else v * FF
-        A = A0.copy()
-        A[np.diag_indices_from(A)] += mu
-        cho = scipy.linalg.cho_factor(A, check_finite=False)
-
-        def solve(Fa):
-            return -scipy.linalg.cho_solve(cho, Js.T @ Fa, check_finite=False) / Ds
-
-        d1 = solve(F)
-        y = x + d1
-        Fy = np.asarray(fun(y), float)
-        d2 = solve(Fy) if np.all(np.isfinite(Fy)) else np.full_like(d1, np.nan)
-        z = y + d2
-        Fz = np.asarray(fun(z), float) if np.all(np.isfinite(z)) else np.full_like(F, np.nan)
-        d3 = solve(Fz) if np.all(np.isfinite(Fz)) else np.full_like(d1, np.nan)
-        s = d1 + d2 + d3
-        Fs = np.asarray(fun(x + s), float) if np.all(np.isfinite(s)) else np.full_like(F, np.nan)
+        s, Fs, pred = _three_steps(fun, x, F, J, Js, Ds, A0, mu)
         nfev += 3
-
-        def lin(Fa, d):
-            r = Fa + J @ d
-            return Fa @ Fa - r @ r
-
-        ared = FF - Fs @ Fs
-        pred = lin(F, d1) + lin(Fy, d2) + lin(Fz, d3)
-        r = ared / pred if (np.isfinite(ared) and np.isfinite(pred) and pred > 0) else -np.inf
+        r, v = _ratio_and_damping(FF - Fs @ Fs, pred, v, p1, p2, increase, m)
         accepted = bool(r > p0)
-        if r < p1:
-            v = increase * v
-        elif r > p2:
-            v = max(v / 2.0, m)
         history.append({"iteration": k, "cost": 0.5 * float(Fs @ Fs if accepted else FF), "r": float(r),
                         "v": v, "mu": float(mu), "accepted": accepted})
         if accepted:
@@ -244,14 +201,75 @@ def improved_lm(fun, jac, x0, *, v1=1.0, m=1e-6, p0=1e-4, p1=0.25, p2=0.75, phi=
                     reason = f"||dF||^2 = {change:.2g} <= phi and a Gauss-Newton step would change F by {gain:.2g}"
                     break
         if v > V_MAX:
-            ok, gain = is_stationary(F, J, phi)
-            converged = moved and ok
-            reason = (f"no step lowers the cost (v_k > {V_MAX:g}); a Gauss-Newton step would change F by "
-                      f"||dF||^2 = {gain:.2g}" + ("" if ok else " > phi (not stationary)"))
+            converged, reason = _stalled(F, J, phi, moved)
             break
     if not moved:
         converged, reason = False, f"never left the start (no step accepted in {k} iteration(s)): {reason}"
     return done(converged, reason, k)
+
+
+def _check_constants(v1, m, p0, p1, p2, max_iter) -> None:
+    if not (0 < p0 < p1 < p2 < 1) or not (v1 > m > 0):
+        raise ValueError("the improved L-M needs 0 < P0 < P1 < P2 < 1 and v1 > m > 0")
+    if int(max_iter) < 1:
+        raise ValueError("the improved L-M needs max_iter >= 1")
+
+
+def _scaled(J, D, scale: bool):
+    """At a new point: the column scale D (p,) (the largest column norms so far) and its divisor Ds, the
+    scaled Jacobian Js (N, p), ``Js^T Js`` (p, p) and its largest diagonal (the damping's yardstick)."""
+    if scale:
+        D = np.maximum(D, np.linalg.norm(J, axis=0))
+        Ds = np.where(D > 0, D, 1.0)
+    else:
+        Ds = np.ones(J.shape[1])
+    Js = J / Ds
+    A0 = Js.T @ Js
+    return D, Ds, Js, A0, float(np.max(np.diag(A0), initial=0.0)) or 1.0
+
+
+def _three_steps(fun, x, F, J, Js, Ds, A0, mu):
+    """Eqs. 14-17 and the prediction of Eq. 19: the three steps of one factorised matrix ``A0 + mu I`` from
+    x (F its residual, J its Jacobian), their sum s (p,), F(x + s) (N,) and the decrease the linear model
+    predicts."""
+    cho = normal.levenberg_cholesky(A0, mu)
+
+    def solve(Fa):
+        return -normal.cholesky_solve(cho, Js.T @ Fa) / Ds
+
+    d1 = solve(F)
+    y = x + d1
+    Fy = np.asarray(fun(y), float)
+    d2 = solve(Fy) if np.all(np.isfinite(Fy)) else np.full_like(d1, np.nan)
+    z = y + d2
+    Fz = np.asarray(fun(z), float) if np.all(np.isfinite(z)) else np.full_like(F, np.nan)
+    d3 = solve(Fz) if np.all(np.isfinite(Fz)) else np.full_like(d1, np.nan)
+    s = d1 + d2 + d3
+    Fs = np.asarray(fun(x + s), float) if np.all(np.isfinite(s)) else np.full_like(F, np.nan)
+
+    def lin(Fa, d):
+        r = Fa + J @ d
+        return Fa @ Fa - r @ r
+
+    return s, Fs, lin(F, d1) + lin(Fy, d2) + lin(Fz, d3)
+
+
+def _ratio_and_damping(ared, pred, v, p1, p2, increase, m):
+    """Eqs. 18-21: the ratio r_k of the actual to the predicted decrease (-inf where it is not a number
+    or nothing was predicted), and the next damping factor v."""
+    r = ared / pred if (np.isfinite(ared) and np.isfinite(pred) and pred > 0) else -np.inf
+    if r < p1:
+        v = increase * v
+    elif r > p2:
+        v = max(v / 2.0, m)
+    return r, v
+
+
+def _stalled(F, J, phi, moved: bool) -> tuple[bool, str]:
+    """Whether a run whose damping went beyond V_MAX ended converged, and why it ended."""
+    ok, gain = is_stationary(F, J, phi)
+    return moved and ok, (f"no step lowers the cost (v_k > {V_MAX:g}); a Gauss-Newton step would change F by "
+                          f"||dF||^2 = {gain:.2g}" + ("" if ok else " > phi (not stationary)"))
 
 
 LM_OPTIONS = ("v1", "m", "p0", "p1", "p2", "phi", "max_iter", "increase", "scale")
@@ -328,46 +346,3 @@ def limit_blas_threads(n: int = 1) -> bool:
                     found = True
                     break
     return found
-
-
-# ------------------------------------------------------------------ plausibility of a fitted model
-#: Bounds on fitted robot error parameters (reported units) beyond which no real robot goes: a
-#: parameter beyond them means the fit went wrong (a direction the data do not determine, a
-#: solver that diverged), not that the robot is that far off. Robot errors are arcseconds to a
-#: few hundredths of a degree and tenths of a mm to a few mm (a wrong tool length: tens of mm).
-MAX_ANGLE_ERROR_DEG = 5.0                   # deg: joint offsets, link twists, base / link rotations
-MAX_LENGTH_ERROR_MM = 100.0                 # mm: link lengths and offsets, base, tool, link translations
-MAX_COMPLIANCE_ARCSEC_PER_KNM = 36000.0     # arcsec per kN m (10 deg per kN m: 1.7e-4 rad/N m)
-MAX_THERMAL_PPM_PER_K = 1000.0              # ppm/K (steel 12, aluminium 23)
-PLAUSIBLE_BOUNDS = {"arcsec": MAX_ANGLE_ERROR_DEG * 3600.0, "mm": MAX_LENGTH_ERROR_MM,
-                    "arcsec/kNm": MAX_COMPLIANCE_ARCSEC_PER_KNM, "ppm/K": MAX_THERMAL_PPM_PER_K}
-
-
-def implausible_parameters(parameters) -> list[dict]:
-    """The fitted parameters a real robot cannot have (non-finite, or beyond PLAUSIBLE_BOUNDS).
-
-    Parameters
-    ----------
-    parameters : list of dict with ``name``, ``value``, ``unit`` (``RobotErrorModel.parameters()``)
-
-    Returns
-    -------
-    list of ``{name, value, unit, bound}`` (bound None for a non-finite value), worst first.
-    """
-    out = []
-    for p in parameters:
-        value, unit = float(p["value"]), p.get("unit", "")
-        bound = PLAUSIBLE_BOUNDS.get(unit)
-        if not np.isfinite(value):
-            out.append({"name": p["name"], "value": value, "unit": unit, "bound": None, "excess": np.inf})
-        elif bound is not None and abs(value) > bound:
-            out.append({"name": p["name"], "value": value, "unit": unit, "bound": bound, "excess": abs(value) / bound})
-    out.sort(key=lambda q: -q["excess"])
-    return [{k: v for k, v in q.items() if k != "excess"} for q in out]
-
-
-def describe_implausible(bad: list[dict], limit: int = 2) -> str:
-    """One-line description of :func:`implausible_parameters`' result."""
-    parts = [f"{q['name']} = {q['value']:.3g} {q['unit']}" + (f" (bound {q['bound']:g})" if q["bound"] else "")
-             for q in bad[:limit]]
-    return ", ".join(parts) + (f" and {len(bad) - limit} more" if len(bad) > limit else "")

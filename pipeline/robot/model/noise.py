@@ -26,7 +26,7 @@ MIN_PAIRS = 3
 
 
 def _nominal(robot, data):
-    from .calibrate import Design
+    from .design import Design
 
     return Design(robot, [], data).predict(np.zeros(0))
 

@@ -14,7 +14,7 @@ cross-validated RMS of 0.10). They are found here, the same way by ``jointcal fi
 2. **A robust fit**: it is fitted on the sample poses, the poses it names are left out and it is
    fitted again, until the set named no longer changes (a redescending M-estimator with hard
    rejection: a wild pose gets weight 0, every other weight 1). A refit is Gauss-Newton steps from the
-   fit on all sample poses, on the normal equations of the poses kept (``stepped_without``). Each pose's
+   fit on all sample poses, on the normal equations of the poses kept (``refit_without``). Each pose's
    residual is its 3-D distance from that model (for a pose left out, a prediction).
 3. **A robust scale** of the residuals: ``sigma = sqrt(median(|r|^2) / 2.366)``, the per-axis
    standard deviation the median of the squared 3-D residual gives for Gaussian noise (2.366 is
@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.errors import InputError
+from ...core.parallel import can_fork, fork_process, pipe
 from ...core.spec import parse_spec
 from ...core.tables import text_table
 from ...core.wild import HANDFUL, MAX_WILD_FRACTION, MIN_RESIDUAL_DOF_FRACTION, NEIGHBOURS, RULE, WILD_SIGMAS
@@ -137,7 +138,7 @@ def _flag(res, sigma, q, q_ref, res_ref, valid_ref, own=None) -> np.ndarray:
 
 def _orientation_residuals(model, data) -> np.ndarray:
     """Orientation errors (n, 3) arcsec, measured - predicted (the turn from the predicted probe frame)."""
-    from .calibrate import ARCSEC_PER_MRAD, orientation_errors
+    from ...core.se3 import ARCSEC_PER_MRAD, orientation_errors
 
     R, _ = model.predict_pose(data)
     return -orientation_errors(R, data.measured_R) * ARCSEC_PER_MRAD
@@ -265,7 +266,6 @@ def find_wild(robot, effects, sample, target, campaign=None, keep: bool = False)
 #: sample poses from which a wild search not in the cache runs in a forked process (:class:`WildSearch`), the
 #: caller going on with work that does not need it (a fork costs about 0.1 s)
 BACKGROUND_MIN_POSES = 2000
-_BACKGROUND = None
 
 
 class WildSearch:
@@ -300,23 +300,14 @@ class WildSearch:
         return self._proc is not None
 
     def _fork(self) -> None:
-        global _BACKGROUND
-        import multiprocessing as mp
         import sys
 
-        if not (sys.platform.startswith("linux") and not mp.current_process().daemon
-                and "fork" in mp.get_all_start_methods()):
+        if not can_fork():
             return
         sys.stdout.flush()         # the forked process flushes its copy of what is buffered when it ends
         sys.stderr.flush()
-        ctx = mp.get_context("fork")
-        receive, send = ctx.Pipe(duplex=False)
-        _BACKGROUND = (self.args, self._flex, self._key, send)
-        try:
-            self._proc = ctx.Process(target=_search_in_background, daemon=True)
-            self._proc.start()
-        finally:
-            _BACKGROUND = None
+        receive, send = pipe()
+        self._proc = fork_process(_search_in_background, (self.args, self._flex, self._key, send))
         send.close()
         self._pipe = receive
 
@@ -344,9 +335,9 @@ class WildSearch:
         return _wild(self._found, sample, target, campaign, keep)
 
 
-def _search_in_background() -> None:
+def _search_in_background(shared) -> None:
     """The forked process of :class:`WildSearch`: the search, kept in the cache, its result sent back."""
-    (robot, effects, sample, target, campaign, keep), flex, key, send = _BACKGROUND
+    (robot, effects, sample, target, campaign, keep), flex, key, send = shared
     try:
         found = _search(robot, effects, flex, sample, target)
         _keep(key, found)
@@ -404,7 +395,7 @@ def _search(robot, effects, flex, sample, target) -> dict:
         if first is None:
             try:
                 est = effects_estimator(robot, flex, checks=False)
-                est._retain_designs = True       # the refit steps and predictions on the sample reuse its design
+                est.keep_designs = True       # the refit steps and predictions on the sample reuse its design
                 first = est.fit(sample)
             except np.linalg.LinAlgError:
                 first = fit_effects(robot, list(effects), sample, checks=False)
@@ -412,7 +403,7 @@ def _search(robot, effects, flex, sample, target) -> dict:
         else:
             # the refit without the poses named: Gauss-Newton steps from the fit on all of them, on the
             # normal equations of the rest (the same model on all but a few of the same poses)
-            model = first.stepped_without(sample, ~ws)
+            model = first.refit_without(sample, ~ws, determined=False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
         n_res = rs.shape[1] * n_fitted

@@ -27,10 +27,12 @@ import numpy as np
 
 from ...core.errors import InputError
 from ...core.spec import parse_spec
-from .calibrate import RobotErrorModel, angle_arcsec, orientation_errors
+from ...core.se3 import angle_arcsec, orientation_errors
+from .estimator import RobotErrorModel
 from .estimate import point_errors
 from .outliers import describe, find_wild
-from ..campaign.frame import apply, from_matrix, rigid_fit, rotation_angle_deg, to_matrix
+from ...core.se3 import rigid_fit, rotation_angle_deg
+from ..campaign.frame import apply, from_matrix, to_matrix
 from ..campaign.ingest import robot_data_sets
 from ..arm.kinematics import Robot, parse_robot
 
@@ -285,19 +287,7 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     meas = np.asarray(measured_mm, float)
     registration = None
     if register:
-        on = sets == "sample"
-        if not on.any():
-            raise ValueError("--register needs sample poses to register on: this campaign has none (a validation "
-                             "set, every pose target); without --register the model is applied to it as measured")
-        if on.sum() < 3:
-            raise ValueError("--register needs at least 3 sample poses in the campaign to estimate the "
-                             "tracker-to-base transform on")
-        R, t = rigid_fit(meas[on], pred[on])
-        meas = apply(R, t, meas)
-        if measured_R is not None:
-            meas_R = np.einsum("ij,njk->nik", R, meas_R)
-        registration = {"on": "sample", "n": int(on.sum()), "rotation_deg": float(rotation_angle_deg(R)),
-                        "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
+        meas, meas_R, registration = _register(sets, meas, pred, meas_R if measured_R is not None else None)
     ev = sets == "target"
     if not ev.any():
         ev = sets != "wild"     # every pose but the wild ones (pipeline.robot.model.outliers)
@@ -321,27 +311,53 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
             for pt, v in zip(out["points"], pe):
                 pt["point_error_mm"] = float(v)
     if stated is not None:
-        from .uncertainty import P95, coverage, u95
-
-        u = u95(model, data.subset(ev), stated, sampled)
-        for point, v in zip(out["points"], u["u95_mm"]):
-            point["u95_mm"] = float(v)
-        if "u95_arcsec" in u and measured_R is not None:
-            for point, v in zip(out["points"], u["u95_arcsec"]):
-                point["u95_arcsec"] = float(v)
-            out["orientation_coverage_95"] = coverage(a, u["u95_arcsec"])
-            out["u95_arcsec"] = float(np.mean(u["u95_arcsec"]))
-            out["orientation_error_p95_arcsec"] = float(np.quantile(a, P95))
-        out["coverage_95"] = coverage(e, u["u95_mm"])
-        out["u95_mm"] = float(np.mean(u["u95_mm"]))
-        out["error_p95_mm"] = float(np.quantile(e, P95))
-        out["u95_parts_mm"] = {k: float(np.sqrt(np.mean(u[k] ** 2)))
-                               for k in ("parameters_mm", "unexplained_mm", "extrapolation_mm")}
-        if registration is not None:
-            on = sets == "sample"
-            ur = u95(model, data.subset(on), stated, sampled)["u95_mm"]
-            registration["coverage_95"] = coverage(np.linalg.norm(meas[on] - pred[on], axis=1), ur)
+        _with_stated(out, model, data, sets, ev, stated, sampled, e, a if measured_R is not None else None, meas, pred)
     return out
+
+
+def _register(sets, meas, pred, meas_R):
+    """The measured points (n, 3) mm and frames (n, 3, 3) (``meas_R``, or None) moved by the rigid transform
+    that best takes the ``sample`` poses' measurements onto the predictions ``pred`` (n, 3) mm, and the
+    registration's document."""
+    on = sets == "sample"
+    if not on.any():
+        raise ValueError("--register needs sample poses to register on: this campaign has none (a validation "
+                         "set, every pose target); without --register the model is applied to it as measured")
+    if on.sum() < 3:
+        raise ValueError("--register needs at least 3 sample poses in the campaign to estimate the "
+                         "tracker-to-base transform on")
+    R, t = rigid_fit(meas[on], pred[on])
+    meas = apply(R, t, meas)
+    if meas_R is not None:
+        meas_R = np.einsum("ij,njk->nik", R, meas_R)
+    registration = {"on": "sample", "n": int(on.sum()), "rotation_deg": float(rotation_angle_deg(R)),
+                    "translation_mm": np.asarray(t).tolist(), "matrix": np.asarray(to_matrix(R, t)).tolist()}
+    return meas, meas_R, registration
+
+
+def _with_stated(out, model, data, sets, ev, stated, sampled, e, a, meas, pred) -> None:
+    """Each evaluated point's ``u95_mm`` (and ``u95_arcsec``) and the coverage of the errors ``e`` (mm) and
+    ``a`` (arcsec, None without orientations) by them, added to ``out`` (:func:`predict_campaign`)."""
+    from .uncertainty import P95, coverage, u95
+
+    u = u95(model, data.subset(ev), stated, sampled)
+    for point, v in zip(out["points"], u["u95_mm"]):
+        point["u95_mm"] = float(v)
+    if "u95_arcsec" in u and a is not None:
+        for point, v in zip(out["points"], u["u95_arcsec"]):
+            point["u95_arcsec"] = float(v)
+        out["orientation_coverage_95"] = coverage(a, u["u95_arcsec"])
+        out["u95_arcsec"] = float(np.mean(u["u95_arcsec"]))
+        out["orientation_error_p95_arcsec"] = float(np.quantile(a, P95))
+    out["coverage_95"] = coverage(e, u["u95_mm"])
+    out["u95_mm"] = float(np.mean(u["u95_mm"]))
+    out["error_p95_mm"] = float(np.quantile(e, P95))
+    out["u95_parts_mm"] = {k: float(np.sqrt(np.mean(u[k] ** 2)))
+                           for k in ("parameters_mm", "unexplained_mm", "extrapolation_mm")}
+    if out["registration"] is not None:
+        on = sets == "sample"
+        ur = u95(model, data.subset(on), stated, sampled)["u95_mm"]
+        out["registration"]["coverage_95"] = coverage(np.linalg.norm(meas[on] - pred[on], axis=1), ur)
 
 
 def _silent(message: str) -> None:

@@ -21,7 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibrate import START_WEIGHT_MM_PER_MRAD, Design, RobotErrorModel, _empty_data, angle_arcsec, orientation_errors
+from ...core.se3 import angle_arcsec, orientation_errors
+from .design import Design
+from .estimator import RobotErrorModel, empty_data
+from .weighting import START_WEIGHT_MM_PER_MRAD
 from ..arm.effects import REFERENCE_TEMPERATURE_C, RobotData, effect_class
 
 #: the effects a rigid chain (URDF, UR's DH, the ROS driver's YAML) carries
@@ -112,7 +115,7 @@ def own_chain(robot, model) -> RobotErrorModel:
     """The model's own geometry, base and tool as a model of its own (defaults where it has none)."""
     effects = chain_effects(getattr(model, "effects_", model.effects))
     by = {p["name"]: p for p in model.parameters()}
-    d = Design(robot, effects, _empty_data(robot))
+    d = Design(robot, effects, empty_data(robot))
     params = [by.get(n, {"name": n, "value": 0.0, "unit": u, "fixed": True}) for n, (u, _) in zip(d.names, d.units)]
     return RobotErrorModel.from_parameters(robot, effects, params)
 
@@ -153,7 +156,7 @@ def fit_rigid_chain(robot, model, data: RobotData, with_tables: bool = False) ->
     else:
         at.measured_mm = full
         at.measured_R = R_full
-        w = (getattr(model, "_weight", None) or START_WEIGHT_MM_PER_MRAD) if oriented else None
+        w = (getattr(model, "weight_", None) or START_WEIGHT_MM_PER_MRAD) if oriented else None
         chain, exact = RobotErrorModel(robot, chain_effects(getattr(model, "effects_", model.effects)),
                                        solver="gauss-newton", orientation_weight=w).fit(at), False
     if oriented:

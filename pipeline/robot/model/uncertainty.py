@@ -2,8 +2,8 @@
 the pairs that trade with each other, and each predicted point's 95 % radius ``u95_mm``.
 
 **Parameters.** The fit moves the parameters ``x`` in the span of its fitted directions ``B``
-(``x = B z``, :meth:`pipeline.robot.model.calibrate.RobotErrorModel.fit`: the identified parameters,
-redundant combinations held nearest the nominal robot by :func:`~pipeline.robot.model.calibrate.physical_subspace`,
+(``x = B z``, :meth:`pipeline.robot.model.estimator.RobotErrorModel.fit`: the identified parameters,
+redundant combinations held nearest the nominal robot by :func:`~pipeline.robot.model.identify.physical_subspace`,
 parameters left at nominal outside it). At the solution, with ``A = [J B; Pen B]`` (the Jacobian of the
 position residuals in the fitted directions, and the effects' penalty rows), the least-squares
 covariance is
@@ -54,6 +54,8 @@ import re
 
 import numpy as np
 
+from ...core.se3 import ARCSEC_PER_MRAD_EXACT, ARCSEC_PER_RAD
+
 #: The probability of the stated radius
 P95 = 0.95
 #: Pairs of parameters correlated beyond this are listed (contract section 14)
@@ -62,8 +64,6 @@ CORRELATION_LIMIT = 0.9
 #: whole unexplained scatter (as that joint's angle) at this many sampled widths beyond it
 #: (:func:`extrapolation_covariance`); further, it stays there.
 EXTRAPOLATION_WIDTHS = 1.0
-ARCSEC_PER_RAD = 180.0 / np.pi * 3600.0
-ARCSEC_PER_MRAD = ARCSEC_PER_RAD / 1000.0
 #: Singular values of the column-scaled fitted Jacobian below this (relative) are left out of the
 #: covariance (directions the fit could not move: none, normally)
 COVARIANCE_RCOND = 1e-12
@@ -85,8 +85,7 @@ def model_jacobian(model, data, columns=None) -> np.ndarray:
 
 def moving(cov) -> np.ndarray:
     """The parameters a covariance (p, p) holds, (p,) bool: a parameter left at nominal has an exactly zero
-    row and column, and adds nothing to ``J C J^T`` (its Jacobian columns need not be made: 293 of the 866
-    of Series A's loop model)."""
+    row and column, and adds nothing to ``J C J^T`` (its Jacobian columns need not be made)."""
     return np.any(np.asarray(cov) != 0.0, axis=0)
 
 
@@ -105,7 +104,7 @@ def parameter_covariance(model, data) -> dict:
     dict: ``covariance`` (p, p) internal units, ``sigma_mm`` (s, per coordinate, mm), ``dof`` (fitted
     degrees of freedom), ``n_obs`` (3 n).
     """
-    from .calibrate import DENSE_SVD_MAX, gram, scaled_svd
+    from .normal import DENSE_SVD_MAX, gram, scaled_svd
 
     d = model.design(data)
     B = np.asarray(model.basis_, float)
@@ -129,9 +128,9 @@ def parameter_covariance(model, data) -> dict:
         U, sv, Vt = U[:, live], sv[live], Vt[live]
         dof = float(np.sum(U[:n_obs] ** 2))
     else:
-        # a large campaign: the same sv and V from the sparse Jacobian, block of rows by block (the dense
-        # J (6 n, p) and U (6 n, k) of 12,000 6-DoF poses were 1.2 GB more), and the data rows' share of
-        # each direction as 1 less the penalty rows' (U's columns are unit vectors)
+        # a large campaign: the same sv and V from the sparse Jacobian, block of rows by block (no dense J or
+        # U: docs/speed.md), and the data rows' share of each direction as 1 less the penalty rows' (U's
+        # columns are unit vectors)
         if d.oriented:
             _, r, Js = d.residual_and_sparse_jacobian(model.coef_)
         else:
@@ -205,14 +204,14 @@ def prediction_covariance(J, cov) -> np.ndarray:
     return np.concatenate([np.matmul(JC, Jc.transpose(0, 2, 1)) for Jc, JC in _times_cov(J, cov)])
 
 
-#: poses a block of :func:`_times_cov` (12,000 poses x 6 rows x 876 parameters would be 0.5 GB at once)
+#: poses a block of :func:`_times_cov`: a large campaign's products are not made at once (docs/speed.md)
 _BLOCK = 2048
 
 
 def _times_cov(J, cov):
     """``(J_i, J_i C)`` by blocks of poses: ``J C`` as one matrix product a block. numpy's einsum of the
-    three operands ``J, C, J`` sums over both parameter indices at once, (m p)^2 products a pose: 40 times
-    slower at 600 parameters (24 s for 1,109 poses)."""
+    three operands ``J, C, J`` sums over both parameter indices at once, (m p)^2 products a pose (far slower:
+    docs/speed.md)."""
     J = np.asarray(J, float)
     n, m, p = J.shape
     cov = np.asarray(cov, float)
@@ -486,7 +485,7 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
         ro = np.linalg.norm(np.asarray(cv_orientation, float), axis=1)
         bo = radius95(at_o + Uo)
         pred["unexplained_orientation_mrad2"] = Uo.tolist()
-        pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD
+        pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD_EXACT
         pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
         pred["method_orientation"] = ("u95_arcsec: the same for the probe frame's orientation (its rows of the "
                                       "prediction Jacobian, the cross-validation's orientation errors, the joints' "
@@ -562,7 +561,7 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
         So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
             data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"], stated.get("spread_rad"),
             Jturn=joint_jacobian(model, data, turn=True))
-        out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD
+        out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD_EXACT
     return out
 
 

@@ -19,7 +19,7 @@ from ...core.spec import _locate
 from ...core.tables import FLOAT, STR, read_table
 from ..arm.kinematics import PAPER_JOINTS, directions_from_sequence
 from ..campaign.ingest import has_gratings, robot_data
-from ..model.calibrate import calibrate_mdh
+from ..model.estimator import calibrate_mdh
 from ..model.chebyshev import cross_check_problems, identify, model_from_json
 from ..model.fit import fit_problems, stage_effects
 from ..model.lm import lm_options_problem

@@ -30,7 +30,7 @@ from ..robot.model.budget import N_BOX, box_configurations  # noqa: F401 (re-exp
 from ..robot.model import normal
 from ..core.se3 import orientation_errors
 from ..robot.model.design import Design
-from ..robot.model.identify import WEAK_TOL
+from ..robot.model.identify import WEAK_TOL, penalty_rows
 from ..robot.model.weighting import start_weight
 from ..robot.model.estimate import fit_effects
 from ..robot.arm.kinematics import pose_jacobians, positions_and_jacobians
@@ -437,13 +437,6 @@ class LinearProblem:
 
 
 def _penalty(robot, effects, n_poses, p):
-    rows, off = [], 0
-    for e in effects:
-        k = len(e.parameter_names(robot))
-        pen = e.penalty(robot, n_poses)
-        if pen is not None:
-            row = np.zeros((pen.shape[0], p))
-            row[:, off:off + k] = pen
-            rows.append(row)
-        off += k
-    return np.vstack(rows) if rows else None
+    """The effects' penalty rows (:func:`pipeline.robot.model.identify.penalty_rows`), None when none."""
+    rows, _ = penalty_rows(robot, effects, n_poses, p)
+    return rows if len(rows) else None

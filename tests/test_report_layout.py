@@ -307,3 +307,16 @@ def test_diagnosis_report_of_a_users_seven_joint_arm(recorder, seven_joint_arm, 
     pages = check_report(recorder, write)
     assert result["r"].exit_code == 0, result["r"].output
     assert "backlash joint 2" in pages[0][1]["text"]      # the hidden effect, named on the first page
+
+
+def test_a_long_title_keeps_two_lines_its_start_and_its_end():
+    """An appendix title naming a deep folder (a user's campaign) is cut in its middle, not wrapped onto
+    the text below it; a title that fits two lines is left as it is."""
+    from pipeline.core.plotting import fit_lines, fit_text
+
+    long = "Appendix 1: Diagnosis of " + "/very/deep" * 20 + "/campaigns/east: candidates, evidence"
+    out = fit_lines(long, 7.3, 12)
+    assert out.count("\n") == 1 and "..." in out
+    assert out.startswith("Appendix 1: Diagnosis of /very") and out.endswith("candidates, evidence")
+    short = "Appendix 3: Diagnosis of raw/robot/kr210: candidates, evidence, what cannot be revealed"
+    assert fit_lines(short, 7.3, 12) == fit_text(short, 7.3, 12)

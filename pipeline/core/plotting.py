@@ -115,7 +115,7 @@ def _text_pages(pages, title, lines, fontsize):
     for k, chunk in enumerate(chunks):
         fig = plt.figure(figsize=A4)
         t = title if len(chunks) == 1 else f"{title} ({k + 1}/{len(chunks)})"
-        fig.text(0.06, 0.965, fit_text(t, 0.88 * A4[0], 12), fontsize=12, weight="bold", va="top")
+        fig.text(0.06, 0.965, fit_lines(t, 0.88 * A4[0], 12), fontsize=12, weight="bold", va="top")
         fig.text(0.06, 0.925, "\n".join(chunk), family="monospace", fontsize=fontsize, va="top")
         pages.savefig(fig)
         plt.close(fig)
@@ -131,6 +131,19 @@ def text_page(pdf, title: str, lines, fontsize=9):
 
 
 # ------------------------------------------------------------------------------ layout helpers
+def fit_lines(text: str, width_in: float, fontsize: float, lines: int = 2, em: float = 0.55) -> str:
+    """:func:`fit_text` of ``text`` on at most ``lines`` lines: when it takes more, its middle is left
+    out ("...") until it fits, so a long folder name in a title keeps its start and its end and the
+    title stays clear of what is drawn below it."""
+    out = fit_text(text, width_in, fontsize, em)
+    keep = len(text)
+    while out.count("\n") >= lines and keep > 10:
+        keep -= max(1, keep // 20)
+        head = keep // 2
+        out = fit_text(text[:head] + "..." + text[len(text) - (keep - head):], width_in, fontsize, em)
+    return out
+
+
 def fit_text(text: str, width_in: float, fontsize: float, em: float = 0.55) -> str:
     """``text`` wrapped on words to lines that fit ``width_in`` inches at ``fontsize`` points
     (``em``: a proportional font's mean character width in em)."""

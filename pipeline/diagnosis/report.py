@@ -55,6 +55,16 @@ def _fmt_target(target) -> str:
     return "-" if target is None else str(target)
 
 
+#: characters of a campaign's name a figure title keeps (a user's deep folder: its last ones)
+NAME_CHARS = 40
+
+
+def _short(name: str) -> str:
+    """``name``, or its last ``NAME_CHARS`` characters after "..." (a title must fit its page)."""
+    name = str(name)
+    return name if len(name) <= NAME_CHARS else "..." + name[-(NAME_CHARS - 3):]
+
+
 def _label(c) -> str:
     """``direction``, ``harmonic order 13``, ``backlash joint 2``, ``joint_harmonic joint 3 order 8``
     (contract: target is the order of a harmonic, else the 1-based joint)."""
@@ -375,7 +385,7 @@ def _residual_pages(pdf, result, adapter, base, data, base_effects=(), name=None
         for ax in axes[len(page):]:
             ax.set_visible(False)
         suffix = "" if len(pages) == 1 else f" ({p + 1}/{len(pages)})"
-        head = fit_text(f"{name + ': ' if name else ''}baseline {what} against every signature{suffix}",
+        head = fit_text(f"{_short(name) + ': ' if name else ''}baseline {what} against every signature{suffix}",
                         0.92 * A4[0], 10)
         fig.suptitle(head, fontsize=10)
         H = 1.0 + 3.4 * rows
@@ -493,7 +503,7 @@ def _signature_page(pdf, result, adapter, data, base, runs, name=None):
             rms = float(np.sqrt(np.mean(np.sum(np.asarray(res, float).reshape(len(res), -1) ** 2, axis=1))))
             ax.set_title(f"{title}: held-out RMS {rms:.4g} {unit}", fontsize=8.5)
         axl.set_ylabel(f"residual{comp} ({unit})")
-    head = fit_text(f"{name + ': ' if name else ''}each recommended effect next to the residual it explains",
+    head = fit_text(f"{_short(name) + ': ' if name else ''}each recommended effect next to the residual it explains",
                     0.92 * A4[0], 10)
     fig.suptitle(head, fontsize=10)
     fig.tight_layout(rect=(0, 0.5 / H, 1, 1 - (0.3 + 0.17 * head.count("\n")) / H))
@@ -548,7 +558,7 @@ def _candidates_page(pdf, result, name=None):
         sub = (f"\nmeaningful: gain >= {100 * th['min_gain']:.3g} % and p <= alpha/N = {th['alpha']:g}/{len(cands)}"
                f" = {th['p_max']:.2g} (Bonferroni)")
     more = f" (the first {len(cands)} of {len(every)}; every one in the appendix)" if len(every) > len(cands) else ""
-    ax.set_title(fit_text(f"{name + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}",
+    ax.set_title(fit_text(f"{_short(name) + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}",
                           0.85 * A4[0], 10), fontsize=10)
     fig.tight_layout(rect=(0, 0.9 / height, 1, 1))
     caption(fig, "Blue bars are the effects to add: they lower the held-out error beyond noise." + sub.replace("\n", " ")
@@ -640,7 +650,7 @@ def _waterfall_page(pdf, result, steps, base_effects, suggested=(), name=None):
                 + ("; light blue: the next meaningful ones added after it, in turn." if len(suggested) > 1 else "."))
     else:
         note = "No meaningful candidate: nothing to add."
-    ax.set_title(fit_text(f"{name + ': ' if name else ''}held-out error as each effect of the spec is added in turn",
+    ax.set_title(fit_text(f"{_short(name) + ': ' if name else ''}held-out error as each effect of the spec is added in turn",
                           0.85 * A4[0], 10), fontsize=10)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     caption(fig, f"Each bar is the cross-validated RMS ({result['baseline'].get('folds', '')}) with the effects up to "

@@ -320,3 +320,26 @@ def test_a_long_title_keeps_two_lines_its_start_and_its_end():
     assert out.startswith("Appendix 1: Diagnosis of /very") and out.endswith("candidates, evidence")
     short = "Appendix 3: Diagnosis of raw/robot/kr210: candidates, evidence, what cannot be revealed"
     assert fit_lines(short, 7.3, 12) == fit_text(short, 7.3, 12)
+
+
+def test_a_title_centred_over_a_narrow_axes_is_wrapped_onto_the_page():
+    """An axes pushed right by long tick labels: its long title, centred over it, reached past the page's
+    right edge; title_on_page wraps it to fit there and leaves a title that fits as it is."""
+    from pipeline.core.plotting import fit_text, plt, title_on_page
+
+    fig, ax = plt.subplots(figsize=(8.27, 5))
+    ax.barh([0, 1], [1, 2])
+    ax.set_yticks([0, 1])
+    ax.set_yticklabels(["a very long candidate label of an effect", "another long one"])
+    head = "a campaign folder: cross-validated gain of adding each candidate effect (the first 30 of 135; every one)"
+    ax.set_title(fit_text(head, 0.85 * 8.27, 10), fontsize=10)
+    fig.tight_layout()
+    r = fig.canvas.get_renderer()
+    assert ax.title.get_window_extent(r).x1 > fig.bbox.width          # the fault, as drawn before
+    title_on_page(fig, ax, head, 10)
+    box = ax.title.get_window_extent(r)
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width
+    before = ax.title.get_text()
+    title_on_page(fig, ax, head, 10)
+    assert ax.title.get_text() == before
+    plt.close(fig)

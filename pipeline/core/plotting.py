@@ -151,6 +151,21 @@ def fit_text(text: str, width_in: float, fontsize: float, em: float = 0.55) -> s
     return "\n".join(textwrap.fill(part, chars, break_on_hyphens=False) for part in str(text).split("\n"))
 
 
+def title_on_page(fig, ax, text: str, fontsize: float, rect=(0, 0, 1, 1)) -> None:
+    """After ``fig.tight_layout(rect=rect)``: when ``ax``'s title (``text``, centred over the axes) reaches
+    past the figure's edges, wrap it to the widest line that fits centred there and lay the figure out
+    again; a title that fits is left as it is."""
+    renderer = fig.canvas.get_renderer()
+    box, width_px = ax.title.get_window_extent(renderer), fig.bbox.width
+    if box.x0 >= 0 and box.x1 <= width_px:
+        return
+    pos = ax.get_position()
+    centre = (pos.x0 + pos.x1) / 2
+    fits_in = 2 * min(centre, 1 - centre) * fig.get_figwidth() * 0.95
+    ax.set_title(fit_text(" ".join(text.split("\n")), fits_in, fontsize), fontsize=fontsize)
+    fig.tight_layout(rect=rect)
+
+
 def caption(fig, text: str, y: float = 0.012, fontsize: float = 8.5) -> None:
     """A caption sentence at the foot of a figure: what to see."""
     w = fig.get_figwidth()

@@ -34,7 +34,7 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ..core.plotting import caption, fit_text, pdf_pages, plt, save, summary_page, text_page
+from ..core.plotting import caption, fit_text, pdf_pages, plt, save, summary_page, text_page, title_on_page
 from .engine import done_text, label, target_text, verified_text, waterfall
 
 A4 = (8.27, 11.69)
@@ -558,9 +558,10 @@ def _candidates_page(pdf, result, name=None):
         sub = (f"\nmeaningful: gain >= {100 * th['min_gain']:.3g} % and p <= alpha/N = {th['alpha']:g}/{len(cands)}"
                f" = {th['p_max']:.2g} (Bonferroni)")
     more = f" (the first {len(cands)} of {len(every)}; every one in the appendix)" if len(every) > len(cands) else ""
-    ax.set_title(fit_text(f"{_short(name) + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}",
-                          0.85 * A4[0], 10), fontsize=10)
+    head = f"{_short(name) + ': ' if name else ''}cross-validated gain of adding each candidate effect{more}"
+    ax.set_title(fit_text(head, 0.85 * A4[0], 10), fontsize=10)
     fig.tight_layout(rect=(0, 0.9 / height, 1, 1))
+    title_on_page(fig, ax, head, 10, rect=(0, 0.9 / height, 1, 1))
     caption(fig, "Blue bars are the effects to add: they lower the held-out error beyond noise." + sub.replace("\n", " ")
             + ".", y=0.1 / height)
     save(pdf, fig)
@@ -650,9 +651,10 @@ def _waterfall_page(pdf, result, steps, base_effects, suggested=(), name=None):
                 + ("; light blue: the next meaningful ones added after it, in turn." if len(suggested) > 1 else "."))
     else:
         note = "No meaningful candidate: nothing to add."
-    ax.set_title(fit_text(f"{_short(name) + ': ' if name else ''}held-out error as each effect of the spec is added in turn",
-                          0.85 * A4[0], 10), fontsize=10)
+    head = f"{_short(name) + ': ' if name else ''}held-out error as each effect of the spec is added in turn"
+    ax.set_title(fit_text(head, 0.85 * A4[0], 10), fontsize=10)
     fig.tight_layout(rect=(0, 0.1, 1, 1))
+    title_on_page(fig, ax, head, 10, rect=(0, 0.1, 1, 1))
     caption(fig, f"Each bar is the cross-validated RMS ({result['baseline'].get('folds', '')}) with the effects up to "
                  f"it; the change against the bar before is under each value. {note}")
     save(pdf, fig)

@@ -536,6 +536,61 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
     if problems:
         _refuse(campaign, '; '.join(problems), out)
     write_json(out, result)
+    _fit_console(out, result)
+
+
+def fit_robots(campaigns, spec, spec_path, out, keep_outliers=False, orientation=True):
+    """``jointcal fit`` with ``--campaign`` more than once: several campaigns of one robot fitted together
+    (:func:`pipeline.robot.model.campaigns.fit_campaigns`); the held-out errors of each campaign side by side."""
+    from ..core.files import provenance, write_json
+    from ..robot.campaign.ingest import campaign_files
+    from ..robot.model.campaigns import fit_campaigns
+    from ..robot.model.fit import fit_problems
+
+    _edge()
+
+    def warn(msg):
+        click.echo(f"jointcal: {msg}", err=True)
+
+    def progress(msg):
+        click.echo(f"  {msg}", err=True)
+
+    result = fit_campaigns(campaigns, spec, keep_outliers, warn, orientation=orientation, progress=progress)
+    result["provenance"] = provenance([f for c in campaigns for f in campaign_files(c)], spec_path)
+    problems = fit_problems(result)
+    if problems:
+        _refuse(", ".join(campaigns), '; '.join(problems), out)
+    write_json(out, result)
+    _fit_console(out, result)
+    click.echo(campaigns_table(result), err=True)
+
+
+def campaigns_table(result: dict) -> str:
+    """The held-out errors of each campaign of a fit of several, side by side (console lines)."""
+    entries = result.get("campaigns") or []
+    oriented = any("orientation_rms_after_arcsec" in (e.get("heldout") or {}) for e in entries)
+    head = f"  {'campaign':<28} {'frame':<16} {'sample':>6} {'target':>6} {'RMS before':>10} {'RMS after':>10} {'max after':>10}"
+    head += f" {'orient. RMS':>12}" if oriented else ""
+    lines = ["  held-out targets per campaign (mm" + (", orientation arcsec" if oriented else "") + "):", head]
+    rows = [(e["campaign"], "base" if e["index"] == 1 else f"campaign{e['index']}_*", e["n_sample"], e["n_target"],
+             e.get("heldout")) for e in entries]
+    h = result.get("heldout")
+    rows.append(("all campaigns", "", sum(e["n_sample"] for e in entries), sum(e["n_target"] for e in entries), h))
+    for name, frame, ns, nt, he in rows:
+        text = f"  {name:<28} {frame:<16} {ns:>6} {nt:>6} "
+        if he:
+            text += f"{he['rms_before_mm']:>10.3f} {he['rms_after_mm']:>10.4f} {he['after']['max_mm']:>10.3f}"
+            if oriented:
+                text += f" {he.get('orientation_rms_after_arcsec', float('nan')):>12.1f}"
+        else:
+            text += f"{'no targets':>10}"
+        lines.append(text)
+    return "\n".join(lines)
+
+
+def _fit_console(out, result: dict) -> None:
+    """The console lines of ``jointcal fit`` on robot campaigns: held-out errors, cross-validation,
+    identification, how sure."""
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
             f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "

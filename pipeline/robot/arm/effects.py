@@ -108,6 +108,9 @@ class RobotData:
         Stated 1-sigma uncertainty of each position (tracker.csv ``sigma_mm``), None when not stated.
     sigma_arcsec : ndarray, shape (n,), arcsec, or None
         Stated 1-sigma uncertainty of each orientation, per axis (``sigma_arcsec``).
+    campaign : ndarray of int, shape (n,), or None
+        Which campaign each pose was measured in (1-based, in the order given; contract section 15) when
+        several campaigns are fitted together; None for one campaign (every pose the first's).
     """
 
     q_deg: np.ndarray
@@ -122,6 +125,7 @@ class RobotData:
     measured_R: np.ndarray | None = None
     sigma_mm: np.ndarray | None = None
     sigma_arcsec: np.ndarray | None = None
+    campaign: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -137,7 +141,7 @@ class RobotData:
         out = RobotData(self.q_deg[mask], self.dir[mask], self.payload_kg[mask], self.temperature_c[mask],
                         self.torque_nm[mask], self.lower_deg, self.upper_deg, cut(self.measured_mm),
                         self.point_id[mask] if len(self.point_id) == self.n else self.point_id,
-                        cut(self.measured_R), cut(self.sigma_mm), cut(self.sigma_arcsec))
+                        cut(self.measured_R), cut(self.sigma_mm), cut(self.sigma_arcsec), cut(self.campaign))
         if hasattr(self, "grating_joints"):
             out.grating_joints = self.grating_joints
         return out
@@ -381,6 +385,65 @@ class Base(RobotEffect):
         """A 6-DoF probe's frames (n, 3, 3) in the turned base frame."""
         R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(hidden["rot_arcsec"]) / 3600))
         return np.einsum("ij,njk->nik", R, R_meas)
+
+
+class CampaignFrame(RobotEffect):
+    """One campaign's own tracker-to-base frame, when several campaigns of one robot are fitted together
+    (contract section 15): the 6-dof frame error of the poses of campaign ``campaign`` (1-based, in the order
+    the campaigns are given) beside the shared base. The fit adds one for every campaign after the first;
+    the first campaign's frame is the model's base frame (``base``). A spec does not name it."""
+
+    name = "campaign_frame"
+    allowed_params = ("campaign",)
+    diagnosis_order = 1
+    per_joint = False
+    acts_on = "a campaign's tracker frame"
+    compensable = False
+    compensation = "none needed on the robot: it is where that campaign's tracker stood, not the robot"
+    explanation = ("Each campaign measures the robot from its own tracker station: its points are in a frame of "
+                   "their own, shifted and turned from the first campaign's. The robot is one; each campaign "
+                   "after the first keeps its own rigid tracker-to-base frame, fitted with the robot's shared "
+                   "parameters.")
+    signature = "a constant offset plus a rotation of one campaign's positions, not the other campaigns'"
+
+    def index(self) -> int:
+        """The campaign (1-based) whose frame this is."""
+        return int(self.params.get("campaign", 2))
+
+    def check(self):
+        problems = super().check()
+        k = self.params.get("campaign", 2)
+        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
+            problems.append("effect 'campaign_frame': campaign must be the number (2, 3, ...) of a campaign after "
+                            "the first")
+        return problems
+
+    def target(self):
+        return None
+
+    @classmethod
+    def candidates(cls, data, present):
+        """None: the fit adds a campaign's frame when it is given several campaigns, diagnosis never."""
+        return []
+
+    def parameter_names(self, robot):
+        return [f"campaign{self.index()}_{t}" for t in TWIST]
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * 3
+
+    def typical_sizes(self, robot):
+        return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
+
+    def checked_values(self, robot, parameters, q_deg):
+        """Not a robot's error: what is left of one tracker registration (judged by the bounds of its unit)."""
+        return parameters
+
+    def basis(self, robot, idx, data):
+        own = getattr(data, "campaign", None)
+        # a pose of another campaign (or of a data set of one campaign: the first's) is not moved
+        mask = 0.0 if own is None else (np.asarray(own) == self.index()).astype(float)
+        return [[(c, 1e-3 * mask)] for c in idx.base]
 
 
 #: Typical size of the probe frame's turn on the flange (arcsec): a 6-DoF probe's mounting is known from
@@ -890,7 +953,7 @@ class JointMap(RobotEffect):
 
 
 #: the robot vocabulary, registered by pipeline.robot
-EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic, JointMap)
+EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic, JointMap, CampaignFrame)
 
 
 def effect_classes(registry=REGISTRY) -> list[type[RobotEffect]]:

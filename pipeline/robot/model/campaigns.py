@@ -1,0 +1,184 @@
+"""Several campaigns of one robot fitted together (contract section 15): ``jointcal fit --campaign A
+--campaign B ...``.
+
+The robot is one: every effect of the spec is shared by the campaigns. Each campaign was measured from
+its own tracker station, so each keeps its own tracker-to-base frame: the first campaign's frame is the
+model's base frame (the spec's ``base`` effect, when it has one), and for every campaign after the first
+the fit adds a ``campaign_frame`` effect (:class:`pipeline.robot.arm.effects.CampaignFrame`: six
+parameters, that campaign's shift and turn from the first's). The frame is an effect like any other:
+listed in the model's effects, fitted, given its uncertainty, and explained in words.
+
+Each campaign is read and registered on its own (its ``campaign.toml``, its nominal-consistency check), its
+wild measurements are found against its own flexible model (:mod:`pipeline.robot.model.outliers`), and its
+point ids need only be unique within it. The held-out results come per campaign (``campaigns``) beside
+the totals over every campaign (``heldout``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ...core.errors import InputError
+from ...core.effect import REGISTRY
+from ..campaign.ingest import robot_data_sets
+from .estimate import heldout_fit
+from .fit import check_spec_joints, robot_fit_result
+from .outliers import Wild, WildSearch, describe
+from .predict import outside_calibrated_range, outside_message, outside_range, same_robot_problem, sampled_range
+
+#: the effect that carries a campaign's own tracker frame (:class:`pipeline.robot.arm.effects.CampaignFrame`)
+CAMPAIGN_FRAME = "campaign_frame"
+
+
+def _silent(message: str) -> None:
+    pass
+
+
+def check_distinct(campaigns) -> None:
+    """Refuse a campaign folder given twice (one line naming its poses.csv)."""
+    seen = {}
+    for c in campaigns:
+        key = Path(c).resolve()
+        if key in seen:
+            raise InputError(Path(c) / "poses.csv", f"the campaign {c} is given twice (--campaign {seen[key]} already "
+                             "names it): each campaign once", None, None)
+        seen[key] = c
+
+
+def campaign_frames(n_campaigns: int) -> list:
+    """The ``campaign_frame`` effects of campaigns 2..n (the first campaign's frame is the model's base)."""
+    return [REGISTRY.make("robot", CAMPAIGN_FRAME, campaign=k) for k in range(2, n_campaigns + 1)]
+
+
+def stacked(parts, index: int = 1):
+    """One :class:`~pipeline.robot.arm.effects.RobotData` of the campaigns' data sets ``parts`` (in order),
+    each pose marked with its campaign (``campaign``, 1-based from ``index``)."""
+    def cat(name):
+        arrays = [getattr(p, name) for p in parts]
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    first = parts[0]
+    out = replace(first, q_deg=cat("q_deg"), dir=cat("dir"), payload_kg=cat("payload_kg"),
+                  temperature_c=cat("temperature_c"), torque_nm=cat("torque_nm"), measured_mm=cat("measured_mm"),
+                  point_id=cat("point_id"), measured_R=cat("measured_R"), sigma_mm=cat("sigma_mm"),
+                  sigma_arcsec=cat("sigma_arcsec"),
+                  campaign=np.concatenate([np.full(p.n, index + k, int) for k, p in enumerate(parts)]))
+    joints = {tuple(getattr(p, "grating_joints", ())) for p in parts}
+    out.grating_joints = joints.pop() if len(joints) == 1 else ()
+    return out
+
+
+def load_campaigns(campaigns):
+    """Each campaign read, registered and checked to be of the first's robot.
+
+    Returns
+    -------
+    robot : Robot (the first campaign's)
+    loaded : list of ``(folder, sample, target, frame_info)``, in the order given
+    """
+    check_distinct(campaigns)
+    robot, loaded = None, []
+    for c in campaigns:
+        r, (sample, target), info = robot_data_sets(c, ("sample",), ("target",), with_frame=True)
+        if robot is None:
+            robot = r
+        else:
+            why = same_robot_problem(robot, r)
+            if why:
+                why = why.replace("in the model's robot", f"in {campaigns[0]}'s robot").replace(
+                    "in the model", f"in {campaigns[0]}").replace("a model applies to the robot it was fitted on",
+                                                                  "the campaigns fitted together must be of one robot")
+                raise InputError(Path(c) / "robot.toml", f"not the robot of {campaigns[0]}: {why}", None, None)
+        if sample.has_orientation != (loaded[0][1].has_orientation if loaded else sample.has_orientation):
+            raise InputError(Path(c) / "tracker.csv", "this campaign's tracker.csv has orientations (qw..qz) and "
+                             f"{campaigns[0]}'s has not, or the other way round: fit campaigns of one kind together",
+                             1, None)
+        loaded.append((str(c), sample, target, info))
+    return robot, loaded
+
+
+def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, orientation: bool = True,
+                  progress=_silent) -> dict:
+    """``jointcal fit`` with ``--campaign`` given more than once (module docstring).
+
+    Parameters
+    ----------
+    campaigns : list of path
+        Robot campaign folders of one robot, two or more, each once.
+    spec : Spec
+        The robot model; each campaign after the first adds its ``campaign_frame`` effect.
+    keep_outliers, warn, orientation, progress
+        As :func:`pipeline.robot.model.fit.fit_campaign`.
+
+    Returns
+    -------
+    dict: the fit document of :func:`pipeline.robot.model.fit.robot_fit_result` over every campaign's poses
+    (``heldout``: the totals), with ``campaigns``: per campaign, in the order given, ``{"campaign", "frame",
+    "n_sample", "n_target", "heldout", "outliers"}``; wild measurements carry their ``campaign``.
+    """
+    spec.require_kind("robot", campaigns[0])
+    robot, loaded = load_campaigns(campaigns)
+    check_spec_joints(spec, robot)
+    for c, sample, target, _ in loaded:
+        if sample.n == 0:
+            raise InputError(Path(c) / "poses.csv", "no pose has set = sample: a campaign fitted with others needs "
+                             "sample poses of its own (its tracker frame is fitted on them)", 1, "set")
+        outside = outside_calibrated_range(sample.q_deg, target.q_deg, target.point_id) if target.n else []
+        if outside:
+            warn(f"warning: {c}: {outside_message(outside, worst=True)}")
+    # each campaign's wild measurements, against its own flexible model (as when it is fitted alone)
+    wilds = []
+    for c, sample, target, _ in loaded:
+        wild = WildSearch(robot, list(spec.effects), sample, target, c, keep_outliers, background=False).result()
+        if describe(wild):
+            warn(f"{c}: {describe(wild)}")
+        wilds.append(wild)
+    outliers = []
+    for k, ((c, *_), wild) in enumerate(zip(loaded, wilds)):
+        outliers += [{**o, "campaign": c} for o in wild.outliers]
+    wild = Wild(np.concatenate([w.sample for w in wilds]), np.concatenate([w.target for w in wilds]), outliers,
+                {c: w.sigma_mm for (c, *_), w in zip(loaded, wilds)}, keep_outliers,
+                "; ".join(f"{c}: {w.no_scale}" for (c, *_), w in zip(loaded, wilds) if w.no_scale))
+    sample = stacked([s for _, s, _, _ in loaded])
+    target = stacked([t for _, _, t, _ in loaded])
+    effects = list(spec.effects) + campaign_frames(len(loaded))
+    together = replace(spec, effects=effects)
+    out = robot_fit_result(campaigns[0], together, (robot, sample, target, loaded[0][3]), wild,
+                           orientation=orientation, warn=_silent, progress=progress)
+    out["campaign"] = str(campaigns[0])
+    out["campaigns"] = per_campaign(robot, effects, out, loaded, wilds, keep_outliers)
+    return out
+
+
+def per_campaign(robot, effects, out: dict, loaded, wilds, keep_outliers: bool) -> list[dict]:
+    """The fit's held-out results campaign by campaign (the model of ``out`` rebuilt from its parameters)."""
+    from .estimator import RobotErrorModel
+
+    model = RobotErrorModel.from_parameters(robot, [e for e in _fitted_effects(out, effects)], out["parameters"])
+    entries = []
+    for k, ((c, sample, target, info), wild) in enumerate(zip(loaded, wilds)):
+        s, t = (sample, target) if keep_outliers else wild.clean(sample, target)
+        s = stacked([s], index=k + 1)
+        t = stacked([t], index=k + 1) if t.n else t
+        entry = {"campaign": c, "index": k + 1, "frame": info,
+                 "frame_effect": CAMPAIGN_FRAME if k else "base", "n_sample": int(s.n), "n_target": int(t.n)}
+        if t.n:
+            h = heldout_fit(robot, effects, s, t, model=model)
+            h.pop("parameters", None)
+            h.pop("identifiability", None)
+            h["outside_sampled_range"] = int(outside_range(t.q_deg, sampled_range(s.q_deg)).sum())
+            entry["heldout"] = h
+        entry["outliers"] = [o for o in out.get("outliers", []) if o.get("campaign") == c]
+        entries.append(entry)
+    return entries
+
+
+def _fitted_effects(out: dict, effects):
+    """The fitted model's effects (as prepared for the fit: a joint map's grid) from the fit document."""
+    from ...core.spec import parse_spec
+
+    spec = parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(out["spec_effects"]) + "\n", "<fit>")
+    return list(spec.effects)

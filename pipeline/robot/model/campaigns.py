@@ -27,7 +27,7 @@ from ..campaign.ingest import robot_data_sets
 from .estimate import heldout_fit
 from .fit import check_spec_joints, robot_fit_result
 from .outliers import Wild, WildSearch, describe
-from .predict import outside_calibrated_range, outside_message, outside_range, same_robot_problem, sampled_range
+from .predict import outside_calibrated_range, outside_message, outside_range, same_robot_problem
 
 #: the effect that carries a campaign's own tracker frame (:class:`pipeline.robot.arm.effects.CampaignFrame`)
 CAMPAIGN_FRAME = "campaign_frame"
@@ -164,16 +164,51 @@ def per_campaign(robot, effects, out: dict, loaded, wilds, keep_outliers: bool) 
         s = stacked([s], index=k + 1)
         t = stacked([t], index=k + 1) if t.n else t
         entry = {"campaign": c, "index": k + 1, "frame": info,
+                 "tracker_to_base_fitted": fitted_tracker_to_base(robot, out["parameters"], k + 1, info["tracker_to_base"]),
                  "frame_effect": CAMPAIGN_FRAME if k else "base", "n_sample": int(s.n), "n_target": int(t.n)}
         if t.n:
             h = heldout_fit(robot, effects, s, t, model=model)
             h.pop("parameters", None)
             h.pop("identifiability", None)
-            h["outside_sampled_range"] = int(outside_range(t.q_deg, sampled_range(s.q_deg)).sum())
+            # outside the joint ranges the model was fitted on (every campaign's sample poses)
+            h["outside_sampled_range"] = int(outside_range(t.q_deg, out["sampled_range"]).sum())
             entry["heldout"] = h
         entry["outliers"] = [o for o in out.get("outliers", []) if o.get("campaign") == c]
         entries.append(entry)
     return entries
+
+
+def base_frame(robot, values_mm_arcsec) -> np.ndarray:
+    """The base frame (4x4, mm) the error model's base channels put at ``values_mm_arcsec`` (dx, dy, dz mm; ex, ey,
+    ez arcsec: a ``base`` effect's parameters, or those plus a ``campaign_frame``'s)."""
+    import pinocchio as pin
+
+    from ...core.se3 import ARCSEC_PER_RAD
+    from ..arm.kinematics import TWIST, build_error_model
+
+    model, idx = build_error_model(robot)
+    q = np.zeros(idx.nq)
+    v = np.asarray(values_mm_arcsec, float)
+    q[idx.base] = np.concatenate([v[:3] * 1e-3, v[3:] / ARCSEC_PER_RAD])
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    M = data.oMi[model.getJointId(f"base_{TWIST[-1]}")]
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = M.rotation, M.translation * 1e3
+    return T
+
+
+def fitted_tracker_to_base(robot, parameters, index: int, tracker_to_base) -> list:
+    """Campaign ``index``'s tracker frame in the model's base frame (4x4 list, mm): the transform its ingest
+    registered (``tracker_to_base``), then its ``campaign_frame`` (none for the first campaign): a point the
+    tracker of that campaign measured, in the frame the first campaign's tracker puts the robot's base."""
+    by = {p["name"]: float(p["value"]) for p in parameters}
+    from ..arm.kinematics import TWIST
+
+    shared = np.array([by.get(f"base_{t}", 0.0) for t in TWIST])
+    own = np.array([by.get(f"campaign{index}_{t}", 0.0) for t in TWIST]) if index > 1 else np.zeros(6)
+    T = base_frame(robot, shared) @ np.linalg.inv(base_frame(robot, shared + own)) @ np.asarray(tracker_to_base, float)
+    return [list(map(float, r)) for r in T]
 
 
 def _fitted_effects(out: dict, effects):

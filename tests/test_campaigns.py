@@ -217,3 +217,26 @@ def test_a_campaign_of_another_robot_is_refused(cells):
     (other / "robot.toml").write_text(text[:k] + f"a_mm = {value + 5.0}" + text[end:], encoding="utf-8")
     line = _refused(cells, cells["a"], other)
     assert f"{other}/robot.toml" in line and "one robot" in line
+
+
+def test_predict_each_campaign_in_its_own_frame(cells):
+    """predict --campaign more than once: each campaign's errors and the totals; a campaign the model was fitted on
+    is predicted in its own fitted frame, so its errors are the fit's held-out ones (the second station's would be
+    off by its whole frame otherwise)."""
+    fit, _ = _fit(cells, "ab3", cells["a"], cells["b"])
+    out = cells["root"] / "pred.json"
+    r = cells["run"]("predict", "--campaign", cells["a"], "--campaign", cells["b"], "--model",
+                     cells["root"] / "ab3.json", "--json", out)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    assert [c["campaign"] for c in doc["campaigns"]] == [str(cells["a"]), str(cells["b"])]
+    for c, e in zip(doc["campaigns"], fit["campaigns"]):
+        assert c["n"] == e["heldout"]["n_target"]
+        assert c["rms_mm"] == pytest.approx(e["heldout"]["rms_after_mm"], rel=1e-4)
+    assert doc["n"] == sum(c["n"] for c in doc["campaigns"]) == len(doc["points"])
+    assert {p["campaign"] for p in doc["points"]} == {str(cells["a"]), str(cells["b"])}
+    assert 0.0 < doc["coverage_95"] <= 1.0
+    # the same point ids in both campaigns: told apart by their campaign
+    ids = [(p["campaign"], p["point_id"]) for p in doc["points"]]
+    assert len(set(ids)) == len(ids) > len({p["point_id"] for p in doc["points"]})
+    assert "all campaigns" in r.output

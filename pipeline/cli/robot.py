@@ -588,6 +588,22 @@ def campaigns_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def predicted_table(json_out, result: dict) -> str:
+    """``jointcal predict`` on several campaigns: each campaign's errors side by side, and the totals."""
+    oriented = "orientation_rms_arcsec" in result
+    stated = "coverage_95" in result
+    head = f"  {'campaign':<28} {'evaluated':>10} {'RMS':>8} {'max':>8} {'outside':>8}"
+    head += (f" {'in u95':>7}" if stated else "") + (f" {'orient. RMS':>12}" if oriented else "")
+    lines = [f"{json_out}: {len(result['campaigns'])} campaigns (mm" + (", orientation arcsec" if oriented else "")
+             + "; outside: poses outside the sampled joint ranges; in u95: share within their u95_mm):", head]
+    for name, r in [(c["campaign"], c) for c in result["campaigns"]] + [("all campaigns", result)]:
+        text = f"  {name:<28} {r['n']:>10} {r['rms_mm']:>8.3f} {r['max_mm']:>8.3f} {r['outside_sampled_range']:>8}"
+        text += f" {100 * r['coverage_95']:>6.1f}%" if stated else ""
+        text += f" {r['orientation_rms_arcsec']:>12.1f}" if oriented else ""
+        lines.append(text)
+    return "\n".join(lines)
+
+
 def _fit_console(out, result: dict) -> None:
     """The console lines of ``jointcal fit`` on robot campaigns: held-out errors, cross-validation,
     identification, how sure."""
@@ -631,8 +647,9 @@ def _fit_console(out, result: dict) -> None:
 
 
 @click.command("predict")
-@click.option("--campaign", required=True, type=click.Path(),
-              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv).")
+@click.option("--campaign", "campaigns", required=True, multiple=True, type=click.Path(),
+              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv); more than "
+                   "once: each campaign's errors (`campaigns` in the JSON) and the totals over all of them.")
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="Fitted robot model (jointcal fit --campaign ... --out FIT.json).")
 @click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
@@ -644,7 +661,7 @@ def _fit_console(out, result: dict) -> None:
               help="A 6-DoF campaign: also the error of this point rigidly fixed to the probe (mm, probe frame; "
                    "e.g. \"0 0 300\" for a tool centre point 300 mm out along the probe's z), which the measured "
                    "probe frame observes exactly: point_rms_mm, point_max_mm, per point point_error_mm.")
-def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
+def predict_cmd(campaigns, model_path, json_out, register, keep_outliers, point):
     """Predict every pose of another campaign with a fitted model and compare with its tracker points.
 
     Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
@@ -653,7 +670,9 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
     of the campaign are named and left out of the registration and of those errors (``with_outliers``:
     the errors with the wild targets beside); see --keep-outliers. A campaign measured with a 6-DoF
     probe (tracker.csv qw..qz) also gets its orientation errors: the angle between the measured and
-    the predicted probe frames (orientation_rms_arcsec, orientation_max_arcsec, per point).
+    the predicted probe frames (orientation_rms_arcsec, orientation_max_arcsec, per point). A campaign the
+    model was fitted on together with others (jointcal fit --campaign A --campaign B) is predicted in its own
+    fitted tracker frame unless --register.
     """
     import numpy as np
 
@@ -675,6 +694,16 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
         if len(point_mm) != 3 or not np.all(np.isfinite(point_mm)):
             raise click.BadParameter(f"{point!r}: give three numbers in mm, \"X Y Z\" in the probe frame",
                                      param_hint="--point")
+    if len(campaigns) > 1:
+        from ..robot.model.campaigns import predict_campaigns
+
+        result = predict_campaigns(list(campaigns), _read_json(model_path), model_path, register, keep_outliers, warn,
+                                   point_mm)
+        result["provenance"] = provenance([f for c in campaigns for f in campaign_files(c)] + [model_path])
+        write_json(json_out, result)
+        click.echo(predicted_table(json_out, result), err=True)
+        return
+    campaign = campaigns[0]
     result = predict_other_campaign(campaign, _read_json(model_path), model_path, register, keep_outliers, warn,
                                     point_mm)
     result["provenance"] = provenance(campaign_files(campaign) + [model_path])

@@ -217,3 +217,43 @@ def _fitted_effects(out: dict, effects):
 
     spec = parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(out["spec_effects"]) + "\n", "<fit>")
     return list(spec.effects)
+
+
+def predict_campaigns(campaigns, document: dict, model_path, register: bool, keep_outliers: bool = False,
+                      warn=_silent, point_mm=None) -> dict:
+    """``jointcal predict`` with ``--campaign`` more than once: the model applied to each campaign as
+    :func:`pipeline.robot.model.predict.predict_other_campaign` does (a campaign the model was fitted on, among
+    several, in its own fitted frame), and the totals over all of them.
+
+    Returns
+    -------
+    dict: the totals over every campaign's evaluated points (``n``, ``rms_mm``, ``max_mm``, ``mean_mm``,
+    ``std_mm``, ``outside_sampled_range``; ``coverage_95`` and ``u95_mm`` when the model states its
+    uncertainty; 6-DoF: ``orientation_n``, ``orientation_rms_arcsec``, ``orientation_max_arcsec``), ``points``
+    (each with its ``campaign``), ``outliers`` (each with its ``campaign``) and ``campaigns``: each campaign's
+    own result, in the order given, with ``campaign`` (its folder).
+    """
+    from .predict import error_summary, predict_other_campaign
+
+    check_distinct(campaigns)
+    parts = []
+    for c in campaigns:
+        result = predict_other_campaign(c, document, model_path, register, keep_outliers,
+                                        lambda m, c=c: warn(f"{c}: {m}"), point_mm)
+        parts.append({"campaign": str(c), **result})
+    points = [{**p, "campaign": part["campaign"]} for part in parts for p in part["points"]]
+    e = np.array([p["error_mm"] for p in points], float)
+    out = error_summary(np.c_[e, np.zeros((e.size, 2))])
+    out["outside_sampled_range"] = int(sum(part["outside_sampled_range"] for part in parts))
+    if all("coverage_95" in part for part in parts):
+        u = np.array([p["u95_mm"] for p in points], float)
+        out["coverage_95"] = float(np.mean(e <= u))
+        out["u95_mm"] = float(np.mean(u))
+    if all("orientation_rms_arcsec" in part for part in parts):
+        a = np.array([p["orientation_error_arcsec"] for p in points], float)
+        out.update({"orientation_n": int(a.size), "orientation_rms_arcsec": float(np.sqrt(np.mean(a ** 2))),
+                    "orientation_max_arcsec": float(a.max())})
+    out["points"] = points
+    out["outliers"] = [{**o, "campaign": part["campaign"]} for part in parts for o in part.get("outliers", [])]
+    out["campaigns"] = parts
+    return out

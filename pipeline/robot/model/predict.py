@@ -364,13 +364,28 @@ def _silent(message: str) -> None:
     pass
 
 
+def own_campaign(document: dict, campaign):
+    """The entry of ``document``'s ``campaigns`` (a model fitted on several campaigns, contract section 15) that
+    is the folder ``campaign``; None when it is none of them (or the model was fitted on one campaign)."""
+    entries = document.get("campaigns") if isinstance(document, dict) else None
+    if not isinstance(entries, list):
+        return None
+    here = Path(campaign).resolve()
+    for e in entries:
+        if isinstance(e, dict) and isinstance(e.get("campaign"), str) and isinstance(e.get("index"), int) \
+                and isinstance(e.get("frame"), dict) and Path(e["campaign"]).resolve() == here:
+            return e
+    return None
+
+
 def predict_other_campaign(campaign, document: dict, model_path, register: bool, keep_outliers: bool = False,
                            warn=_silent, point_mm=None) -> dict:
     """``jointcal predict``: a fitted model (``document``, the JSON of ``jointcal fit --campaign`` read
     from ``model_path``) applied to every pose of another campaign of the same robot.
 
     Without ``register`` a tracker-frame campaign's points go through the fit campaign's
-    tracker-to-base transform (the tracker has not moved). The campaign's wild measurements are
+    tracker-to-base transform (the tracker has not moved); a campaign the model was fitted on among several
+    (:func:`own_campaign`) through its own transform and its own fitted frame (``campaign_frame``). The campaign's wild measurements are
     named (``warn``) and left out of the registration and of the errors (``with_outliers``: the
     errors with the wild targets beside) unless ``keep_outliers``. The result has no provenance.
     """
@@ -380,6 +395,11 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     problem = same_robot_problem(robot_m, robot)
     if problem:
         raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
+    own = own_campaign(document, campaign)
+    if own is not None and not register:
+        # one of the campaigns the model was fitted on (contract section 15): its own tracker frame
+        fit_frame = own["frame"]
+        data.campaign = np.full(data.n, int(own["index"]))
     meas, meas_R = data.measured_mm, data.measured_R
     if point_mm is not None and meas_R is None:
         raise InputError(Path(campaign) / "tracker.csv", "--point needs the probe's orientation (a 6-DoF probe: "

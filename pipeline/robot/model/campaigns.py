@@ -122,6 +122,7 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
     spec.require_kind("robot", campaigns[0])
     robot, loaded = load_campaigns(campaigns)
     check_spec_joints(spec, robot)
+    own = [e for e in spec.effects if e.name != CAMPAIGN_FRAME]
     for c, sample, target, _ in loaded:
         if sample.n == 0:
             raise InputError(Path(c) / "poses.csv", "no pose has set = sample: a campaign fitted with others needs "
@@ -132,7 +133,7 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
     # each campaign's wild measurements, against its own flexible model (as when it is fitted alone)
     wilds = []
     for c, sample, target, _ in loaded:
-        wild = WildSearch(robot, list(spec.effects), sample, target, c, keep_outliers, background=False).result()
+        wild = WildSearch(robot, own, sample, target, c, keep_outliers, background=False).result()
         if describe(wild):
             warn(f"{c}: {describe(wild)}")
         wilds.append(wild)
@@ -144,7 +145,8 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
                 "; ".join(f"{c}: {w.no_scale}" for (c, *_), w in zip(loaded, wilds) if w.no_scale))
     sample = stacked([s for _, s, _, _ in loaded])
     target = stacked([t for _, _, t, _ in loaded])
-    effects = list(spec.effects) + campaign_frames(len(loaded))
+    # a spec's own campaign_frame tables (a fit JSON's spec_effects given back as a spec) are the fit's to add
+    effects = own + campaign_frames(len(loaded))
     together = replace(spec, effects=effects)
     out = robot_fit_result(campaigns[0], together, (robot, sample, target, loaded[0][3]), wild,
                            orientation=orientation, warn=_silent, progress=progress)

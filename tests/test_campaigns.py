@@ -240,3 +240,9 @@ def test_predict_each_campaign_in_its_own_frame(cells):
     ids = [(p["campaign"], p["point_id"]) for p in doc["points"]]
     assert len(set(ids)) == len(ids) > len({p["point_id"] for p in doc["points"]})
     assert "all campaigns" in r.output
+
+
+def test_several_encoder_campaigns_are_refused(cells):
+    """--campaign more than once is for robot campaigns of one robot: an encoder campaign among them is named."""
+    line = _refused(cells, cells["a"], ROOT / "raw" / "encoder" / "a")
+    assert str(ROOT / "raw" / "encoder" / "a") in line and "not a robot campaign" in line

@@ -246,3 +246,18 @@ def test_several_encoder_campaigns_are_refused(cells):
     """--campaign more than once is for robot campaigns of one robot: an encoder campaign among them is named."""
     line = _refused(cells, cells["a"], ROOT / "raw" / "encoder" / "a")
     assert str(ROOT / "raw" / "encoder" / "a") in line and "not a robot campaign" in line
+
+
+def test_a_campaign_with_its_own_probe_mounting_is_refused_in_one_line(cells):
+    """A campaign whose robot.toml states another probe mounting is named (not fitted as the first's tool)."""
+    other = cells["root"] / "other_tool"
+    shutil.copytree(cells["b"], other)
+    text = (other / "robot.toml").read_text(encoding="utf-8")
+    import re
+
+    m = re.search(r"(?m)^xyz_mm\s*=\s*\[([^\]]*)\]", text)
+    xyz = [float(v) for v in m.group(1).split(",")]
+    xyz[2] += 3.0
+    (other / "robot.toml").write_text(text[:m.start()] + f"xyz_mm = {xyz}" + text[m.end():], encoding="utf-8")
+    line = _refused(cells, cells["a"], other)
+    assert f"{other}/robot.toml" in line and "probe" in line and "xyz_mm" in line

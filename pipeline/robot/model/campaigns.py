@@ -87,10 +87,14 @@ def load_campaigns(campaigns):
             robot = r
         else:
             why = same_robot_problem(robot, r)
+            if why.startswith("tool"):
+                what = why.split(" here")[0]
+                raise InputError(Path(c) / "robot.toml", f"this campaign's probe is mounted otherwise than "
+                                 f"{campaigns[0]}'s ({what} here): campaigns with a probe mounting of their own cannot "
+                                 "be fitted together yet (one robot, one mounting); fit them apart", None, None)
             if why:
                 why = why.replace("in the model's robot", f"in {campaigns[0]}'s robot").replace(
-                    "in the model", f"in {campaigns[0]}").replace("a model applies to the robot it was fitted on",
-                                                                  "the campaigns fitted together must be of one robot")
+                    "a model applies to the robot it was fitted on", "the campaigns fitted together must be of one robot")
                 raise InputError(Path(c) / "robot.toml", f"not the robot of {campaigns[0]}: {why}", None, None)
         if sample.has_orientation != (loaded[0][1].has_orientation if loaded else sample.has_orientation):
             raise InputError(Path(c) / "tracker.csv", "this campaign's tracker.csv has orientations (qw..qz) and "

@@ -248,16 +248,44 @@ def test_several_encoder_campaigns_are_refused(cells):
     assert str(ROOT / "raw" / "encoder" / "a") in line and "not a robot campaign" in line
 
 
-def test_a_campaign_with_its_own_probe_mounting_is_refused_in_one_line(cells):
-    """A campaign whose robot.toml states another probe mounting is named (not fitted as the first's tool)."""
-    other = cells["root"] / "other_tool"
-    shutil.copytree(cells["b"], other)
-    text = (other / "robot.toml").read_text(encoding="utf-8")
+def test_a_campaign_with_its_own_probe_mounting_keeps_it(cells):
+    """A campaign whose probe was mounted elsewhere (its robot.toml's [tool] says where; here the SMR 3 mm further
+    out along the flange's x and 2 mm along z, its points measured there) fits with the others: its own mounting is
+    taken as stated, its own mounting error fitted (``campaign_tool``, near zero: the SMR moved exactly as stated),
+    and its held-out errors are those of the same poses measured with the first campaign's mounting."""
     import re
 
+    from pipeline.robot.arm.kinematics import build_model, load_robot, placements
+
+    shift = np.array([3.0, 0.0, 2.0])
+    moved = cells["root"] / "b_tool_base"
+    shutil.copytree(cells["b_base"], moved)
+    robot = load_robot(moved / "robot.toml")
+    poses = pd.read_csv(moved / "poses.csv", dtype={"point_id": str})
+    tracker = pd.read_csv(moved / "tracker.csv", dtype={"point_id": str})
+    q = poses.set_index("point_id").loc[tracker["point_id"], [f"q{j}" for j in range(1, 7)]].to_numpy(float)
+    R, _ = placements(build_model(robot), np.deg2rad(q), "flange")
+    xyz = tracker[["x_mm", "y_mm", "z_mm"]].to_numpy(float) + np.einsum("nij,j->ni", R, shift)
+    tracker[["x_mm", "y_mm", "z_mm"]] = np.round(xyz, 4)
+    tracker.to_csv(moved / "tracker.csv", index=False)
+    text = (moved / "robot.toml").read_text(encoding="utf-8")
     m = re.search(r"(?m)^xyz_mm\s*=\s*\[([^\]]*)\]", text)
-    xyz = [float(v) for v in m.group(1).split(",")]
-    xyz[2] += 3.0
-    (other / "robot.toml").write_text(text[:m.start()] + f"xyz_mm = {xyz}" + text[m.end():], encoding="utf-8")
-    line = _refused(cells, cells["a"], other)
-    assert f"{other}/robot.toml" in line and "probe" in line and "xyz_mm" in line
+    tool = np.array([float(v) for v in m.group(1).split(",")]) + shift
+    (moved / "robot.toml").write_text(text[:m.start()] + f"xyz_mm = {tool.tolist()}" + text[m.end():], encoding="utf-8")
+    b_tool = _moved(moved, cells["root"] / "b_tool")
+    ref, _ = _fit(cells, "ab_ref", cells["a"], cells["b"])
+    doc, _ = _fit(cells, "ab_tool", cells["a"], b_tool)
+    assert "campaign_tool" in doc["effects"]
+    entry = doc["campaigns"][1]
+    assert entry["mounting"]["tool_xyz_mm"] == pytest.approx(tool.tolist())
+    own = {p["name"]: p for p in doc["parameters"] if p["name"].startswith("campaign2_tool_")}
+    assert len(own) == 3
+    # the SMR moved exactly as stated: its own mounting error is within its uncertainty of zero (and small)
+    assert all(abs(p["value"]) < max(3 * p["uncertainty"], 0.02) for p in own.values()), own
+    for a, b in zip(doc["campaigns"], ref["campaigns"]):
+        assert a["heldout"]["rms_after_mm"] == pytest.approx(b["heldout"]["rms_after_mm"], rel=0.05, abs=0.005)
+    # predict takes that campaign's mounting too (its errors are the fit's held-out ones)
+    out = cells["root"] / "pred_tool.json"
+    r = cells["run"]("predict", "--campaign", b_tool, "--model", cells["root"] / "ab_tool.json", "--json", out)
+    assert r.exit_code == 0, r.output
+    assert json.loads(out.read_text())["rms_mm"] == pytest.approx(entry["heldout"]["rms_after_mm"], rel=1e-4)

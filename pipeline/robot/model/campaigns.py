@@ -6,7 +6,9 @@ its own tracker station, so each keeps its own tracker-to-base frame: the first 
 model's base frame (the spec's ``base`` effect, when it has one), and for every campaign after the first
 the fit adds a ``campaign_frame`` effect (:class:`pipeline.robot.arm.effects.CampaignFrame`: six
 parameters, that campaign's shift and turn from the first's). The frame is an effect like any other:
-listed in the model's effects, fitted, given its uncertainty, and explained in words.
+listed in the model's effects, fitted, given its uncertainty, and explained in words. A campaign whose robot.toml
+states a probe mounting of its own keeps it (``RobotData.mounting_offset``) and gets a ``campaign_tool``
+effect: its own mounting error beside the shared ``tool``.
 
 Each campaign is read and registered on its own (its ``campaign.toml``, its nominal-consistency check), its
 wild measurements are found against its own flexible model (:mod:`pipeline.robot.model.outliers`), and its
@@ -31,6 +33,8 @@ from .predict import outside_calibrated_range, outside_message, outside_range, s
 
 #: the effect that carries a campaign's own tracker frame (:class:`pipeline.robot.arm.effects.CampaignFrame`)
 CAMPAIGN_FRAME = "campaign_frame"
+#: the effect that carries a campaign's own probe mounting error (:class:`pipeline.robot.arm.effects.CampaignTool`)
+CAMPAIGN_TOOL = "campaign_tool"
 
 
 def _silent(message: str) -> None:
@@ -53,19 +57,42 @@ def campaign_frames(n_campaigns: int) -> list:
     return [REGISTRY.make("robot", CAMPAIGN_FRAME, campaign=k) for k in range(2, n_campaigns + 1)]
 
 
-def stacked(parts, index: int = 1):
+def mounting_offset(robot, other) -> np.ndarray | None:
+    """The error model's tool channels (dx, dy, dz m; ex, ey, ez rad; :attr:`RobotData.mounting_offset`) that
+    put ``other``'s probe mounting (its robot.toml's ``[tool]``) in place of ``robot``'s; None when they are
+    the same."""
+    dxyz = (np.asarray(other.tool_xyz_mm, float) - np.asarray(robot.tool_xyz_mm, float)) / 1000.0
+    R = np.asarray(robot.tool_rotation, float).T @ np.asarray(other.tool_rotation, float)
+    if not np.any(dxyz) and np.allclose(R, np.eye(3), rtol=0.0, atol=1e-15):
+        return None
+    # R = Rx(a) Ry(b) Rz(c): the error model's turns about the probe's own axes, in that order
+    b = np.arcsin(np.clip(R[0, 2], -1.0, 1.0))
+    a = np.arctan2(-R[1, 2], R[2, 2])
+    c = np.arctan2(-R[0, 1], R[0, 0])
+    return np.concatenate([dxyz, [a, b, c]])
+
+
+def stacked(parts, index: int = 1, offsets=None):
     """One :class:`~pipeline.robot.arm.effects.RobotData` of the campaigns' data sets ``parts`` (in order),
-    each pose marked with its campaign (``campaign``, 1-based from ``index``)."""
+    each pose marked with its campaign (``campaign``, 1-based from ``index``); ``offsets``: each part's
+    :func:`mounting_offset` (6,) or None (``mounting_offset`` only when one is not None)."""
     def cat(name):
         arrays = [getattr(p, name) for p in parts]
         return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    offsets = list(offsets) if offsets is not None else [None] * len(parts)
+    mounting = None
+    if any(o is not None for o in offsets):
+        mounting = np.concatenate([np.tile(np.zeros(6) if o is None else np.asarray(o, float), (p.n, 1))
+                                   for p, o in zip(parts, offsets)])
 
     first = parts[0]
     out = replace(first, q_deg=cat("q_deg"), dir=cat("dir"), payload_kg=cat("payload_kg"),
                   temperature_c=cat("temperature_c"), torque_nm=cat("torque_nm"), measured_mm=cat("measured_mm"),
                   point_id=cat("point_id"), measured_R=cat("measured_R"), sigma_mm=cat("sigma_mm"),
                   sigma_arcsec=cat("sigma_arcsec"),
-                  campaign=np.concatenate([np.full(p.n, index + k, int) for k, p in enumerate(parts)]))
+                  campaign=np.concatenate([np.full(p.n, index + k, int) for k, p in enumerate(parts)]),
+                  mounting_offset=mounting)
     joints = {tuple(getattr(p, "grating_joints", ())) for p in parts}
     out.grating_joints = joints.pop() if len(joints) == 1 else ()
     return out
@@ -73,6 +100,10 @@ def stacked(parts, index: int = 1):
 
 def load_campaigns(campaigns):
     """Each campaign read, registered and checked to be of the first's robot.
+
+    A campaign whose robot.toml states a probe mounting of its own (``[tool]``) is of the robot too: its
+    ``info`` then has ``mounting`` (its ``tool_xyz_mm``, ``tool_rpy_deg``) and ``mounting_offset``
+    (:func:`mounting_offset`).
 
     Returns
     -------
@@ -86,12 +117,13 @@ def load_campaigns(campaigns):
         if robot is None:
             robot = r
         else:
-            why = same_robot_problem(robot, r)
-            if why.startswith("tool"):
-                what = why.split(" here")[0]
-                raise InputError(Path(c) / "robot.toml", f"this campaign's probe is mounted otherwise than "
-                                 f"{campaigns[0]}'s ({what} here): campaigns with a probe mounting of their own cannot "
-                                 "be fitted together yet (one robot, one mounting); fit them apart", None, None)
+            why = same_robot_problem(robot, replace(r, tool_xyz_mm=robot.tool_xyz_mm, tool_rpy_deg=robot.tool_rpy_deg))
+            if not why:
+                offset = mounting_offset(robot, r)
+                if offset is not None:
+                    info = {**info, "mounting": {"tool_xyz_mm": [float(v) for v in r.tool_xyz_mm],
+                                                 "tool_rpy_deg": [float(v) for v in r.tool_rpy_deg]},
+                            "mounting_offset": offset, "mounting_robot": r}
             if why:
                 why = why.replace("in the model's robot", f"in {campaigns[0]}'s robot").replace(
                     "a model applies to the robot it was fitted on", "the campaigns fitted together must be of one robot")
@@ -126,7 +158,7 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
     spec.require_kind("robot", campaigns[0])
     robot, loaded = load_campaigns(campaigns)
     check_spec_joints(spec, robot)
-    own = [e for e in spec.effects if e.name != CAMPAIGN_FRAME]
+    own = [e for e in spec.effects if e.name not in (CAMPAIGN_FRAME, CAMPAIGN_TOOL)]
     for c, sample, target, _ in loaded:
         if sample.n == 0:
             raise InputError(Path(c) / "poses.csv", "no pose has set = sample: a campaign fitted with others needs "
@@ -136,8 +168,10 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
             warn(f"warning: {c}: {outside_message(outside, worst=True)}")
     # each campaign's wild measurements, against its own flexible model (as when it is fitted alone)
     wilds = []
-    for c, sample, target, _ in loaded:
-        wild = WildSearch(robot, own, sample, target, c, keep_outliers, background=False).result()
+    for c, sample, target, info in loaded:
+        # against the campaign's own robot.toml (its own probe mounting, where it states one)
+        mine = info.get("mounting_robot", robot)
+        wild = WildSearch(mine, own, sample, target, c, keep_outliers, background=False).result()
         if describe(wild):
             warn(f"{c}: {describe(wild)}")
         wilds.append(wild)
@@ -147,10 +181,13 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
     wild = Wild(np.concatenate([w.sample for w in wilds]), np.concatenate([w.target for w in wilds]), outliers,
                 {c: w.sigma_mm for (c, *_), w in zip(loaded, wilds)}, keep_outliers,
                 "; ".join(f"{c}: {w.no_scale}" for (c, *_), w in zip(loaded, wilds) if w.no_scale))
-    sample = stacked([s for _, s, _, _ in loaded])
-    target = stacked([t for _, _, t, _ in loaded])
-    # a spec's own campaign_frame tables (a fit JSON's spec_effects given back as a spec) are the fit's to add
-    effects = own + campaign_frames(len(loaded))
+    offsets = [info.get("mounting_offset") for *_, info in loaded]
+    sample = stacked([s for _, s, _, _ in loaded], offsets=offsets)
+    target = stacked([t for _, _, t, _ in loaded], offsets=offsets)
+    # a spec's own campaign_frame (campaign_tool) tables (a fit JSON's spec_effects given back as a spec) are the
+    # fit's to add
+    effects = own + campaign_frames(len(loaded)) + [REGISTRY.make("robot", CAMPAIGN_TOOL, campaign=k + 1)
+                                                   for k, o in enumerate(offsets) if o is not None]
     together = replace(spec, effects=effects)
     out = robot_fit_result(campaigns[0], together, (robot, sample, target, loaded[0][3]), wild,
                            orientation=orientation, warn=_silent, progress=progress)
@@ -167,11 +204,16 @@ def per_campaign(robot, effects, out: dict, loaded, wilds, keep_outliers: bool) 
     entries = []
     for k, ((c, sample, target, info), wild) in enumerate(zip(loaded, wilds)):
         s, t = (sample, target) if keep_outliers else wild.clean(sample, target)
-        s = stacked([s], index=k + 1)
-        t = stacked([t], index=k + 1) if t.n else t
-        entry = {"campaign": c, "index": k + 1, "frame": info,
+        offset = info.get("mounting_offset")
+        s = stacked([s], index=k + 1, offsets=[offset])
+        t = stacked([t], index=k + 1, offsets=[offset]) if t.n else t
+        frame = {key: v for key, v in info.items() if not key.startswith("mounting")}
+        entry = {"campaign": c, "index": k + 1, "frame": frame,
                  "tracker_to_base_fitted": fitted_tracker_to_base(robot, out["parameters"], k + 1, info["tracker_to_base"]),
                  "frame_effect": CAMPAIGN_FRAME if k else "base", "n_sample": int(s.n), "n_target": int(t.n)}
+        if offset is not None:
+            entry["mounting"] = {**info["mounting"], "offset": [float(v) for v in offset],
+                                 "effect": CAMPAIGN_TOOL}
         if t.n:
             h = heldout_fit(robot, effects, s, t, model=model)
             h.pop("parameters", None)

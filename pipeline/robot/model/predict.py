@@ -392,14 +392,23 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     robot_m, effects, model, sampled, fit_frame = load_model_document(document, model_path)
     robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
                                                         with_table=True)
+    own = own_campaign(document, campaign)
+    mounting = own.get("mounting") if own is not None and isinstance(own.get("mounting"), dict) else None
     problem = same_robot_problem(robot_m, robot)
+    if problem and mounting is not None and problem.startswith("tool"):
+        # one of the model's campaigns, with the probe mounting of its own the model was fitted with
+        problem = "" if (np.allclose(robot.tool_xyz_mm, mounting.get("tool_xyz_mm"), rtol=0, atol=1e-9) and
+                         np.allclose(robot.tool_rpy_deg, mounting.get("tool_rpy_deg"), rtol=0, atol=1e-9)) else problem
     if problem:
         raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
-    own = own_campaign(document, campaign)
-    if own is not None and not register:
-        # one of the campaigns the model was fitted on (contract section 15): its own tracker frame
-        fit_frame = own["frame"]
+    if own is not None:
+        # one of the campaigns the model was fitted on (contract section 15): its own probe mounting, and (unless
+        # re-registered) its own tracker frame
         data.campaign = np.full(data.n, int(own["index"]))
+        if mounting is not None:
+            data.mounting_offset = np.tile(np.asarray(mounting["offset"], float), (data.n, 1))
+        if not register:
+            fit_frame = own["frame"]
     meas, meas_R = data.measured_mm, data.measured_R
     if point_mm is not None and meas_R is None:
         raise InputError(Path(campaign) / "tracker.csv", "--point needs the probe's orientation (a 6-DoF probe: "

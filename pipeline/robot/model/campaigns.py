@@ -152,8 +152,10 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
     Returns
     -------
     dict: the fit document of :func:`pipeline.robot.model.fit.robot_fit_result` over every campaign's poses
-    (``heldout``: the totals), with ``campaigns``: per campaign, in the order given, ``{"campaign", "frame",
-    "n_sample", "n_target", "heldout", "outliers"}``; wild measurements carry their ``campaign``.
+    (``heldout``: the totals), with ``campaigns``: per campaign, in the order given, ``{"campaign", "index",
+    "frame", "tracker_to_base_fitted", "frame_effect", "n_sample", "n_target", "heldout", "outliers"}`` and
+    ``mounting`` for a campaign with a probe mounting of its own (docs/formats.md, "Several campaigns"); wild
+    measurements carry their ``campaign``.
     """
     spec.require_kind("robot", campaigns[0])
     robot, loaded = load_campaigns(campaigns)
@@ -176,7 +178,7 @@ def fit_campaigns(campaigns, spec, keep_outliers: bool = False, warn=_silent, or
             warn(f"{c}: {describe(wild)}")
         wilds.append(wild)
     outliers = []
-    for k, ((c, *_), wild) in enumerate(zip(loaded, wilds)):
+    for (c, *_), wild in zip(loaded, wilds):
         outliers += [{**o, "campaign": c} for o in wild.outliers]
     wild = Wild(np.concatenate([w.sample for w in wilds]), np.concatenate([w.target for w in wilds]), outliers,
                 {c: w.sigma_mm for (c, *_), w in zip(loaded, wilds)}, keep_outliers,

@@ -17,7 +17,7 @@ from ..core.campaign import campaign_kind
 from ..core.errors import InputError
 from ..core.wild import HELP as WILD_HELP
 from .common import fail_spec, load_spec, read_interim, read_json
-from .robot import fit_robot, ingest_robot_to, validate_robot
+from .robot import fit_robot, fit_robots, ingest_robot_to, validate_robot
 
 
 @click.command()
@@ -67,7 +67,9 @@ def validate(campaign):
 
 @click.command()
 @click.option("--interim", default=None, type=click.Path(), help="Ingested encoder Parquet (jointcal ingest).")
-@click.option("--campaign", default=None, type=click.Path(), help="Or a raw campaign folder (ingested on the fly).")
+@click.option("--campaign", "campaigns", multiple=True, type=click.Path(),
+              help="Or a raw campaign folder (ingested on the fly). A robot's: give it more than once to fit several "
+                   "campaigns of one robot together (each with its own tracker frame; contract section 15).")
 @click.option("--spec", "spec_path", required=True, type=click.Path(), help="Model spec (specs/*.toml).")
 @click.option("--orders", "orders_path", type=click.Path(), default=None,
               help="Selection JSON (jointcal select). Without it, orders the spec leaves open are chosen by "
@@ -78,7 +80,7 @@ def validate(campaign):
               help="Robot campaign with a 6-DoF probe's orientations (tracker.csv qw..qz): fit the positions alone "
                    "(the probe's mounting is then registered on the orientations); the held-out orientation error "
                    "is still given. Default: positions and orientations, weighed by variance components.")
-def fit(interim, campaign, spec_path, orders_path, out, keep_outliers, positions_only):
+def fit(interim, campaigns, spec_path, orders_path, out, keep_outliers, positions_only):
     """Fit the spec's model and judge it on data it was not fitted on (encoder or robot).
 
     \b
@@ -93,6 +95,10 @@ def fit(interim, campaign, spec_path, orders_path, out, keep_outliers, positions
       orientation error (mrad) times a weight (mm per mrad) estimated from the residuals
       (variance components, `weighting` in the JSON); held-out orientation errors in arcsec.
 
+    Several robot campaigns (--campaign more than once, one robot): the robot's parameters are shared,
+      each campaign after the first keeps its own tracker frame (a `campaign_frame` effect, 6 parameters);
+      held-out errors per campaign (`campaigns` in the JSON) beside the totals (`heldout`).
+
     Either way, the effect of a line added to the spec shows in both numbers.
     """
     from ..core.files import provenance, write_json
@@ -101,8 +107,16 @@ def fit(interim, campaign, spec_path, orders_path, out, keep_outliers, positions
     from ..encoder.ingest import ingest_encoder
 
     spec = load_spec(spec_path)
-    if (interim is None) == (campaign is None):
+    if (interim is None) == (not campaigns):
         raise click.UsageError("give exactly one of --interim or --campaign")
+    if len(campaigns) > 1:
+        not_robot = [c for c in campaigns if campaign_kind(c) != "robot"]
+        if not_robot:
+            raise InputError(not_robot[0], "--campaign given more than once fits several robot campaigns of one "
+                             "robot together; this folder is not a robot campaign (robot.toml, poses.csv, tracker.csv)")
+        fit_robots(list(campaigns), spec, spec_path, out, keep_outliers, orientation=not positions_only)
+        return
+    campaign = campaigns[0] if campaigns else None
     if campaign is not None:
         if campaign_kind(campaign) == "robot":
             fit_robot(campaign, spec, spec_path, out, keep_outliers, orientation=not positions_only)

@@ -536,6 +536,77 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
     if problems:
         _refuse(campaign, '; '.join(problems), out)
     write_json(out, result)
+    _fit_console(out, result)
+
+
+def fit_robots(campaigns, spec, spec_path, out, keep_outliers=False, orientation=True):
+    """``jointcal fit`` with ``--campaign`` more than once: several campaigns of one robot fitted together
+    (:func:`pipeline.robot.model.campaigns.fit_campaigns`); the held-out errors of each campaign side by side."""
+    from ..core.files import provenance, write_json
+    from ..robot.campaign.ingest import campaign_files
+    from ..robot.model.campaigns import fit_campaigns
+    from ..robot.model.fit import fit_problems
+
+    _edge()
+
+    def warn(msg):
+        click.echo(f"jointcal: {msg}", err=True)
+
+    def progress(msg):
+        click.echo(f"  {msg}", err=True)
+
+    result = fit_campaigns(campaigns, spec, keep_outliers, warn, orientation=orientation, progress=progress)
+    result["provenance"] = provenance([f for c in campaigns for f in campaign_files(c)], spec_path)
+    problems = fit_problems(result)
+    if problems:
+        _refuse(", ".join(campaigns), '; '.join(problems), out)
+    write_json(out, result)
+    _fit_console(out, result)
+    click.echo(campaigns_table(result), err=True)
+
+
+def campaigns_table(result: dict) -> str:
+    """The held-out errors of each campaign of a fit of several, side by side (console lines)."""
+    entries = result.get("campaigns") or []
+    oriented = any("orientation_rms_after_arcsec" in (e.get("heldout") or {}) for e in entries)
+    head = f"  {'campaign':<28} {'frame':<16} {'sample':>6} {'target':>6} {'RMS before':>10} {'RMS after':>10} {'max after':>10}"
+    head += f" {'orient. RMS':>12}" if oriented else ""
+    lines = ["  held-out targets per campaign (mm" + (", orientation arcsec" if oriented else "") + "):", head]
+    rows = [(e["campaign"], "base" if e["index"] == 1 else f"campaign{e['index']}_*", e["n_sample"], e["n_target"],
+             e.get("heldout")) for e in entries]
+    h = result.get("heldout")
+    rows.append(("all campaigns", "", sum(e["n_sample"] for e in entries), sum(e["n_target"] for e in entries), h))
+    for name, frame, ns, nt, he in rows:
+        text = f"  {name:<28} {frame:<16} {ns:>6} {nt:>6} "
+        if he:
+            text += f"{he['rms_before_mm']:>10.3f} {he['rms_after_mm']:>10.4f} {he['after']['max_mm']:>10.3f}"
+            if oriented:
+                text += f" {he.get('orientation_rms_after_arcsec', float('nan')):>12.1f}"
+        else:
+            text += f"{'no targets':>10}"
+        lines.append(text)
+    return "\n".join(lines)
+
+
+def predicted_table(json_out, result: dict) -> str:
+    """``jointcal predict`` on several campaigns: each campaign's errors side by side, and the totals."""
+    oriented = "orientation_rms_arcsec" in result
+    stated = "coverage_95" in result
+    head = f"  {'campaign':<28} {'evaluated':>10} {'RMS':>8} {'max':>8} {'outside':>8}"
+    head += (f" {'in u95':>7}" if stated else "") + (f" {'orient. RMS':>12}" if oriented else "")
+    lines = [f"{json_out}: {len(result['campaigns'])} campaigns (mm" + (", orientation arcsec" if oriented else "")
+             + "; outside: poses outside the sampled joint ranges; in u95: share within their u95_mm):", head]
+    for name, r in [(c["campaign"], c) for c in result["campaigns"]] + [("all campaigns", result)]:
+        text = f"  {name:<28} {r['n']:>10} {r['rms_mm']:>8.3f} {r['max_mm']:>8.3f} {r['outside_sampled_range']:>8}"
+        text += f" {100 * r['coverage_95']:>6.1f}%" if stated else ""
+        text += f" {r['orientation_rms_arcsec']:>12.1f}" if oriented else ""
+        lines.append(text)
+    return "\n".join(lines)
+
+
+def _fit_console(out, result: dict) -> None:
+    """The console lines of ``jointcal fit`` on robot campaigns: held-out errors, cross-validation,
+    identification, how sure."""
     h = result.get("heldout")
     held = (f"held-out targets ({h['n_target']}): max {h['before']['max_mm']:.3f} -> {h['after']['max_mm']:.3f} mm, "
             f"RMS {h['rms_before_mm']:.3f} -> {h['rms_after_mm']:.3f} mm; ") if h else "no target poses to hold out; "
@@ -576,8 +647,9 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
 
 
 @click.command("predict")
-@click.option("--campaign", required=True, type=click.Path(),
-              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv).")
+@click.option("--campaign", "campaigns", required=True, multiple=True, type=click.Path(),
+              help="Another campaign of the same robot (raw folder: robot.toml, poses.csv, tracker.csv); more than "
+                   "once: each campaign's errors (`campaigns` in the JSON) and the totals over all of them.")
 @click.option("--model", "model_path", required=True, type=click.Path(),
               help="Fitted robot model (jointcal fit --campaign ... --out FIT.json).")
 @click.option("--json", "json_out", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
@@ -589,7 +661,7 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
               help="A 6-DoF campaign: also the error of this point rigidly fixed to the probe (mm, probe frame; "
                    "e.g. \"0 0 300\" for a tool centre point 300 mm out along the probe's z), which the measured "
                    "probe frame observes exactly: point_rms_mm, point_max_mm, per point point_error_mm.")
-def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
+def predict_cmd(campaigns, model_path, json_out, register, keep_outliers, point):
     """Predict every pose of another campaign with a fitted model and compare with its tracker points.
 
     Errors |measured - predicted| (mm) on the campaign's target poses (on every pose when it has
@@ -598,7 +670,9 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
     of the campaign are named and left out of the registration and of those errors (``with_outliers``:
     the errors with the wild targets beside); see --keep-outliers. A campaign measured with a 6-DoF
     probe (tracker.csv qw..qz) also gets its orientation errors: the angle between the measured and
-    the predicted probe frames (orientation_rms_arcsec, orientation_max_arcsec, per point).
+    the predicted probe frames (orientation_rms_arcsec, orientation_max_arcsec, per point). A campaign the
+    model was fitted on together with others (jointcal fit --campaign A --campaign B) is predicted in its own
+    fitted tracker frame unless --register.
     """
     import numpy as np
 
@@ -620,6 +694,16 @@ def predict_cmd(campaign, model_path, json_out, register, keep_outliers, point):
         if len(point_mm) != 3 or not np.all(np.isfinite(point_mm)):
             raise click.BadParameter(f"{point!r}: give three numbers in mm, \"X Y Z\" in the probe frame",
                                      param_hint="--point")
+    if len(campaigns) > 1:
+        from ..robot.model.campaigns import predict_campaigns
+
+        result = predict_campaigns(list(campaigns), _read_json(model_path), model_path, register, keep_outliers, warn,
+                                   point_mm)
+        result["provenance"] = provenance([f for c in campaigns for f in campaign_files(c)] + [model_path])
+        write_json(json_out, result)
+        click.echo(predicted_table(json_out, result), err=True)
+        return
+    campaign = campaigns[0]
     result = predict_other_campaign(campaign, _read_json(model_path), model_path, register, keep_outliers, warn,
                                     point_mm)
     result["provenance"] = provenance(campaign_files(campaign) + [model_path])

@@ -108,6 +108,13 @@ class RobotData:
         Stated 1-sigma uncertainty of each position (tracker.csv ``sigma_mm``), None when not stated.
     sigma_arcsec : ndarray, shape (n,), arcsec, or None
         Stated 1-sigma uncertainty of each orientation, per axis (``sigma_arcsec``).
+    campaign : ndarray of int, shape (n,), or None
+        Which campaign each pose was measured in (1-based, in the order given; contract section 15) when
+        several campaigns are fitted together; None for one campaign (every pose the first's).
+    mounting_offset : ndarray, shape (n, 6), or None
+        Where a pose's campaign states a probe mounting of its own (its robot.toml's ``[tool]``): the error
+        model's tool channels (dx, dy, dz in m along the flange axes, then ex, ey, ez in rad about the probe's
+        own axes) that put that mounting in place of the model robot's; None: every pose the model robot's.
     """
 
     q_deg: np.ndarray
@@ -122,6 +129,8 @@ class RobotData:
     measured_R: np.ndarray | None = None
     sigma_mm: np.ndarray | None = None
     sigma_arcsec: np.ndarray | None = None
+    campaign: np.ndarray | None = None
+    mounting_offset: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -137,7 +146,8 @@ class RobotData:
         out = RobotData(self.q_deg[mask], self.dir[mask], self.payload_kg[mask], self.temperature_c[mask],
                         self.torque_nm[mask], self.lower_deg, self.upper_deg, cut(self.measured_mm),
                         self.point_id[mask] if len(self.point_id) == self.n else self.point_id,
-                        cut(self.measured_R), cut(self.sigma_mm), cut(self.sigma_arcsec))
+                        cut(self.measured_R), cut(self.sigma_mm), cut(self.sigma_arcsec), cut(self.campaign),
+                        cut(self.mounting_offset))
         if hasattr(self, "grating_joints"):
             out.grating_joints = self.grating_joints
         return out
@@ -381,6 +391,126 @@ class Base(RobotEffect):
         """A 6-DoF probe's frames (n, 3, 3) in the turned base frame."""
         R = pin.rpy.rpyToMatrix(*np.deg2rad(np.asarray(hidden["rot_arcsec"]) / 3600))
         return np.einsum("ij,njk->nik", R, R_meas)
+
+
+class CampaignFrame(RobotEffect):
+    """One campaign's own tracker-to-base frame, when several campaigns of one robot are fitted together
+    (contract section 15): the 6-dof frame error of the poses of campaign ``campaign`` (1-based, in the order
+    the campaigns are given) beside the shared base. The fit adds one for every campaign after the first;
+    the first campaign's frame is the model's base frame (``base``). A spec does not name it."""
+
+    name = "campaign_frame"
+    allowed_params = ("campaign",)
+    diagnosis_order = 1
+    per_joint = False
+    acts_on = "a campaign's tracker frame"
+    compensable = False
+    compensation = "none needed on the robot: it is where that campaign's tracker stood, not the robot"
+    explanation = ("Each campaign measures the robot from its own tracker station: its points are in a frame of "
+                   "their own, shifted and turned from the first campaign's. The robot is one; each campaign "
+                   "after the first keeps its own rigid tracker-to-base frame, fitted with the robot's shared "
+                   "parameters.")
+    signature = "a constant offset plus a rotation of one campaign's positions, not the other campaigns'"
+
+    def index(self) -> int:
+        """The campaign (1-based) whose frame this is."""
+        return int(self.params.get("campaign", 2))
+
+    def check(self):
+        problems = super().check()
+        k = self.params.get("campaign", 2)
+        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
+            problems.append("effect 'campaign_frame': campaign must be the number (2, 3, ...) of a campaign after "
+                            "the first")
+        return problems
+
+    def target(self):
+        return None
+
+    @classmethod
+    def candidates(cls, data, present):
+        """None: the fit adds a campaign's frame when it is given several campaigns, diagnosis never."""
+        return []
+
+    def parameter_names(self, robot):
+        return [f"campaign{self.index()}_{t}" for t in TWIST]
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * 3
+
+    def typical_sizes(self, robot):
+        return [BASE_TYPICAL_MM] * 3 + [BASE_TYPICAL_ARCSEC] * 3
+
+    def checked_values(self, robot, parameters, q_deg):
+        """Not a robot's error: what is left of one tracker registration (judged by the bounds of its unit)."""
+        return parameters
+
+    def basis(self, robot, idx, data):
+        own = getattr(data, "campaign", None)
+        # a pose of another campaign (or of a data set of one campaign: the first's) is not moved
+        mask = 0.0 if own is None else (np.asarray(own) == self.index()).astype(float)
+        return [[(c, 1e-3 * mask)] for c in idx.base]
+
+
+class CampaignTool(RobotEffect):
+    """One campaign's own probe mounting error, when several campaigns of one robot are fitted together and this
+    campaign's robot.toml states a probe mounting of its own (contract section 15): the SMR's (or the probe
+    origin's) offset error on the flange for the poses of campaign ``campaign`` (and, on a 6-DoF campaign, the
+    probe frame's turn), beside the shared ``tool`` of the first campaign's mounting. The fit adds it; its
+    nominal mounting is the campaign's robot.toml's (``RobotData.mounting_offset``)."""
+
+    name = "campaign_tool"
+    allowed_params = ("campaign", "orientation")
+    diagnosis_order = 2
+    per_joint = False
+    acts_on = "a campaign's probe mounting"
+    compensable = True
+    compensation = "that campaign's calibrated tool offset in the controller's tool frame"
+    explanation = ("The probe was mounted otherwise in this campaign (its robot.toml says where): its offset on "
+                   "the flange is off by its own error, as the first campaign's is by the shared tool error.")
+    signature = "an error that rotates with the flange, on one campaign's poses only"
+
+    def index(self) -> int:
+        return int(self.params.get("campaign", 2))
+
+    def oriented(self) -> bool:
+        return bool(self.params.get("orientation", False))
+
+    def check(self):
+        problems = super().check()
+        k = self.params.get("campaign", 2)
+        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
+            problems.append("effect 'campaign_tool': campaign must be the number (2, 3, ...) of a campaign after "
+                            "the first")
+        return problems
+
+    def target(self):
+        return None
+
+    @classmethod
+    def candidates(cls, data, present):
+        """None: the fit adds it for a campaign with a probe mounting of its own, diagnosis never."""
+        return []
+
+    def prepared(self, robot, data):
+        if getattr(data, "has_orientation", False) and "orientation" not in self.params:
+            return CampaignTool(**{**self.params, "orientation": True})
+        return self
+
+    def parameter_names(self, robot):
+        return [f"campaign{self.index()}_tool_{t}" for t in TWIST[:6 if self.oriented() else 3]]
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * (3 if self.oriented() else 0)
+
+    def typical_sizes(self, robot):
+        return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
+
+    def basis(self, robot, idx, data):
+        own = getattr(data, "campaign", None)
+        mask = 0.0 if own is None else (np.asarray(own) == self.index()).astype(float)
+        rot = [[(c, 1e-3 * mask)] for c in idx.tool_rot] if self.oriented() else []
+        return [[(c, 1e-3 * mask)] for c in idx.tool] + rot
 
 
 #: Typical size of the probe frame's turn on the flange (arcsec): a 6-DoF probe's mounting is known from
@@ -890,7 +1020,8 @@ class JointMap(RobotEffect):
 
 
 #: the robot vocabulary, registered by pipeline.robot
-EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic, JointMap)
+EFFECTS = (Geometry, Base, Tool, Chebyshev, Compliance, Backlash, Thermal, JointHarmonic, JointMap, CampaignFrame,
+           CampaignTool)
 
 
 def effect_classes(registry=REGISTRY) -> list[type[RobotEffect]]:

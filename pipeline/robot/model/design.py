@@ -35,6 +35,11 @@ class Design:
         n = data.n
         self.Q0 = np.zeros((n, self.idx.nq))
         self.Q0[:, self.idx.joints] = np.deg2rad(data.q_deg)
+        mounting = getattr(data, "mounting_offset", None)
+        if mounting is not None:
+            # poses of a campaign with a probe mounting of its own (pipeline.robot.model.campaigns)
+            self.Q0[:, self.idx.tool] = mounting[:, :3]
+            self.Q0[:, self.idx.tool_rot] = mounting[:, 3:]
         names, units, sizes, p_idx, c_idx, rows, vals = [], [], [], [], [], [], []
         for e in effects:
             offset = len(names)

@@ -94,7 +94,9 @@ def flexible_effects(robot, effects, data) -> list:
     (thermal, ...). The same for every spec without such other effects, so that ``fit`` with any spec,
     ``diagnose``, the loop and ``predict`` name the same points of a campaign."""
     lines = ['[[effect]]\nname = "geometry"', '[[effect]]\nname = "base"', '[[effect]]\nname = "tool"']
-    lines += [e.spec_lines() for e in effects if e.name not in FLEXIBLE_PER_JOINT + ("geometry", "base", "tool")]
+    # (a campaign's own tracker frame is not the robot's: each campaign is searched on its own)
+    lines += [e.spec_lines() for e in effects
+              if e.name not in FLEXIBLE_PER_JOINT + ("geometry", "base", "tool", "campaign_frame")]
     lines.append('[[effect]]\nname = "joint_map"')
     lines.append('[[effect]]\nname = "compliance"')
     both = [j + 1 for j in range(data.dir.shape[1]) if np.unique(data.dir[:, j]).size > 1]

@@ -364,22 +364,51 @@ def _silent(message: str) -> None:
     pass
 
 
+def own_campaign(document: dict, campaign):
+    """The entry of ``document``'s ``campaigns`` (a model fitted on several campaigns, contract section 15) that
+    is the folder ``campaign``; None when it is none of them (or the model was fitted on one campaign)."""
+    entries = document.get("campaigns") if isinstance(document, dict) else None
+    if not isinstance(entries, list):
+        return None
+    here = Path(campaign).resolve()
+    for e in entries:
+        if isinstance(e, dict) and isinstance(e.get("campaign"), str) and isinstance(e.get("index"), int) \
+                and isinstance(e.get("frame"), dict) and Path(e["campaign"]).resolve() == here:
+            return e
+    return None
+
+
 def predict_other_campaign(campaign, document: dict, model_path, register: bool, keep_outliers: bool = False,
                            warn=_silent, point_mm=None) -> dict:
     """``jointcal predict``: a fitted model (``document``, the JSON of ``jointcal fit --campaign`` read
     from ``model_path``) applied to every pose of another campaign of the same robot.
 
     Without ``register`` a tracker-frame campaign's points go through the fit campaign's
-    tracker-to-base transform (the tracker has not moved). The campaign's wild measurements are
+    tracker-to-base transform (the tracker has not moved); a campaign the model was fitted on among several
+    (:func:`own_campaign`) through its own transform and its own fitted frame (``campaign_frame``). The campaign's wild measurements are
     named (``warn``) and left out of the registration and of the errors (``with_outliers``: the
     errors with the wild targets beside) unless ``keep_outliers``. The result has no provenance.
     """
     robot_m, effects, model, sampled, fit_frame = load_model_document(document, model_path)
     robot, (data,), frame_info, table = robot_data_sets(campaign, ("sample", "target", "repeat"), with_frame=True,
                                                         with_table=True)
+    own = own_campaign(document, campaign)
+    mounting = own.get("mounting") if own is not None and isinstance(own.get("mounting"), dict) else None
     problem = same_robot_problem(robot_m, robot)
+    if problem and mounting is not None and problem.startswith("tool"):
+        # one of the model's campaigns, with the probe mounting of its own the model was fitted with
+        problem = "" if (np.allclose(robot.tool_xyz_mm, mounting.get("tool_xyz_mm"), rtol=0, atol=1e-9) and
+                         np.allclose(robot.tool_rpy_deg, mounting.get("tool_rpy_deg"), rtol=0, atol=1e-9)) else problem
     if problem:
         raise InputError(Path(campaign) / "robot.toml", problem, 1, 1)
+    if own is not None:
+        # one of the campaigns the model was fitted on (contract section 15): its own probe mounting, and (unless
+        # re-registered) its own tracker frame
+        data.campaign = np.full(data.n, int(own["index"]))
+        if mounting is not None:
+            data.mounting_offset = np.tile(np.asarray(mounting["offset"], float), (data.n, 1))
+        if not register:
+            fit_frame = own["frame"]
     meas, meas_R = data.measured_mm, data.measured_R
     if point_mm is not None and meas_R is None:
         raise InputError(Path(campaign) / "tracker.csv", "--point needs the probe's orientation (a 6-DoF probe: "

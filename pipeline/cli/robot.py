@@ -32,6 +32,16 @@ def _edge():
     limit_blas_threads(1)
 
 
+def _warn(msg):
+    """A warning on stderr, prefixed ``jointcal:``."""
+    click.echo(f"jointcal: {msg}", err=True)
+
+
+def _progress(msg):
+    """A progress line on stderr, indented."""
+    click.echo(f"  {msg}", err=True)
+
+
 def _read_json(path):
     from ..core.files import read_json_input
 
@@ -481,12 +491,7 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
 
     _edge()
 
-    def say(msg):
-        click.echo(f"  {msg}", err=True)
-
-    def warn(msg):
-        click.echo(f"jointcal: {msg}", err=True)
-
+    say, warn = _progress, _warn
     result = loop_on_campaigns(campaign, spec_path, other_campaign, rounds, keep_outliers, say, warn)
     write_json(json_out, result)
     if spec_out:
@@ -524,12 +529,7 @@ def fit_robot(campaign, spec, spec_path, out, keep_outliers=False, orientation=T
 
     _edge()
 
-    def warn(msg):
-        click.echo(f"jointcal: {msg}", err=True)
-
-    def progress(msg):
-        click.echo(f"  {msg}", err=True)
-
+    warn, progress = _warn, _progress
     result = fit_campaign(campaign, spec, keep_outliers, warn, orientation=orientation, progress=progress)
     result["provenance"] = provenance(campaign_files(campaign), spec_path)
     problems = fit_problems(result)
@@ -549,12 +549,7 @@ def fit_robots(campaigns, spec, spec_path, out, keep_outliers=False, orientation
 
     _edge()
 
-    def warn(msg):
-        click.echo(f"jointcal: {msg}", err=True)
-
-    def progress(msg):
-        click.echo(f"  {msg}", err=True)
-
+    warn, progress = _warn, _progress
     result = fit_campaigns(campaigns, spec, keep_outliers, warn, orientation=orientation, progress=progress)
     result["provenance"] = provenance([f for c in campaigns for f in campaign_files(c)], spec_path)
     problems = fit_problems(result)
@@ -682,9 +677,7 @@ def predict_cmd(campaigns, model_path, json_out, register, keep_outliers, point)
 
     _edge()
 
-    def warn(msg):
-        click.echo(f"jointcal: {msg}", err=True)
-
+    warn = _warn
     point_mm = None
     if point is not None:
         try:

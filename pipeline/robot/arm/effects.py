@@ -393,7 +393,34 @@ class Base(RobotEffect):
         return np.einsum("ij,njk->nik", R, R_meas)
 
 
-class CampaignFrame(RobotEffect):
+class _OneCampaign(RobotEffect):
+    """What the effects of one campaign among several share (``campaign_frame``, ``campaign_tool``): the
+    campaign they belong to (``campaign = k``, 2, 3, ...: the first campaign has the shared effects), no
+    joint of their own, and no place among diagnosis's candidates (the fit adds them when it is given
+    several campaigns)."""
+
+    def index(self) -> int:
+        """The campaign (1-based) this effect belongs to."""
+        return int(self.params.get("campaign", 2))
+
+    def check(self):
+        problems = super().check()
+        k = self.params.get("campaign", 2)
+        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
+            problems.append(f"effect '{self.name}': campaign must be the number (2, 3, ...) of a campaign after "
+                            "the first")
+        return problems
+
+    def target(self):
+        return None
+
+    @classmethod
+    def candidates(cls, data, present):
+        """None: the fit adds the effect when it is given several campaigns, diagnosis never."""
+        return []
+
+
+class CampaignFrame(_OneCampaign):
     """One campaign's own tracker-to-base frame, when several campaigns of one robot are fitted together
     (contract section 15): the 6-dof frame error of the poses of campaign ``campaign`` (1-based, in the order
     the campaigns are given) beside the shared base. The fit adds one for every campaign after the first;
@@ -411,26 +438,6 @@ class CampaignFrame(RobotEffect):
                    "after the first keeps its own rigid tracker-to-base frame, fitted with the robot's shared "
                    "parameters.")
     signature = "a constant offset plus a rotation of one campaign's positions, not the other campaigns'"
-
-    def index(self) -> int:
-        """The campaign (1-based) whose frame this is."""
-        return int(self.params.get("campaign", 2))
-
-    def check(self):
-        problems = super().check()
-        k = self.params.get("campaign", 2)
-        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-            problems.append("effect 'campaign_frame': campaign must be the number (2, 3, ...) of a campaign after "
-                            "the first")
-        return problems
-
-    def target(self):
-        return None
-
-    @classmethod
-    def candidates(cls, data, present):
-        """None: the fit adds a campaign's frame when it is given several campaigns, diagnosis never."""
-        return []
 
     def parameter_names(self, robot):
         return [f"campaign{self.index()}_{t}" for t in TWIST]
@@ -452,7 +459,7 @@ class CampaignFrame(RobotEffect):
         return [[(c, 1e-3 * mask)] for c in idx.base]
 
 
-class CampaignTool(RobotEffect):
+class CampaignTool(_OneCampaign):
     """One campaign's own probe mounting error, when several campaigns of one robot are fitted together and this
     campaign's robot.toml states a probe mounting of its own (contract section 15): the SMR's (or the probe
     origin's) offset error on the flange for the poses of campaign ``campaign`` (and, on a 6-DoF campaign, the
@@ -470,27 +477,8 @@ class CampaignTool(RobotEffect):
                    "the flange is off by its own error, as the first campaign's is by the shared tool error.")
     signature = "an error that rotates with the flange, on one campaign's poses only"
 
-    def index(self) -> int:
-        return int(self.params.get("campaign", 2))
-
     def oriented(self) -> bool:
         return bool(self.params.get("orientation", False))
-
-    def check(self):
-        problems = super().check()
-        k = self.params.get("campaign", 2)
-        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-            problems.append("effect 'campaign_tool': campaign must be the number (2, 3, ...) of a campaign after "
-                            "the first")
-        return problems
-
-    def target(self):
-        return None
-
-    @classmethod
-    def candidates(cls, data, present):
-        """None: the fit adds it for a campaign with a probe mounting of its own, diagnosis never."""
-        return []
 
     def prepared(self, robot, data):
         if getattr(data, "has_orientation", False) and "orientation" not in self.params:

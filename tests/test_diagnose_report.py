@@ -202,3 +202,24 @@ def test_the_signature_a_recommended_effect_explains(robot_like):
     # geometry, missing, leaves 0.4 mm sin(q2) in x: added, it explains q2's pattern in x
     none = adapter.cross_validate([], data)
     assert explained_signature(adapter.signature_variables(data), none.residuals, base.residuals) == ("q2", 0)
+
+
+def test_candidates_not_revealable_for_one_reason_are_said_once():
+    """A joint's harmonics of every order, none revealable for the same reason, are one item of the
+    appendix with their orders and one plan; another joint's, or another reason, stays an item of its own."""
+    from pipeline.diagnosis.report import summary_lines
+
+    def item(joint, order, reason="joint 1 is read by its grating"):
+        return {"effect": "joint_harmonic", "target": joint, "reason": reason, "needs": "joint spread",
+                "plan": f"jointcal plan --reveal 'name = \"joint_harmonic\", joints = [{joint}], orders = [{order}]'"}
+
+    result = {"kind": "robot", "unit": "mm", "baseline": {"cv_rms": 0.1, "cv_rms_region": 0.12, "unit": "mm", "effects": ["geometry"],
+                           "folds": "5-fold"},
+              "candidates": [], "meaningful": [], "not_revealable":
+              [item(1, 1), item(1, 5), item(1, 6), item(2, 1, "joint 2 is read by its grating"), item(1, 7, "other")]}
+    lines = [l.strip() for l in summary_lines(result)]
+    said = [l for l in lines if l.startswith("- joint_harmonic")]
+    assert said[0].startswith("- joint_harmonic 1 (orders 1, 5, 6): joint 1 is read by its grating")
+    assert said[1].startswith("- joint_harmonic 2: joint 2") and said[2].startswith("- joint_harmonic 1: other")
+    assert len(said) == 3
+    assert sum("plan them with" in l for l in lines) == 3

@@ -230,12 +230,34 @@ def summary_lines(result, base_effects=None, width=SUMMARY_WIDTH):
     nr = result.get("not_revealable", [])
     if nr:
         lines += ["", "Not revealable by these data (not ranked):"]
-        for u in nr:
+        for group in _same_reason(nr):
+            u = group[0]
             tgt = "" if u["target"] is None else f" {u['target']}"
-            lines += wrap(f"- {u['effect']}{tgt}: {u['reason']}", "   ")
+            orders = [o for o in (_orders(v.get("plan")) for v in group) if o]
+            which = f" (orders {', '.join(orders)})" if len(orders) == len(group) > 1 else (
+                f" ({len(group)} candidates)" if len(group) > 1 else "")
+            lines += wrap(f"- {u['effect']}{tgt}{which}: {u['reason']}", "   ")
             if u.get("plan"):
-                lines += wrap(f"  to reveal it, the poses need {u['needs']}; plan them with: {u['plan']}", "   ")
+                first = " (the first of them)" if len(group) > 1 else ""
+                lines += wrap(f"  to reveal it, the poses need {u['needs']}; plan them with{first}: {u['plan']}", "   ")
     return lines
+
+
+def _same_reason(items: list[dict]) -> list[list[dict]]:
+    """The not-revealable candidates grouped by effect, joint, reason and what would reveal them, in
+    order of first appearance (a joint's harmonics of every order share one reason: said once)."""
+    groups: dict[tuple, list[dict]] = {}
+    for u in items:
+        groups.setdefault((u["effect"], u["target"], u["reason"], u.get("needs")), []).append(u)
+    return list(groups.values())
+
+
+def _orders(plan) -> str | None:
+    """The harmonic order a candidate's ``--reveal`` names (``orders = [k]``), or None."""
+    import re
+
+    m = re.search(r"orders = \[([0-9, ]+)\]", plan or "")
+    return m.group(1) if m else None
 
 
 def _summary_pages(pdf, result, base_effects, name=None):

@@ -393,6 +393,28 @@ class Base(RobotEffect):
         return np.einsum("ij,njk->nik", R, R_meas)
 
 
+class _ProbeMounting:
+    """What the probe's mounting on the flange is, for ``tool`` and a campaign's own ``campaign_tool``: the
+    SMR's (or the probe origin's) offset, mm, and, on a 6-DoF campaign (``orientation = true``), the probe
+    frame's turn, arcsec."""
+
+    def oriented(self) -> bool:
+        """Whether the probe frame's turn on the flange is a parameter too (a 6-DoF campaign)."""
+        return bool(self.params.get("orientation", False))
+
+    def prepared(self, robot, data):
+        """On a campaign with orientations the probe frame's turn is fitted too (``orientation = true``)."""
+        if getattr(data, "has_orientation", False) and "orientation" not in self.params:
+            return type(self)(**{**self.params, "orientation": True})
+        return self
+
+    def units(self, robot):
+        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * (3 if self.oriented() else 0)
+
+    def typical_sizes(self, robot):
+        return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
+
+
 class _OneCampaign(RobotEffect):
     """What the effects of one campaign among several share (``campaign_frame``, ``campaign_tool``): the
     campaign they belong to (``campaign = k``, 2, 3, ...: the first campaign has the shared effects), no
@@ -459,7 +481,7 @@ class CampaignFrame(_OneCampaign):
         return [[(c, 1e-3 * mask)] for c in idx.base]
 
 
-class CampaignTool(_OneCampaign):
+class CampaignTool(_ProbeMounting, _OneCampaign):
     """One campaign's own probe mounting error, when several campaigns of one robot are fitted together and this
     campaign's robot.toml states a probe mounting of its own (contract section 15): the SMR's (or the probe
     origin's) offset error on the flange for the poses of campaign ``campaign`` (and, on a 6-DoF campaign, the
@@ -477,22 +499,8 @@ class CampaignTool(_OneCampaign):
                    "the flange is off by its own error, as the first campaign's is by the shared tool error.")
     signature = "an error that rotates with the flange, on one campaign's poses only"
 
-    def oriented(self) -> bool:
-        return bool(self.params.get("orientation", False))
-
-    def prepared(self, robot, data):
-        if getattr(data, "has_orientation", False) and "orientation" not in self.params:
-            return CampaignTool(**{**self.params, "orientation": True})
-        return self
-
     def parameter_names(self, robot):
         return [f"campaign{self.index()}_tool_{t}" for t in TWIST[:6 if self.oriented() else 3]]
-
-    def units(self, robot):
-        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * (3 if self.oriented() else 0)
-
-    def typical_sizes(self, robot):
-        return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
 
     def basis(self, robot, idx, data):
         own = getattr(data, "campaign", None)
@@ -507,7 +515,7 @@ class CampaignTool(_OneCampaign):
 TOOL_TYPICAL_ARCSEC = 360.0
 
 
-class Tool(RobotEffect):
+class Tool(_ProbeMounting, RobotEffect):
     """The SMR (or the probe's origin) offset on the flange; with ``orientation = true`` (set by the
     fit when the campaign has a 6-DoF probe's orientations) also the probe frame's turn on the flange."""
 
@@ -522,30 +530,14 @@ class Tool(RobotEffect):
     explanation = "The SMR sits elsewhere on the end effector than robot.toml says (tool offset error)."
     signature = "an error that rotates with the flange: depends on the wrist orientation, not on position"
 
-    def oriented(self) -> bool:
-        """Whether the probe frame's turn on the flange is a parameter too (a 6-DoF campaign)."""
-        return bool(self.params.get("orientation", False))
-
     def check(self):
         problems = super().check()
         if not isinstance(self.params.get("orientation", False), bool):
             problems.append("effect 'tool': orientation must be true or false")
         return problems
 
-    def prepared(self, robot, data):
-        """On a campaign with orientations the probe frame's turn is fitted too (``orientation = true``)."""
-        if getattr(data, "has_orientation", False) and "orientation" not in self.params:
-            return Tool(**{**self.params, "orientation": True})
-        return self
-
     def parameter_names(self, robot):
         return [f"tool_{t}" for t in TWIST[:6 if self.oriented() else 3]]
-
-    def units(self, robot):
-        return [("mm", 1.0)] * 3 + [("arcsec", MRAD_ARCSEC)] * (3 if self.oriented() else 0)
-
-    def typical_sizes(self, robot):
-        return [TOOL_TYPICAL_MM] * 3 + [TOOL_TYPICAL_ARCSEC] * (3 if self.oriented() else 0)
 
     def checked_values(self, robot, parameters, q_deg):
         """Judged as the SMR's shift on the flange (:func:`pipeline.robot.model.plausibility.frame_deviations`)."""

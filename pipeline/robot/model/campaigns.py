@@ -202,7 +202,7 @@ def per_campaign(robot, effects, out: dict, loaded, wilds, keep_outliers: bool) 
     """The fit's held-out results campaign by campaign (the model of ``out`` rebuilt from its parameters)."""
     from .estimator import RobotErrorModel
 
-    model = RobotErrorModel.from_parameters(robot, [e for e in _fitted_effects(out, effects)], out["parameters"])
+    model = RobotErrorModel.from_parameters(robot, _fitted_effects(out), out["parameters"])
     entries = []
     for k, ((c, sample, target, info), wild) in enumerate(zip(loaded, wilds)):
         s, t = (sample, target) if keep_outliers else wild.clean(sample, target)
@@ -261,7 +261,7 @@ def fitted_tracker_to_base(robot, parameters, index: int, tracker_to_base) -> li
     return [list(map(float, r)) for r in T]
 
 
-def _fitted_effects(out: dict, effects):
+def _fitted_effects(out: dict) -> list:
     """The fitted model's effects (as prepared for the fit: a joint map's grid) from the fit document."""
     from ...core.spec import parse_spec
 

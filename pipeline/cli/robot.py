@@ -463,7 +463,9 @@ def real_report_cmd(fits, predicts, others, campaign_dir, other_name, results_di
 
 
 @robot_group.command("diagnose-loop")
-@click.option("--campaign", required=True, type=click.Path(), help="Robot campaign (raw folder) to diagnose.")
+@click.option("--campaign", required=True, multiple=True, type=click.Path(),
+              help="Robot campaign (raw folder) to diagnose; more than once: several campaigns of one robot, each "
+                   "its own tracker frame (contract section 15).")
 @click.option("--spec", "spec_path", required=True, type=click.Path(), help="The robot spec to start from.")
 @click.option("--other", "other_campaign", default=None, type=click.Path(),
               help="Another campaign of the same robot: each round's model is also judged on it (tracker re-registered).")
@@ -484,7 +486,12 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
 
     A round may also swap a member of the model for the effect that overlaps it (joint_harmonic j,
     joint_map j, chebyshev j) when the model with the swap verifies better, every fold refitted, by
-    pose and by region (rounds 1-2). Wild measurements of both series are named and left out."""
+    pose and by region (rounds 1-2). Wild measurements of both series are named and left out.
+
+    \b
+    --campaign more than once: one robot, each campaign its own tracker frame (as fit), its own
+    folds by pose and by region; a round is kept only when no campaign's cross-validated error
+    rises, and each round's errors are printed campaign by campaign."""
     from ..core.files import write_json, write_text
     from ..diagnosis.engine import verified_text
     from ..diagnosis.loop import loop_on_campaigns
@@ -492,7 +499,7 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
     _edge()
 
     say, warn = _progress, _warn
-    result = loop_on_campaigns(campaign, spec_path, other_campaign, rounds, keep_outliers, say, warn)
+    result = loop_on_campaigns(list(campaign), spec_path, other_campaign, rounds, keep_outliers, say, warn)
     write_json(json_out, result)
     if spec_out:
         write_text(spec_out, result["final_spec"])
@@ -502,6 +509,11 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
                    + (f", other series {far['rms_mm']:.3f} mm (max {far['max_mm']:.3f})" if far else "")
                    + f"; cross-validated {r['cv_rms_mm']:.4g} mm by pose, {r['cv_rms_region_mm']:.4g} by region"
                    + f"; recommended: {', '.join(x['label'] for x in r['recommended']) or 'nothing'}", err=True)
+        for c in r.get("campaigns", []):
+            click.echo(f"  {c['campaign']}: held-out RMS "
+                       + (f"{c['own']['rms_mm']:.3f} mm (max {c['own']['max_mm']:.3f})" if c["own"] else "- (no targets)")
+                       + f"; cross-validated {c['cv_rms_mm']:.4g} mm by pose, {c['cv_rms_region_mm']:.4g} by region",
+                       err=True)
         v = r.get("verified_set") or {}
         if v.get("checked"):
             click.echo(f"  {verified_text(v, 'mm')}", err=True)

@@ -33,7 +33,8 @@ from ..robot.campaign.ingest import robot_data_sets
 from ..robot.model.fit import check_spec_joints
 from ..robot.model.outliers import describe, find_wild
 from .engine import MIN_GAIN, diagnose, done_text, label
-from .robot import RobotAdapter
+from .campaign import PER_CAMPAIGN, several_campaigns
+from .robot import RobotAdapter, campaigns_of, split_rms
 
 #: Rounds at most (the loop is expected to end within three).
 MAX_ROUNDS = 5
@@ -261,12 +262,17 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
                           for c in result["candidates"] if c.get("refused") and c["gain"] > 0]
         row["verified_set"] = result.get("verified_set")
         row["noise"] = result.get("noise")
+        if campaigns_of(sample) is not None:
+            row["campaigns"] = _per_campaign(model, target, adapter, sample)
         rounds.append(row)
-        if prev is not None and not (row["cv_rms_mm"] < prev["cv"] and row["cv_rms_region_mm"] < prev["cv_region"]):
+        risen = _campaign_rises(prev, row)
+        if prev is not None and (risen or not (row["cv_rms_mm"] < prev["cv"]
+                                              and row["cv_rms_region_mm"] < prev["cv_region"])):
             row["kept"] = False
             row["rolled_back"] = (f"its cross-validated RMS ({row['cv_rms_mm']:.4g} mm by pose, "
                                   f"{row['cv_rms_region_mm']:.4g} mm by region) is not below round {prev['round']}'s "
-                                  f"({prev['cv']:.4g} / {prev['cv_region']:.4g} mm): rolled back")
+                                  f"({prev['cv']:.4g} / {prev['cv_region']:.4g} mm): rolled back") if not risen else (
+                f"{risen} since round {prev['round']}: rolled back")
             say(f"round {k}: {row['rolled_back']}; adding round {prev['round']}'s candidates one at a time")
             text, cur, cur_r, tried = prev["text"], prev["cv"], prev["cv_region"], []
             for c in prev["recommended"]:
@@ -290,7 +296,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         # the round's shared fit is done with: not held (nor inherited by the swaps' forked screens) beside theirs
         adapter = None
         prev = {"round": k, "cv": row["cv_rms_mm"], "cv_region": row["cv_rms_region_mm"], "text": text,
-                "recommended": row["recommended"]}
+                "recommended": row["recommended"], "campaigns": row.get("campaigns")}
         known = ((row["cv_rms_mm"], row["cv_rms_region_mm"])
                  if same_yardstick and row["cv_rms_region_mm"] is not None else None)
         swap = (try_swap(robot, text, sample, refits, say, base=known) if (k <= SWAP_ROUNDS and k < max_rounds)
@@ -317,6 +323,39 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
     final = max((r for r in rounds if r.get("kept")), key=lambda r: r["round"])
     return {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
             "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}
+
+
+def _per_campaign(model, target, adapter, sample) -> list[dict]:
+    """A round's errors campaign by campaign (several campaigns): ``index``, ``n_sample``, the held-out target
+    statistics ``own`` (:func:`_pose_stats`), and the diagnosis baseline's cross-validated RMS by pose and by
+    region (``cv_rms_mm``, ``cv_rms_region_mm``; 6-DoF: ``cv_position_rms_mm``), each campaign's poses of its own
+    folds (:func:`pipeline.diagnosis.robot.split_rms`)."""
+    by_pose = split_rms(adapter.baseline_cv["random"], sample)
+    by_region = split_rms(adapter.baseline_cv["region"], sample)
+    out = []
+    for p, r in zip(by_pose, by_region):
+        k = p["index"]
+        t = target.subset(target.campaign == k) if target.n and target.campaign is not None else None
+        e = {"index": k, "n_sample": p["n"], "own": _pose_stats(model, t) if t is not None and t.n else None,
+             "cv_rms_mm": p["rms"], "cv_rms_region_mm": r["rms"]}
+        if "position_rms_mm" in p:
+            e["cv_position_rms_mm"] = p["position_rms_mm"]
+        out.append(e)
+    return out
+
+
+def _campaign_rises(prev, row) -> str:
+    """With several campaigns: which campaign's cross-validated RMS (by pose or by region) rose from the kept round
+    before (''): a round is kept only when it holds on every campaign's poses and regions it was not fitted on."""
+    if not prev or not prev.get("campaigns") or not row.get("campaigns"):
+        return ""
+    out = []
+    for a, b in zip(prev["campaigns"], row["campaigns"]):
+        for key, what in (("cv_rms_mm", "by pose"), ("cv_rms_region_mm", "by region")):
+            if b[key] > a[key]:
+                out.append(f"campaign {b['index']}'s cross-validated RMS {what} rose from {a[key]:.4g} to "
+                           f"{b[key]:.4g} mm")
+    return "; ".join(out)
 
 
 #: A held-out maximum that rises by more than this (mm) from one kept round to the next is named.
@@ -352,11 +391,19 @@ def loop_on_campaigns(campaign, spec_path, other_campaign=None, max_rounds: int 
     """``jointcal robot diagnose-loop``: :func:`diagnosis_loop` on a robot campaign folder, judged also
     on ``other_campaign`` (another series of the same robot) when given.
 
+    ``campaign``: one folder, or a list of folders (``--campaign`` more than once, contract section 15: one
+    robot, each campaign its own tracker frame; :func:`loop_on_several`). A list of one is one folder.
+
     Each campaign's wild measurements are named (``warn``, one line each) and left out
     (:mod:`pipeline.robot.model.outliers`) unless ``keep_outliers``; the rounds' errors with the
     campaign's wild targets beside are ``own_with_outliers``. The result names the campaigns, the
     starting spec (``spec_path``) and the outliers (contract section 12).
     """
+    if not isinstance(campaign, (str, bytes)) and not hasattr(campaign, "__fspath__"):
+        campaigns = list(campaign)
+        if len(campaigns) > 1:
+            return loop_on_several(campaigns, spec_path, other_campaign, max_rounds, keep_outliers, progress, warn)
+        campaign = campaigns[0]
     spec = load_spec(spec_path)
     spec.require_kind("robot", campaign)
     robot, (sample, target, repeat) = robot_data_sets(campaign, ("sample",), ("target",), ("repeat",))
@@ -366,16 +413,61 @@ def loop_on_campaigns(campaign, spec_path, other_campaign=None, max_rounds: int 
         warn(f"{campaign}: {describe(wild)}")
     target_all = target if (wild.target.any() and not wild.kept) else None
     sample, target = wild.clean(sample, target)
-    other, wild_other = None, None
-    if other_campaign:
-        robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
-        wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
-        if describe(wild_other):
-            warn(f"{other_campaign}: {describe(wild_other)}")
-        other = wild_other.clean(os_, ot)
+    other, wild_other = _other_series(other_campaign, spec, keep_outliers, warn)
     result = diagnosis_loop(robot, read_text_input(spec_path, "spec file"), sample, target, other, max_rounds, progress, repeat=repeat,
                             target_all=target_all)
     result.update(campaign=str(campaign), spec=str(spec_path), other=str(other_campaign) if other_campaign else None)
+    result.update(wild.document())
+    if wild_other is not None:
+        result["other_outliers"] = wild_other.outliers
+    return result
+
+
+def _other_series(other_campaign, spec, keep_outliers, warn):
+    """Another series' (sample, target) poses without its wild ones, and its :class:`Wild` (None, None without one)."""
+    if not other_campaign:
+        return None, None
+    robot_o, (os_, ot) = robot_data_sets(other_campaign, ("sample",), ("target",))
+    wild_other = find_wild(robot_o, list(spec.effects), os_, ot, other_campaign, keep_outliers)
+    if describe(wild_other):
+        warn(f"{other_campaign}: {describe(wild_other)}")
+    return wild_other.clean(os_, ot), wild_other
+
+
+def _without_per_campaign(text: str) -> str:
+    """A spec text without the loop's per-campaign effects (:data:`PER_CAMPAIGN`)."""
+    effects = parse_spec(text, "<loop spec>").effects
+    return _with_effects(text, [e.spec_lines() for e in effects if e.name not in PER_CAMPAIGN])
+
+
+def loop_on_several(campaigns, spec_path, other_campaign=None, max_rounds: int = MAX_ROUNDS,
+                    keep_outliers: bool = False, progress=None, warn=_silent) -> dict:
+    """The loop on several campaigns of one robot (``--campaign`` more than once, contract section 15).
+
+    The robot's effects are shared; each campaign after the first has its own tracker frame
+    (``campaign_frame``) and, where its robot.toml states another probe mounting, its own ``campaign_tool``,
+    in every round's model. The folds by pose and by region are each campaign's own
+    (:func:`pipeline.diagnosis.robot.pose_folds`, :func:`pipeline.diagnosis.robot.campaign_region_folds`), and a
+    round is kept only when no campaign's cross-validated error rises (:func:`diagnosis_loop`). Each round
+    reports every campaign's held-out and cross-validated errors (``campaigns``) beside the totals. The spec the
+    loop ends with (``final_spec``) is the robot's: without the campaigns' own frames, which ``jointcal fit``
+    adds for the campaigns it is given.
+    """
+    spec = load_spec(spec_path)
+    spec.require_kind("robot", campaigns[0])
+    robot, sample, target, repeat, target_all, extra, wild = several_campaigns(campaigns, spec, keep_outliers,
+                                                                                   warn)
+    other, wild_other = _other_series(other_campaign, spec, keep_outliers, warn)
+    text = _with_effects(read_text_input(spec_path, "spec file"),
+                         [e.spec_lines() for e in spec.effects if e.name not in PER_CAMPAIGN] + extra)
+    result = diagnosis_loop(robot, text, sample, target, other, max_rounds, progress, repeat=repeat,
+                            target_all=target_all)
+    result["final_spec"] = _without_per_campaign(result["final_spec"])
+    for r in result["rounds"]:
+        for c in r.get("campaigns", []):
+            c["campaign"] = str(campaigns[c["index"] - 1])
+    result.update(campaign=str(campaigns[0]), campaigns=[str(c) for c in campaigns], spec=str(spec_path),
+                  other=str(other_campaign) if other_campaign else None)
     result.update(wild.document())
     if wild_other is not None:
         result["other_outliers"] = wild_other.outliers

@@ -47,6 +47,62 @@ def span_weights(J) -> np.ndarray:
     return (Vt[keep].T / sv[keep]) / norms[:, None]
 
 
+def campaigns_of(data) -> np.ndarray | None:
+    """The campaigns (1-based, sorted) of poses stacked from several campaigns of one robot (contract section
+    15: ``RobotData.campaign``); None for one campaign."""
+    c = getattr(data, "campaign", None)
+    if c is None:
+        return None
+    u = np.unique(c)
+    return u if u.size > 1 else None
+
+
+def pose_folds(data, n_folds: int = N_FOLDS) -> np.ndarray:
+    """Each pose's fold by pose (n,) int: :func:`pipeline.robot.model.estimate.fold_ids`; with several
+    campaigns, within each campaign (each fold holds out a share of every campaign's poses, so each
+    campaign's own tracker frame is fitted on the rest of its poses)."""
+    ids = campaigns_of(data)
+    if ids is None:
+        return fold_ids(data.n, n_folds)
+    out = np.empty(data.n, int)
+    for k in ids:
+        m = data.campaign == k
+        out[m] = fold_ids(int(m.sum()), n_folds)
+    return out
+
+
+def campaign_region_folds(data, n_folds: int = N_FOLDS) -> np.ndarray:
+    """Each pose's region of joint space (n,) int: :func:`pipeline.diagnosis.linear.region_folds`; with several
+    campaigns, the regions of each campaign's own sampled joint box (fold r holds out region r of every
+    campaign at once: what a gain is judged on is each campaign's poses away from those it was fitted on)."""
+    ids = campaigns_of(data)
+    if ids is None:
+        return region_folds(data.q_deg, n_folds)
+    out = np.empty(data.n, int)
+    for k in ids:
+        m = data.campaign == k
+        out[m] = region_folds(data.q_deg[m], n_folds)
+    return out
+
+
+def split_rms(cv: CVResult, data) -> list[dict] | None:
+    """A cross-validated residual's RMS campaign by campaign: ``[{"index", "n", "rms"}]`` (the residual's unit;
+    a 6-DoF residual with ``position_rms_mm`` beside); None for one campaign."""
+    ids = campaigns_of(data)
+    if ids is None:
+        return None
+    r = np.asarray(cv.residuals, float)
+    r = r.reshape(r.shape[0], -1)
+    out = []
+    for k in ids:
+        m = data.campaign == k
+        e = {"index": int(k), "n": int(m.sum()), "rms": float(np.sqrt(np.mean(np.sum(r[m] ** 2, axis=1))))}
+        if r.shape[1] == 6:
+            e["position_rms_mm"] = float(np.sqrt(np.mean(np.sum(r[m, :3] ** 2, axis=1))))
+        out.append(e)
+    return out
+
+
 def _evaluate_one(shared, k):
     """One candidate in a forked worker (the adapter and its shared fit come with the fork)."""
     adapter, base_effects, cands, data = shared
@@ -84,6 +140,8 @@ class RobotAdapter:
         self.keep_linear = keep_linear
         self._lin = None
         self._blocks = {}
+        #: the shared baseline's cross-validated residuals by fold kind ("random", "region"), once measured
+        self.baseline_cv = {}
 
     def linear_done(self, data) -> None:
         """Diagnosis has measured every candidate on the shared fit; what follows refits (the recommended
@@ -185,7 +243,7 @@ class RobotAdapter:
         """The baseline fitted once on every sample pose (cached for this list of effects)."""
         key = (id(data), tuple(id(e) for e in base_effects))
         if self._lin is None or self._lin[0] != key:
-            folds = {"random": fold_ids(data.n, self.n_folds), "region": region_folds(data.q_deg, self.n_folds)}
+            folds = {"random": pose_folds(data, self.n_folds), "region": campaign_region_folds(data, self.n_folds)}
             if getattr(self, "_base_effects", None) is None:
                 self._base_effects = list(base_effects)
             # the problem it replaces goes first: two 6-DoF baselines at once were the loop's peak (issue 32)
@@ -226,7 +284,11 @@ class RobotAdapter:
         lin_extra = self._linear_extra(list(effects), data)
         if lin_extra is not None:
             lin, blocks = lin_extra
-            return CVResult(lin.cv(blocks, folds), np.arange(data.n))
+            out = CVResult(lin.cv(blocks, folds), np.arange(data.n))
+            if not blocks:
+                # the baseline's own (what a diagnosis of several campaigns splits campaign by campaign)
+                self.baseline_cv[folds] = out
+            return out
         return self._refit(effects, data, folds)
 
     def refit_cv(self, effects, data) -> tuple[CVResult, CVResult]:
@@ -241,8 +303,20 @@ class RobotAdapter:
         return cache[key]
 
     def noise_estimate(self, data) -> dict:
-        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.model.noise.noise_estimate`)."""
-        return noise_estimate(self.robot, data, getattr(self, "repeat", None))
+        """The measurement's noise (3-D RMS, mm) from repeated poses (:func:`pipeline.robot.model.noise.noise_estimate`);
+        with several campaigns, each campaign's own (pairs are never taken across two tracker stations), pooled."""
+        repeat = getattr(self, "repeat", None)
+        ids = campaigns_of(data)
+        if ids is None:
+            return noise_estimate(self.robot, data, repeat)
+        parts = []
+        for k in ids:
+            rep = repeat.subset(repeat.campaign == k) if repeat is not None and repeat.campaign is not None else None
+            parts.append((int(k), noise_estimate(self.robot, data.subset(data.campaign == k), rep)))
+        known = [(k, x) for k, x in parts if x["rms"] is not None]
+        n = sum(x["n"] for _, x in known)
+        rms = float(np.sqrt(sum(x["n"] * x["rms"] ** 2 for _, x in known) / n)) if n else None
+        return {"rms": rms, "n": int(n), "source": "; ".join(f"campaign {k}: {x['source']}" for k, x in parts)}
 
     def weight(self, data):
         """The orientation rows' weight (mm per mrad) of every residual this adapter compares on a 6-DoF
@@ -264,10 +338,11 @@ class RobotAdapter:
 
     def _refit(self, effects, data, folds):
         if folds == "random":
-            cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data))
+            cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data),
+                                folds=pose_folds(data, self.n_folds) if campaigns_of(data) is not None else None)
             return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
         cv = cross_validate(self.robot, effects, data, self.n_folds, orientation_weight=self.weight(data),
-                            folds=region_folds(data.q_deg, self.n_folds))
+                            folds=campaign_region_folds(data, self.n_folds))
         return CVResult(self._full(cv.residuals, cv.extra.get("orientation"), data), np.arange(data.n))
 
     def components(self, cv: CVResult, data) -> dict | None:
@@ -365,7 +440,9 @@ class RobotAdapter:
             box = _replace(data, q_deg=qb, dir=rng.choice([-1, 1], size=(n, qb.shape[1])), payload_kg=payload,
                            temperature_c=np.full(n, float(np.median(data.temperature_c))),
                            torque_nm=gravity_torques(self.robot, qb, payload), measured_mm=None,
-                           point_id=np.array([], dtype=object), measured_R=None, sigma_mm=None, sigma_arcsec=None)
+                           point_id=np.array([], dtype=object), measured_R=None, sigma_mm=None, sigma_arcsec=None,
+                           # several campaigns: the box in the first campaign's frame, with the model robot's probe
+                           campaign=None, mounting_offset=None)
             effects = lin.model.effects_ if lin.model is not None else []
             d = Design(self.robot, effects, box, lin.idx_model)
             Jext = channel_jacobian(d, lin.coef)

@@ -8,6 +8,7 @@ arranged themselves (which poses belong to which campaign), never with the gener
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -99,3 +100,87 @@ def test_the_loop_on_two_campaigns_reports_each(cells):  # noqa: F811
     fit = cells["root"] / "loop_ab_fit.json"
     r = cells["run"]("fit", "--campaign", cells["a"], "--campaign", cells["b"], "--spec", spec_out, "--out", fit)
     assert r.exit_code == 0, r.output
+
+
+# ---------------------------------------------------------------- full poses are never worse (issue 52)
+# The control logic, with diagnosis and the fits replaced by stand-ins whose numbers the test chooses (as
+# tests/test_diagnose_loop_rollback.py): on a 6-DoF campaign the orientation rows made the loop take one effect
+# (a compliance) where the positions alone take another (a joint map), and the first then blocks the second.
+
+START = '[model]\nkind = "robot"\n\n[[effect]]\nname = "geometry"\n'
+COMPLIANCE = '[[effect]]\nname = "compliance"\njoints = [2]'
+MAP = '[[effect]]\nname = "joint_map"\njoints = [2]'
+
+
+@dataclasses.dataclass
+class _Poses:
+    """Stand-in poses: ``n`` of them, with or without orientations."""
+    n: int = 0
+    measured_R: object = None
+    sigma_arcsec: object = None
+
+    @property
+    def has_orientation(self):
+        return self.measured_R is not None
+
+
+def _run_loop(monkeypatch, position_cv):
+    """The loop on a stand-in 6-DoF campaign; ``position_cv``: the refitted (position mm, orientation arcsec) by
+    pose of each final spec, keyed by its extra effect's name."""
+    from pipeline.diagnosis import loop as loop_mod
+
+    def extra(effects):
+        names = [e.name for e in effects if e.name != "geometry"]
+        return names[0] if names else None
+
+    def fake_diagnose(adapter, spec, data, progress=None):
+        have = extra(spec.effects)
+        line = COMPLIANCE if data.has_orientation else MAP
+        cands = [] if have else [{"effect": "x", "target": 2, "meaningful": True, "gain": 0.3, "spec_line": line}]
+        cv = (1.0, 1.0) if not have else (0.5, 0.5)
+        return {"baseline": {"cv_rms": cv[0], "cv_rms_region": cv[1], "unit": "mm"}, "candidates": cands}
+
+    class Adapter:
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def weight(self, data):
+            return 1.0
+
+        def refit_cv(self, effects, data):
+            assert data.has_orientation        # both specs judged with the orientations, fold by fold
+            return extra(effects), None
+
+        def components(self, cv, data):
+            return {"position_rms_mm": position_cv[cv][0], "orientation_rms_arcsec": position_cv[cv][1]}
+
+    class Model:
+        converged_ = plausible_ = True
+
+    monkeypatch.setattr(loop_mod, "diagnose", fake_diagnose)
+    monkeypatch.setattr(loop_mod, "RobotAdapter", Adapter)
+    monkeypatch.setattr(loop_mod, "fit_effects", lambda robot, effects, data: Model())
+    monkeypatch.setattr(loop_mod, "model_cv", lambda robot, effects, data: (1.0, 1.0))
+    monkeypatch.setattr(loop_mod, "try_swap", lambda *args, **kwargs: None)
+    six = _Poses(n=4, measured_R=np.zeros((4, 3, 3)))
+    return loop_mod.diagnosis_loop(None, START, six, _Poses())
+
+
+def test_a_full_pose_loop_ends_no_worse_in_position_than_positions_alone(monkeypatch):
+    """The full-pose loop ends on the compliance; the loop on the positions alone on the map, which holds out by
+    pose far better in position (every fold refitted with the orientations) and no worse in orientation: the
+    map's spec is the result, and the JSON says why."""
+    out = _run_loop(monkeypatch, {"compliance": (0.25, 80.0), "joint_map": (0.15, 78.0)})
+    check = out["positions_only"]
+    assert check["used"] and check["full"]["position_rms_mm"] == 0.25 and check["positions"]["position_rms_mm"] == 0.15
+    names = [e.name for e in __import__("pipeline.core.spec", fromlist=["x"]).parse_spec(out["final_spec"]).effects]
+    assert names == ["geometry", "joint_map"], out["final_spec"]
+    assert "positions-only" in out["done"]
+
+
+@pytest.mark.parametrize("cv", [{"compliance": (0.25, 80.0), "joint_map": (0.245, 78.0)},   # within 1.05x
+                                {"compliance": (0.25, 80.0), "joint_map": (0.15, 120.0)}])   # orientation worse
+def test_the_full_pose_spec_stays_when_positions_alone_do_not_do_better(monkeypatch, cv):
+    out = _run_loop(monkeypatch, cv)
+    assert not out["positions_only"]["used"]
+    assert "compliance" in out["final_spec"] and "joint_map" not in out["final_spec"]

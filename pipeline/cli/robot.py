@@ -529,6 +529,12 @@ def diagnose_loop_cmd(campaign, spec_path, other_campaign, json_out, spec_out, r
             click.echo(f"  round {r['round']}: {r['rolled_back']}; one at a time: "
                        + ", ".join(f"{t['label']} {'kept' if t['kept'] else 'left out'}" for t in r["one_at_a_time"]),
                        err=True)
+    check = result.get("positions_only")
+    if check and check["used"]:
+        own = check.get("own")
+        click.echo(f"{json_out}: {result['done']}" + (f"; its held-out RMS {own['rms_mm']:.3f} mm (max {own['max_mm']:.3f})"
+                                                      if own else ""), err=True)
+        return
     click.echo(f"{json_out}: {result['done']}; the spec of round {result['final_round']} is the result", err=True)
 
 

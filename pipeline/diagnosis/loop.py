@@ -194,7 +194,7 @@ def try_swap(robot, text: str, sample, cache=None, say=None, min_gain: float = M
 
 
 def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds: int = MAX_ROUNDS,
-                   progress=None, repeat=None, target_all=None) -> dict:
+                   progress=None, repeat=None, target_all=None, positions_check: bool = True) -> dict:
     """Run the loop (see the module docstring).
 
     A round is kept only when its cross-validated RMS, by pose and by region, is lower than the
@@ -216,6 +216,9 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
     target_all : RobotData, optional
         The target poses with the wild ones (``target`` is without them): each round's error on them
         too, ``own_with_outliers``.
+    positions_check : bool
+        On a 6-DoF campaign, end no worse in position than the loop on the positions alone
+        (:func:`positions_check`).
 
     Returns
     -------
@@ -321,8 +324,83 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
             text += "\n" + "\n\n".join(c["spec_line"] for c in best) + "\n"
     _flag_max_rises(rounds)
     final = max((r for r in rounds if r.get("kept")), key=lambda r: r["round"])
-    return {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
-            "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}
+    out = {"rounds": rounds, "final_spec": prev["text"] if prev else text, "final_round": final["round"],
+           "ended": bool(done), "done": done or f"stopped after {max_rounds} rounds"}
+    if positions_check and sample.has_orientation:
+        out["positions_only"] = check = positions_check_of(robot, spec_text, out["final_spec"], sample, target, other,
+                                                          max_rounds, say, repeat, refits)
+        if check["used"]:
+            out["final_spec"] = check["final_spec"]
+            out["done"] += f"; {check['why']}"
+    return out
+
+
+#: The full-pose loop's spec gives way to the positions-only loop's when that one's position error held out by
+#: pose (every fold refitted with the orientations) is lower by more than this share (issue 52: full poses are
+#: never worse in position than positions alone, within 1.05x), its orientation error not higher by more than it
+POSITIONS_TOLERANCE = 0.05
+
+
+def _positions(data):
+    """``data`` without its orientations (a 6-DoF campaign seen as positions only)."""
+    if data is None:
+        return None
+    from dataclasses import replace
+
+    out = replace(data, measured_R=None, sigma_arcsec=None)
+    if hasattr(data, "grating_joints"):
+        out.grating_joints = data.grating_joints
+    return out
+
+
+def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, other, max_rounds, say, repeat,
+                       refits) -> dict:
+    """Full poses are never worse (issue 52): the loop run again on the positions alone, and its spec
+    compared with the full-pose loop's on the 6-DoF sample poses, every fold refitted with the orientations
+    (:meth:`RobotAdapter.refit_cv`, by pose: what the held-out targets are).
+
+    Why: the loop's decisions depend on its path. On a 6-DoF campaign the orientation rows rank the candidates
+    otherwise (a joint's compliance before its angle-error map, say); once one is in the model, the other no
+    longer lowers the error held out by region (one region where it extrapolates outweighs the others where
+    it helps), and the loop ends where the positions-only loop, which took the map first, does much better
+    by pose and on the held-out targets. The positions-only loop's decisions passed the same rules (by pose and
+    by region) on the same poses' positions: the orientations must not make the loop stop short of them.
+
+    Returns
+    -------
+    dict: ``final_spec`` (the positions-only loop's), ``rounds`` (its number of rounds), ``done``, the refitted
+    cross-validated errors of both specs (``full`` and ``positions``: ``position_rms_mm``,
+    ``orientation_rms_arcsec``), ``used`` (the positions-only loop's spec is the result), ``own`` (then: its
+    held-out target errors, fitted with the orientations) and ``why``.
+    """
+    say("positions only: the loop again on the positions alone (full poses must not end worse in position)")
+    inner = diagnosis_loop(robot, spec_text, _positions(sample), _positions(target),
+                           None if other is None else (_positions(other[0]), _positions(other[1])), max_rounds,
+                           lambda m: say(f"  positions only: {m}"), repeat=_positions(repeat), positions_check=False)
+    out = {"final_spec": inner["final_spec"], "rounds": len(inner["rounds"]), "done": inner["done"], "used": False}
+    if parse_spec(inner["final_spec"], "<loop spec>").names() == parse_spec(final_spec, "<loop spec>").names() and \
+            [e.spec_lines() for e in parse_spec(inner["final_spec"], "<loop spec>").effects] == \
+            [e.spec_lines() for e in parse_spec(final_spec, "<loop spec>").effects]:
+        out["why"] = "the loop on the positions alone ends on the same spec"
+        return out
+    adapter = RobotAdapter(robot, refit_cache=refits)
+    for key, text in (("full", final_spec), ("positions", inner["final_spec"])):
+        a, _ = adapter.refit_cv(list(parse_spec(text, "<loop spec>").effects), sample)
+        out[key] = adapter.components(a, sample)
+    f, p = out["full"], out["positions"]
+    used = (p["position_rms_mm"] < f["position_rms_mm"] * (1.0 - POSITIONS_TOLERANCE)
+            and p["orientation_rms_arcsec"] <= f["orientation_rms_arcsec"] * (1.0 + POSITIONS_TOLERANCE))
+    out["used"] = bool(used)
+    if used and target.n:
+        # the result's held-out targets (what each round reports as ``own``), fitted with the orientations
+        out["own"] = _pose_stats(fit_effects(robot, list(parse_spec(inner["final_spec"], "<loop spec>").effects),
+                                             sample), target)
+    out["why"] = (f"the positions-only loop's spec, refitted with the orientations fold by fold, holds out by pose at "
+                  f"{p['position_rms_mm']:.4g} mm and {p['orientation_rms_arcsec']:.1f} arcsec against the full-pose "
+                  f"loop's {f['position_rms_mm']:.4g} mm and {f['orientation_rms_arcsec']:.1f} arcsec: "
+                  + ("it is the result" if used else "the full-pose loop's spec is kept"))
+    say(f"positions only: {out['why']}")
+    return out
 
 
 def _per_campaign(model, target, adapter, sample) -> list[dict]:

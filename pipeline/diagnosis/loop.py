@@ -368,7 +368,8 @@ def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, o
 
     Returns
     -------
-    dict: ``final_spec`` (the positions-only loop's), ``rounds`` (its number of rounds), ``done``, the refitted
+    dict: ``final_spec`` (the positions-only loop's), ``rounds`` (its number of rounds), ``done``,
+    ``own_positions_fit`` (its last kept round's held-out target errors, fitted on the positions alone), the refitted
     cross-validated errors of both specs (``full`` and ``positions``: ``position_rms_mm``,
     ``orientation_rms_arcsec``), ``used`` (the positions-only loop's spec is the result), ``own`` (then: its
     held-out target errors, fitted with the orientations) and ``why``.
@@ -377,7 +378,9 @@ def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, o
     inner = diagnosis_loop(robot, spec_text, _positions(sample), _positions(target),
                            None if other is None else (_positions(other[0]), _positions(other[1])), max_rounds,
                            lambda m: say(f"  positions only: {m}"), repeat=_positions(repeat), positions_check=False)
-    out = {"final_spec": inner["final_spec"], "rounds": len(inner["rounds"]), "done": inner["done"], "used": False}
+    last = max((r for r in inner["rounds"] if r.get("kept")), key=lambda r: r["round"])
+    out = {"final_spec": inner["final_spec"], "rounds": len(inner["rounds"]), "done": inner["done"],
+           "own_positions_fit": last["own"], "used": False}
     if parse_spec(inner["final_spec"], "<loop spec>").names() == parse_spec(final_spec, "<loop spec>").names() and \
             [e.spec_lines() for e in parse_spec(inner["final_spec"], "<loop spec>").effects] == \
             [e.spec_lines() for e in parse_spec(final_spec, "<loop spec>").effects]:

@@ -102,6 +102,16 @@ def test_the_loop_on_two_campaigns_reports_each(cells):  # noqa: F811
     assert r.exit_code == 0, r.output
 
 
+@pytest.mark.parametrize("command", [("diagnose", "--json"), ("robot", "diagnose-loop", "--json")])
+def test_a_campaign_given_twice_is_refused(cells, command):  # noqa: F811
+    """Bad input: one line naming the campaign's poses.csv, exit status 2, nothing written."""
+    out = cells["root"] / f"twice_{command[-2]}.json"
+    r = cells["run"](*command[:-1], "--campaign", cells["a"], "--campaign", cells["a"], "--spec", SPEC, command[-1], out)
+    assert r.exit_code == 2, r.output
+    assert "given twice" in r.output and "poses.csv" in r.output and "Traceback" not in r.output
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------- full poses are never worse (issue 52)
 # The control logic, with diagnosis and the fits replaced by stand-ins whose numbers the test chooses (as
 # tests/test_diagnose_loop_rollback.py): on a 6-DoF campaign the orientation rows made the loop take one effect

@@ -13,6 +13,11 @@ A round may also **swap**: a member of the model that has an overlapping effect 
 the other) is replaced by it when the model with the replacement verifies better - every fold
 refitted, lower by pose by at least diagnosis' ``min_gain`` and lower by region (:func:`try_swap`).
 Without it the first pick of a pair would be permanent.
+
+On a 6-DoF campaign the loop, once ended, is run again on the positions alone; it ends on that loop's spec
+when that one does better in position held out by pose (:func:`positions_check_of`: full poses are never
+worse). Several campaigns of one robot (:func:`loop_on_several`): each its own tracker frame and folds,
+a round kept only when no campaign's cross-validated error rises, every round's errors per campaign.
 """
 
 from __future__ import annotations
@@ -218,15 +223,16 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         too, ``own_with_outliers``.
     positions_check : bool
         On a 6-DoF campaign, end no worse in position than the loop on the positions alone
-        (:func:`positions_check`).
+        (:func:`positions_check_of`).
 
     Returns
     -------
     dict with ``rounds`` (each: ``effects``, ``own`` and ``other`` error statistics in mm, the
     diagnosis' ``cv_rms_mm`` and ``cv_rms_region_mm``, ``recommended``, ``refused``, ``verified_set``,
     ``kept``, ``swap`` (:func:`try_swap`, when the model had something to swap) and, for a round rolled
-    back, ``rolled_back`` and ``one_at_a_time``), ``final_spec``
-    (TOML text of the last round kept), ``final_round``, ``ended`` and ``done`` (in words).
+    back, ``rolled_back`` and ``one_at_a_time``; with several campaigns ``campaigns``, :func:`_per_campaign`),
+    ``final_spec`` (TOML text of the last round kept, or of the positions-only loop's), ``final_round``,
+    ``ended``, ``done`` (in words) and, on a 6-DoF campaign, ``positions_only`` (:func:`positions_check_of`).
     """
     say = progress or (lambda s: None)
     text = spec_text.rstrip() + "\n"

@@ -260,7 +260,9 @@ SINGULAR_MM = 1.0
 
 def singularity(robot, q_deg) -> str:
     """What singularity the nominal arm is at or near at ``q_deg`` (N,) deg: two joints turning about
-    (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; "" when none.
+    (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; a six-joint arm's
+    elbow stretched out or folded back (joints 2 and 3 parallel, the wrist point within
+    :data:`SINGULAR_DEG` of the line through their axes); "" when none.
 
     Parameters
     ----------
@@ -291,6 +293,21 @@ def singularity(robot, q_deg) -> str:
                 return (f"the wrist singularity: at joint {j} = {float(q_deg[j - 1]):+.3f} deg {pair}, so a turn about "
                         "it is split between them arbitrarily")
             return f"a singularity: {pair}, so a turn about it is split between them arbitrarily"
+    if n == 6:
+        # the elbow: joints 2 and 3 parallel and the wrist point (on joint 5's axis, where a spherical wrist's
+        # axes meet) on the line through them - the arm stretched out or folded back
+        (p2, u2), (p3, u3), (w, _) = axes[1], axes[2], axes[4]
+        if np.rad2deg(np.arcsin(min(1.0, np.linalg.norm(np.cross(u2, u3))))) <= SINGULAR_DEG:
+            a, b = p3 - p2, w - p3
+            a, b = a - (a @ u3) * u3, b - (b @ u3) * u3
+            if np.linalg.norm(a) > SINGULAR_MM and np.linalg.norm(b) > SINGULAR_MM:
+                bend = float(np.rad2deg(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
+                off = min(bend, 180.0 - bend)
+                if off <= SINGULAR_DEG:
+                    how = "stretched out" if bend < 90.0 else "folded back"
+                    return (f"the elbow singularity: at joint 3 = {float(q_deg[2]):+.3f} deg the arm is {how}, the "
+                            f"wrist point {off:.3f} deg off the line through joints 2 and 3, so it cannot move along "
+                            "that line")
     return ""
 
 

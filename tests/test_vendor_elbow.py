@@ -1,0 +1,27 @@
+"""A row that cannot be corrected at the elbow singularity says so (issue 53's smaller points: a
+singularity is named, not only "the model does not reach the point")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.correct.robot import singularity
+from pipeline.robot.campaign.urdf import robot_from_urdf
+
+URDF = Path(__file__).parent / "data" / "urdf" / "abb_like.urdf"
+
+
+def test_the_elbow_singularity_is_named():
+    """The ABB-like arm (tests/data/urdf/abb_like.urdf: forearm 1590 mm, 200 mm above joint 3's axis) is
+    stretched out at joint 3 = -90 + atan(200 / 1590) deg = -82.83 deg: within 2 deg the elbow is named,
+    farther away, and on the wrist's own singularity, not."""
+    robot, _ = robot_from_urdf(URDF, "link_6")
+    stretched = -90.0 + np.rad2deg(np.arctan2(200.0, 1590.0))
+    q = np.array([20.0, 10.0, stretched + 0.7, 30.0, 40.0, 10.0])
+    words = singularity(robot, q)
+    assert words.startswith("the elbow singularity: at joint 3 = ") and "stretched out" in words, words
+    assert "0.700 deg off the line" in words, words
+    assert singularity(robot, q + [0, 0, 5.0, 0, 0, 0]) == ""
+    assert singularity(robot, np.array([20.0, 10.0, stretched + 3.0, 30.0, 0.0, 10.0])).startswith("the wrist")

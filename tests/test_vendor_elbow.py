@@ -25,3 +25,14 @@ def test_the_elbow_singularity_is_named():
     assert "0.700 deg off the line" in words, words
     assert singularity(robot, q + [0, 0, 5.0, 0, 0, 0]) == ""
     assert singularity(robot, np.array([20.0, 10.0, stretched + 3.0, 30.0, 0.0, 10.0])).startswith("the wrist")
+
+
+def test_the_elbow_rule_is_a_spherical_wrists():
+    """The rule is for arms whose wrist axes meet (FANUC, KUKA, ABB); a UR10's do not, and its refused rows
+    keep their words (results/real/C_corrected.csv, whose first row is a UR10 stretched out, the same bytes)."""
+    from conftest import ROOT
+    from pipeline.robot.arm.kinematics import load_robot
+
+    robot = load_robot(ROOT / "raw/real/ur10-ipa/robot.toml")
+    for q3 in np.linspace(-30.0, 30.0, 13):
+        assert not singularity(robot, np.array([0.0, -90.0, q3, -90.0, 45.0, 0.0])).startswith("the elbow")

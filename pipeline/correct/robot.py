@@ -261,7 +261,7 @@ SINGULAR_MM = 1.0
 def singularity(robot, q_deg) -> str:
     """What singularity the nominal arm is at or near at ``q_deg`` (N,) deg: two joints turning about
     (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; a six-joint arm's
-    elbow stretched out or folded back (joints 2 and 3 parallel, the wrist point within
+    elbow stretched out or folded back (a spherical wrist; joints 2 and 3 parallel, the wrist point within
     :data:`SINGULAR_DEG` of the line through their axes); "" when none.
 
     Parameters
@@ -293,9 +293,9 @@ def singularity(robot, q_deg) -> str:
                 return (f"the wrist singularity: at joint {j} = {float(q_deg[j - 1]):+.3f} deg {pair}, so a turn about "
                         "it is split between them arbitrarily")
             return f"a singularity: {pair}, so a turn about it is split between them arbitrarily"
-    if n == 6:
-        # the elbow: joints 2 and 3 parallel and the wrist point (on joint 5's axis, where a spherical wrist's
-        # axes meet) on the line through them - the arm stretched out or folded back
+    if n == 6 and _spherical_wrist(axes[3:]):
+        # the elbow: joints 2 and 3 parallel and the wrist point (where the wrist's three axes meet) on the
+        # line through them - the arm stretched out or folded back
         (p2, u2), (p3, u3), (w, _) = axes[1], axes[2], axes[4]
         if np.rad2deg(np.arcsin(min(1.0, np.linalg.norm(np.cross(u2, u3))))) <= SINGULAR_DEG:
             a, b = p3 - p2, w - p3
@@ -309,6 +309,13 @@ def singularity(robot, q_deg) -> str:
                             f"wrist point {off:.3f} deg off the line through joints 2 and 3, so it cannot move along "
                             "that line")
     return ""
+
+
+def _spherical_wrist(axes) -> bool:
+    """Whether three joint axes ``[(point (3,) mm, unit direction (3,)), ...]`` meet at joint 5's point
+    (each within :data:`SINGULAR_MM` of it)."""
+    w = axes[1][0]
+    return all(float(np.linalg.norm(np.cross(w - p, u))) <= SINGULAR_MM for p, u in axes)
 
 
 def correct_recorded(kin: ModelKinematics, q_deg, *args, **kwargs) -> Correction:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 import acceptance_cells as ac
@@ -48,6 +49,11 @@ def run_cell(invoke, cell: str, tmp, n_measured: int, seed: int = 21) -> dict:
     truth_T = ac.in_tracker(truth.poses(c["flange"], Qc))
     mm, deg = ac.apart(truth_T, np.linalg.inv(t2b) @ ac.Truth(cal.read_text()).poses(c["flange"], Qc))
     mm0, deg0 = ac.apart(truth_T, np.linalg.inv(t2b) @ ac.Truth(nominal.read_text()).poses(c["flange"], Qc))
+    # frames kept: every link of the exported URDF where the nominal file puts it, but for the calibration's
+    # amounts (millimetres, hundredths of a degree: no link moved to another place or turned by quarter turns)
+    exported, nom = ac.Truth(cal.read_text()), ac.Truth(nominal.read_text())
+    links = [f.name for f in nom.model.frames if f.type == pin.FrameType.BODY]
+    kept = [ac.apart(exported.poses(name, Qc[:20]), nom.poses(name, Qc[:20])) for name in links]
     # a program written for the nominal robot, inside the joint ranges the model was fitted on
     lo, hi = np.array(fit["sampled_range"]["lower_deg"]), np.array(fit["sampled_range"]["upper_deg"])
     Qp = Qc[np.all((Qc >= lo + 2.0) & (Qc <= hi - 2.0), axis=1)][:24]
@@ -61,6 +67,7 @@ def run_cell(invoke, cell: str, tmp, n_measured: int, seed: int = 21) -> dict:
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))      # noqa: E731
     return {"flange_mm": float(mm.max()), "flange_deg": float(deg.max()), "nominal_mm": float(mm0.max()),
             "nominal_deg": float(deg0.max()), "heldout_mm": fit["heldout"]["rms_after_mm"],
+            "links_moved_mm": float(max(k[0].max() for k in kept)), "links_turned_deg": float(max(k[1].max() for k in kept)),
             "given_rms_mm": rms(land["given"]), "filtered_rms_mm": rms(land["filtered"]), "n_filtered": land["n"],
             "n_motions": len(rows), "left": [(t["line"], t["status"]) for t in rows if t["status"] != "ok"]}
 
@@ -69,6 +76,7 @@ def run_cell(invoke, cell: str, tmp, n_measured: int, seed: int = 21) -> dict:
 def test_a_simulated_vendor_cell_is_fitted_exported_and_corrected(invoke, tmp_path, cell):
     res = run_cell(invoke, cell, tmp_path, n_measured=100)
     assert res["nominal_mm"] > 1.0                                           # a calibration worth doing
+    assert res["links_moved_mm"] < 5.0 and res["links_turned_deg"] < 0.2, res   # the user's frames kept
     assert res["flange_mm"] < 0.1 and res["flange_deg"] < 0.01, res
     assert res["n_filtered"] >= 0.9 * res["n_motions"], res                  # the rest named (res["left"])
     assert res["given_rms_mm"] > 0.5, res

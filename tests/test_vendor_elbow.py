@@ -1,5 +1,5 @@
-"""A row that cannot be corrected at the elbow singularity says so (issue 53's smaller points: a
-singularity is named, not only "the model does not reach the point")."""
+"""A row that cannot be corrected at the elbow or the shoulder singularity says so (issue 53's smaller
+points: a singularity is named, not only "the model does not reach the point")."""
 
 from __future__ import annotations
 
@@ -36,3 +36,29 @@ def test_the_elbow_rule_is_a_spherical_wrists():
     robot = load_robot(ROOT / "raw/real/ur10-ipa/robot.toml")
     for q3 in np.linspace(-30.0, 30.0, 13):
         assert not singularity(robot, np.array([0.0, -90.0, q3, -90.0, 45.0, 0.0])).startswith("the elbow")
+
+
+def test_the_shoulder_singularity_is_named():
+    """The ABB-like arm with its wrist point over joint 1's axis (seen on the simulated ABB cell: a program
+    target 2.4 mm from it, refused as "the model does not reach the point") is named; 100 mm away, not."""
+    import math
+
+    robot, _ = robot_from_urdf(URDF, "link_6")
+    # joint 2 leaning forward by t2, the forearm folded back so that the wrist point comes over joint 1's
+    # axis: 320 + 1280 sin(t2) + (forearm reach) x = 0 along x, found numerically
+    from pipeline.programs import ik
+
+    chain = ik.chain_of(robot)
+
+    def reach(q3):
+        return ik.frames(chain, np.deg2rad([[30.0, 29.5, q3, -89.0, -18.0, -14.0]]))[0, 4, 0, 3]
+
+    lo, hi = -170.0, -120.0
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if reach(lo) * reach(mid) > 0 else (lo, mid)
+    q = np.array([30.0, 29.5, (lo + hi) / 2, -89.0, -18.0, -14.0])
+    words = singularity(robot, q)
+    assert words.startswith("the shoulder singularity: the wrist point is 0.0 mm from joint 1's axis"), words
+    q3_away = q[2] + math.degrees(100.0 / 1590.0)
+    assert singularity(robot, np.array([30.0, 29.5, q3_away, -89.0, -18.0, -14.0])) == ""

@@ -153,3 +153,12 @@ def test_a_robot_whose_zero_is_not_the_controllers_is_said():
     robot = robot.replace_joint(1, theta_offset_deg=robot.joints[1].theta_offset_deg + 30.0)
     v = vendor_flange(robot, "fanuc")
     assert np.allclose(v.pose, np.eye(4)) and "not the controller's" in v.note
+
+
+def test_a_robot_turned_round_on_its_base_is_said():
+    """The same arm with its base frame turned half a turn about z (the flange at zero along -x, the axis
+    still parallel to the vendor's): no turn is guessed (it would be a half-turn off), and a note says why."""
+    robot = _robot("fanuc_like.urdf", False)
+    robot = robot.replace_joint(0, theta_offset_deg=robot.joints[0].theta_offset_deg + 180.0)
+    v = vendor_flange(robot, "fanuc")
+    assert np.allclose(v.pose, np.eye(4)) and "behind its base" in v.note, v.note

@@ -25,7 +25,8 @@ base's: FANUC's ``tool0`` (``flange`` turned by rpy (pi, -pi/2, 0)) is the facep
 axis (the flange face of a robot.toml whose last ``d_mm`` reaches it; a URDF's ``--tip`` link origin).
 
 A robot whose flange at the controller's zero does not lie along the vendor's "out of the flange"
-axis (its joint zeros are not the controller's) gets no turn, and a note says so.
+axis, or lies behind the base along it (its joint zeros or its base frame are not the controller's),
+gets no turn, and a note says so.
 
 Pure functions of a robot's numbers; no file.
 """
@@ -97,14 +98,21 @@ def vendor_flange(robot, fmt: str) -> VendorFlange:
     R0, out = AT_ZERO[fmt]
     chain = ik.chain_of(robot)
     q0 = np.asarray(robot.kinematic_angles(np.zeros((1, robot.n_joints))), float)
-    RN = ik.flange(chain, np.deg2rad(q0))[0, :3, :3]
+    FN = ik.flange(chain, np.deg2rad(q0))[0]
+    RN = FN[:3, :3]
     axis = R0[:, out]
-    if abs(float(RN[:, 2] @ axis)) < np.cos(ALIGN_RAD):
-        z = RN[:, 2]
-        note = (f"{NAMES[fmt]} is taken as the last joint's frame: at the controller's zero (every joint 0) this "
-                f"robot's last joint turns about ({z[0]:.3f}, {z[1]:.3f}, {z[2]:.3f}) in its base frame, not about "
-                f"({axis[0]:g}, {axis[1]:g}, {axis[2]:g}) as the vendor's arms do (its joint zeros are not the "
-                "controller's): check a target, and give --tool relative to that frame")
+    z = RN[:, 2]
+    why = ""
+    if abs(float(z @ axis)) < np.cos(ALIGN_RAD):
+        why = (f"this robot's last joint turns about ({z[0]:.3f}, {z[1]:.3f}, {z[2]:.3f}) in its base frame, not "
+               f"about ({axis[0]:g}, {axis[1]:g}, {axis[2]:g}) as the vendor's arms do")
+    elif float(FN[:3, 3] @ axis) <= 0.0:
+        why = (f"this robot's flange is behind its base, at ({FN[0, 3]:.1f}, {FN[1, 3]:.1f}, {FN[2, 3]:.1f}) mm, "
+               f"not out along ({axis[0]:g}, {axis[1]:g}, {axis[2]:g}) as the vendor's arms' is")
+    if why:
+        note = (f"{NAMES[fmt]} is taken as the last joint's frame: at the controller's zero (every joint 0) {why} "
+                "(its joint zeros or its base frame are not the controller's): check a target, and give --tool "
+                "relative to that frame")
         return VendorFlange(np.eye(4), NAMES[fmt], note)
     T = np.eye(4)
     T[:3, :3] = RN.T @ R0

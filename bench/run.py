@@ -149,6 +149,7 @@ OPTIONAL_JOBS = {
     "arms": "bench.arms_bench",            # fit and diagnosis against the joint count N = 4, 6, 7
     "scale": "bench.scale_bench",          # issue 32: fit, predict, diagnose, the loop at 1,000-12,000 UR10 poses
     "uncertainty": "bench.uncertainty_bench",  # stated parameter uncertainties against the truth, 20 virtual cells
+    "acceptance": "bench.acceptance_bench",  # issue 53: simulated FANUC, KUKA, ABB cells from their URDFs, end to end
 }
 BUILTIN_JOBS = {"encoder": bench_encoder_chain, "make": bench_make_encoder, "harmonic": bench_harmonic_scaling}
 

@@ -12,15 +12,18 @@ import numpy as np
 
 from pipeline.programs import conventions as cv
 from pipeline.programs import ik
+from pipeline.programs.flanges import vendor_flange
 
 #: kind of the k-th target: joint PTP, Cartesian PTP, Cartesian linear, Cartesian linear
 KINDS = ("joint", "ptp", "lin", "lin")
 
 
-def _poses(robot, Q, tool, base):
+def _poses(robot, Q, tool, base, fmt):
+    """TCP poses in ``base`` of joints Q (n, 6) deg, ``tool`` given in the vendor's flange frame of ``fmt``."""
     chain = ik.chain_of(robot)
     F = ik.flange(chain, np.deg2rad(Q))
-    P = [cv.invert(base) @ f @ tool for f in F]
+    Fv = vendor_flange(robot, fmt).pose
+    P = [cv.invert(base) @ f @ Fv @ tool for f in F]
     flags = ik.arm_flags(chain, Q)
     return P, flags
 
@@ -34,7 +37,7 @@ def krl(robot, Q, name="prog"):
     """(src, dat) texts with CRLF: tool and base inline, E6POS/E6AXIS in the .dat, inline targets."""
     tool = cv.homogeneous(cv.kuka_matrix(30.0, -20.0, 10.0), robot.tool_xyz_mm)
     base = cv.homogeneous(cv.kuka_matrix(5.0, 0.0, 0.0), [100.0, -50.0, 20.0])
-    P, flags = _poses(robot, Q, tool, base)
+    P, flags = _poses(robot, Q, tool, base, "krl")
     src = ["&ACCESS RVP", "&REL 1", f"&PARAM TEMPLATE = C:\\KRC\\Roboter\\Template\\vorgabe", "&PARAM EDITMASK = *",
            f"DEF {name}( )", ";FOLD INI;%{PE}", "  ;FOLD BASISTECH INI", "    BAS (#INITMOV,0 )", "  ;ENDFOLD",
            ";ENDFOLD (INI)", "$TOOL = {X 60.0,Y 40.0,Z 120.0,A 30.0,B -20.0,C 10.0}",
@@ -75,7 +78,7 @@ def rapid(robot, Q, name="prog"):
     """A RAPID module: tooldata and wobjdata declared, CONST robtargets/jointtargets and inline ones."""
     tool = cv.homogeneous(cv.abb_matrix(0.9238795325, 0.0, 0.3826834324, 0.0), robot.tool_xyz_mm)
     uf = cv.homogeneous(cv.abb_matrix(0.9961946981, 0.0, 0.0, 0.0871557427), [100.0, -50.0, 20.0])
-    P, flags = _poses(robot, Q, tool, uf)
+    P, flags = _poses(robot, Q, tool, uf, "rapid")
     tq = cv.abb_quaternion(tool[:3, :3])
     wq = cv.abb_quaternion(uf[:3, :3])
     head = ["%%%", "  VERSION:1", "  LANGUAGE:ENGLISH", "%%%", "", f"MODULE {name}",
@@ -116,7 +119,7 @@ def rapid(robot, Q, name="prog"):
 def fanuc(robot, Q, name="PROG"):
     """A FANUC .ls: UF : 0, UT : 1 (--tool), J and L moves, joint and Cartesian /POS entries."""
     tool = cv.homogeneous(cv.fanuc_matrix(10.0, -20.0, 30.0), robot.tool_xyz_mm)
-    P, flags = _poses(robot, Q, tool, np.eye(4))
+    P, flags = _poses(robot, Q, tool, np.eye(4), "fanuc")
 
     def num(v, d=3):
         s = f"{v:{9}.{d}f}"
@@ -156,7 +159,7 @@ def fanuc(robot, Q, name="PROG"):
 def urscript(robot, Q, name="prog"):
     """A URScript: set_tcp, movej joint lists, movel/movej poses, global pose variables."""
     tool = cv.homogeneous(cv.ur_matrix(0.1, -0.2, 0.3), robot.tool_xyz_mm)
-    P, _ = _poses(robot, Q, tool, np.eye(4))
+    P, _ = _poses(robot, Q, tool, np.eye(4), "ur")
     tv = np.array(robot.tool_xyz_mm) / 1000.0
     lines = [f"def {name}():", "  # hand-written sample (tests/program_samples.py)",
              f"  set_tcp(p[{tv[0]:.6f}, {tv[1]:.6f}, {tv[2]:.6f}, 0.1, -0.2, 0.3])"]

@@ -38,7 +38,8 @@ name = "joint_harmonic"
 joints = [1, 2, 3, 4, 5, 6]
 orders = [1, 2, 3]
 """
-FANUC_TOOL = "60 40 120 10 -20 30"      # W P R of the samples' UTOOL[1] (tests/program_samples.py)
+FANUC_TOOL = "-60 -40 120 10 -20 -150"  # the samples' UTOOL[1] on the KR210 in FANUC's faceplate frame (sample.ls)
+KUKA_TOOL = "120 40 -60 53.947611268 54.468652237 69.357657952"   # sample.src's $TOOL, in KUKA's $FLANGE
 
 
 # ------------------------------------------------------------------------------ conventions
@@ -225,7 +226,7 @@ def test_filtered_program_lands_on_the_model(cells, tmp_path, fmt):
     else:
         prog = tmp_path / {"rapid": "prog.mod", "fanuc": "prog.ls", "ur": "prog.script"}[fmt]
         prog.write_text({"rapid": ps.rapid, "fanuc": ps.fanuc, "ur": ps.urscript}[fmt](robot, Q, "prog"))
-        extra = ["--tool", FANUC_TOOL] if fmt == "fanuc" else []
+        extra = ["--tool", "60 40 120 10 -20 30"] if fmt == "fanuc" else []    # program_samples.fanuc's UTOOL[1]
     run = cells["run"]
     payload = ["--payload", cells[cell]["payload"]]
     # one UR10 target needs 0.56 deg of joint 5 (the default limit 0.5 deg would leave it as given, at its
@@ -311,6 +312,7 @@ def test_ptp_goes_to_the_branch_its_configuration_names(tmp_path):
     """A KR210 with full joint ranges: the same pose at S 2 and S 6 (flip) gives the two wrist
     solutions; T picks the turn; a LIN after it keeps the branch of the point before."""
     from pipeline.programs.filtering import play
+    from pipeline.programs.flanges import vendor_flange
     from pipeline.programs.io import read_program
 
     robot = load_robot(KR210)
@@ -322,6 +324,7 @@ def test_ptp_goes_to_the_branch_its_configuration_names(tmp_path):
     qf[4] = -q[4]
     T = ik.flange(chain, np.deg2rad(q[None]))[0]
     assert np.allclose(ik.flange(chain, np.deg2rad(qf[None]))[0], T, atol=1e-9)
+    T = T @ vendor_flange(robot, "krl").pose          # KUKA's $FLANGE (the null tool's TCP)
     a, b, c = cv.kuka_abc(T[:3, :3])
     pos = f"X {T[0, 3]:.6f},Y {T[1, 3]:.6f},Z {T[2, 3]:.6f},A {a:.7f},B {b:.7f},C {c:.7f}"
     t_flip = cv.kuka_turn(qf)
@@ -344,7 +347,7 @@ def test_kss8_inline_form_fanuc_continuation_and_names_from_elsewhere(cells, tmp
     s = (src / "sample.src").read_bytes().decode("latin-1")
     s = s.replace("PTP XP1\r\n", "SPTP XP1 WITH $TOOL = STOOL2(FP1), $BASE = SBASE(FP1.BASE_NO), $APO = "
                   "SAPO_PTP(PPDAT1)\r\nPTP XHOME\r\n", 1)
-    s = s.replace("$TOOL = {X 60.0,Y 40.0,Z 120.0,A 30.0,B -20.0,C 10.0}", "BAS(#TOOL, 1)")
+    s = s.replace("$TOOL = {X 120.0,Y 40.0,Z -60.0,A 53.947611268,B 54.468652237,C 69.357657952}", "BAS(#TOOL, 1)")
     s = s.replace("$BASE = {X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}", "BAS(#BASE, 1)")
     (src / "sample.src").write_bytes(s.encode("latin-1"))
     d = (src / "sample.dat").read_bytes().decode("latin-1")
@@ -356,7 +359,7 @@ def test_kss8_inline_form_fanuc_continuation_and_names_from_elsewhere(cells, tmp
     r = run("correct", "--model", model, "--program", src / "sample.src", "--out", tmp_path / "o1")
     assert r.exit_code == 2 and "give it with --tool" in r.output
     r = run("correct", "--model", model, "--program", src / "sample.src", "--out", tmp_path / "o2", "--tool",
-            "60 40 120 30 -20 10", "--base", "100 -50 20 5 0 0", "--json", tmp_path / "r.json")
+            KUKA_TOOL, "--base", "100 -50 20 5 0 0", "--json", tmp_path / "r.json")
     assert r.exit_code == 0, r.output
     rows = {t["name"]: t for t in json.loads((tmp_path / "r.json").read_text())["targets"]}
     assert rows["XP1"]["status"] == "ok" and rows["XHOME"]["status"] == "run_time"
@@ -522,13 +525,13 @@ def test_krl_with_the_controllers_config_dat(cells, tmp_path):
     prog = tmp_path / "krc"
     prog.mkdir()
     s = (DATA / "sample.src").read_bytes().decode("latin-1")
-    s = s.replace("$TOOL = {X 60.0,Y 40.0,Z 120.0,A 30.0,B -20.0,C 10.0}", "BAS(#TOOL, 1)")
+    s = s.replace("$TOOL = {X 120.0,Y 40.0,Z -60.0,A 53.947611268,B 54.468652237,C 69.357657952}", "BAS(#TOOL, 1)")
     s = s.replace("$BASE = {X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}", "BAS(#BASE, 1)")
     s = s.replace("PTP XP1\r\n", "PTP XHOME\r\nPTP XP1\r\n", 1)
     (prog / "sample.src").write_bytes(s.encode("latin-1"))
     shutil.copy(DATA / "sample.dat", prog / "sample.dat")
     (prog / "$config.dat").write_bytes(
-        b"DEFDAT $CONFIG\r\nDECL FRAME TOOL_DATA[16]\r\nTOOL_DATA[1]={X 60.0,Y 40.0,Z 120.0,A 30.0,B -20.0,C 10.0}\r\n"
+        b"DEFDAT $CONFIG\r\nDECL FRAME TOOL_DATA[16]\r\nTOOL_DATA[1]={X 120.0,Y 40.0,Z -60.0,A 53.947611268,B 54.468652237,C 69.357657952}\r\n"
         b"DECL FRAME BASE_DATA[32]\r\nBASE_DATA[1]={X 100.0,Y -50.0,Z 20.0,A 5.0,B 0.0,C 0.0}\r\n"
         b"DECL LOAD LOAD_DATA[16]\r\nLOAD_DATA[1]={M 60.0,CM {X 0.0,Y 0.0,Z 100.0,A 0.0,B 0.0,C 0.0},J {X 0.0,Y 0.0,Z 0.0}}\r\n"
         b"DECL E6AXIS XHOME={A1 0.0,A2 -90.0,A3 90.0,A4 0.0,A5 60.0,A6 0.0,E1 0.0,E2 0.0}\r\nENDDAT\r\n")

@@ -83,7 +83,8 @@ def _json_line(path, key: str):
                    "RAPID), .ls (FANUC TP ASCII), .script/.urscript (URScript); or a folder of one program (RAPID "
                    "modules read together, KRL with the folder's $config.dat). See docs/programs.md.")
 @click.option("--tool", "tool_text", default=None,
-              help="--program: the TCP in the flange frame where the program does not define it (KRL TOOL_DATA[n] without "
+              help="--program: the TCP in the vendor's flange frame (FANUC faceplate, KUKA $FLANGE, ABB tool0, UR tool "
+                   "flange: docs/your-robot.md) where the program does not define it (KRL TOOL_DATA[n] without "
                    "$config.dat, "
                    "FANUC UTOOL, an undeclared RAPID tool, URScript without set_tcp): \"X Y Z A B C\", mm and the "
                    "format's rotation (KRL A B C, FANUC W P R deg; RAPID \"x y z q1 q2 q3 q4\"; UR rotation vector rad).")

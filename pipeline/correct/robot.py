@@ -256,11 +256,16 @@ def _prioritised_step(J, e_pos, e_rot, dq_so_far=None, damping=ORIENTATION_DAMPI
 #: two joint axes closer than this (deg apart, and their lines this close, mm) make a singularity
 SINGULAR_DEG = 2.0
 SINGULAR_MM = 1.0
+#: a spherical wrist's point this close to joint 1's axis (mm) is the shoulder singularity
+SHOULDER_MM = 50.0
 
 
 def singularity(robot, q_deg) -> str:
     """What singularity the nominal arm is at or near at ``q_deg`` (N,) deg: two joints turning about
-    (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; "" when none.
+    (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; a six-joint arm's
+    elbow stretched out or folded back (a spherical wrist; joints 2 and 3 parallel, the wrist point within
+    :data:`SINGULAR_DEG` of the line through their axes); its shoulder (the wrist point within
+    :data:`SHOULDER_MM` of joint 1's axis); "" when none.
 
     Parameters
     ----------
@@ -291,7 +296,35 @@ def singularity(robot, q_deg) -> str:
                 return (f"the wrist singularity: at joint {j} = {float(q_deg[j - 1]):+.3f} deg {pair}, so a turn about "
                         "it is split between them arbitrarily")
             return f"a singularity: {pair}, so a turn about it is split between them arbitrarily"
+    if n == 6 and _spherical_wrist(axes[3:]):
+        # the elbow: joints 2 and 3 parallel and the wrist point (where the wrist's three axes meet) on the
+        # line through them - the arm stretched out or folded back
+        (p2, u2), (p3, u3), (w, _) = axes[1], axes[2], axes[4]
+        if np.rad2deg(np.arcsin(min(1.0, np.linalg.norm(np.cross(u2, u3))))) <= SINGULAR_DEG:
+            a, b = p3 - p2, w - p3
+            a, b = a - (a @ u3) * u3, b - (b @ u3) * u3
+            if np.linalg.norm(a) > SINGULAR_MM and np.linalg.norm(b) > SINGULAR_MM:
+                bend = float(np.rad2deg(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
+                off = min(bend, 180.0 - bend)
+                if off <= SINGULAR_DEG:
+                    how = "stretched out" if bend < 90.0 else "folded back"
+                    return (f"the elbow singularity: at joint 3 = {float(q_deg[2]):+.3f} deg the arm is {how}, the "
+                            f"wrist point {off:.3f} deg off the line through joints 2 and 3, so it cannot move along "
+                            "that line")
+        # the shoulder: the wrist point on (near) joint 1's axis, which then hardly moves it
+        (p1, u1), w = axes[0], axes[4][0]
+        off_mm = float(np.linalg.norm(np.cross(w - p1, u1)))
+        if off_mm <= SHOULDER_MM:
+            return (f"the shoulder singularity: the wrist point is {off_mm:.1f} mm from joint 1's axis, so joint 1 "
+                    "hardly moves it and a sideways correction takes a large turn of joint 1")
     return ""
+
+
+def _spherical_wrist(axes) -> bool:
+    """Whether three joint axes ``[(point (3,) mm, unit direction (3,)), ...]`` meet at joint 5's point
+    (each within :data:`SINGULAR_MM` of it)."""
+    w = axes[1][0]
+    return all(float(np.linalg.norm(np.cross(w - p, u))) <= SINGULAR_MM for p, u in axes)
 
 
 def correct_recorded(kin: ModelKinematics, q_deg, *args, **kwargs) -> Correction:

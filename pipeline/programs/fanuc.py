@@ -7,8 +7,9 @@ Read: the ``/MN`` motion lines ``J``, ``L`` and ``C`` (with its continuation lin
 the robot (decision); an entry of other groups only (a positioner, a rail) is named and left as
 given, and the other groups of an entry are never rewritten. A ``J`` move
 goes to the branch its CONFIG names; ``L`` and ``C`` keep the branch of the point before. ``UF : 0``
-is the robot's base frame; another user frame, and every ``UT`` (a tool number, not in the program),
-is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
+is the robot's base frame and ``UT : 0`` the faceplate (FANUC's mechanical interface frame, no tool:
+:mod:`pipeline.programs.flanges`); another user frame, and every other ``UT`` (a tool number, not in
+the program), is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
 
 Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
 ``Offset``, ``Tool_Offset``, ``VOFFSET`` and ``INC`` options. ``/MN`` lines of other forms (``:``
@@ -207,7 +208,9 @@ def read(path) -> Program:
             uf, ut = e["uf"], e["ut"]
             t.base = Frame(np.eye(4), "", "UF 0") if uf == 0 else Frame(
                 None, f"user frame UF : {uf} is UFRAME[{uf}] of the controller, not in the program", f"UFRAME[{uf}]")
-            t.tool = Frame(None, f"tool UT : {ut} is UTOOL[{ut}] of the controller, not in the program", f"UTOOL[{ut}]")
+            # UT : 0 is the faceplate itself (no tool: pipeline.programs.flanges gives its frame on the robot)
+            t.tool = Frame(np.eye(4), "", "UT 0") if ut == 0 else Frame(
+                None, f"tool UT : {ut} is UTOOL[{ut}] of the controller, not in the program", f"UTOOL[{ut}]")
         else:
             raise InputError(src.path, f"{name}: group 1 has neither X, Y, Z, W, P, R nor J1 .. J6", e["line"], None)
         if mo:

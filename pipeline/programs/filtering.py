@@ -6,7 +6,10 @@ pose in the program's base frame) through inverse kinematics on its branch: the 
 configuration data name, or, for a linear move (and every UR move, and a joint move without
 configuration monitoring), the branch of the point before; among the turns of that branch, the one
 the target's turn data name (KUKA ``T``, ABB ``cf1 cf4 cf6``, FANUC turns), else the one nearest the
-joints of the point before. The robot starts at the middle of its joint ranges (decision).
+joints of the point before. The robot starts at the middle of its joint ranges (decision). A tool
+is given in the vendor's flange frame (FANUC's faceplate, KUKA's ``$FLANGE``, ABB's ``tool0``, UR's
+tool flange: :mod:`pipeline.programs.flanges`), whatever frame the robot's kinematics end at; a target
+with no solution that a half-turn of the tool would reach is named as such.
 
 :func:`filter_program` corrects those commands with the whole fitted model
 (:func:`pipeline.correct.robot.correct_commands`, as ``jointcal correct --targets``) and writes
@@ -27,6 +30,7 @@ from ..core.errors import InputError
 from . import formats as fm
 from . import ik
 from .conventions import invert
+from .flanges import HALF_TURNS, vendor_flange
 from .model import CARTESIAN, CONFIG, JOINT, Program
 
 OK = "ok"
@@ -142,7 +146,11 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     joint_q = {k: robot.kinematic_angles(np.asarray(fm.joints_deg(fmt, targets[k].values), float)[None])[0]
                for k in joint_k}
     joint_flags = dict(zip(joint_k, ik.arm_flags(chain, np.array([joint_q[k] for k in joint_k])))) if joint_k else {}
-    want, T_fl, cart = {}, {}, []
+    # the vendor's flange frame (FANUC's faceplate, KUKA's $FLANGE, ABB's tool0, UR's tool flange) in the last
+    # link frame {N}: a program's tool is given in it, the kinematics end at {N}
+    flange = vendor_flange(robot, fmt)
+    notes = [flange.note] if flange.note and any(t.kind == CARTESIAN and not t.runtime for t in targets) else []
+    want, T_fl, cart, T_target = {}, {}, [], {}
     for k, t in enumerate(targets):
         if t.runtime:
             reason[k] = t.runtime
@@ -157,8 +165,10 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         if isinstance(tool_T, str) or isinstance(base_T, str):
             reason[k] = tool_T if isinstance(tool_T, str) else base_T
             continue
+        tool_T = flange.pose @ tool_T            # the TCP in {N}
         tools[k], bases[k] = tool_T, base_T
-        T_fl[k] = base_T @ fm.pose(fmt, t.values) @ invert(tool_T)
+        T_target[k] = base_T @ fm.pose(fmt, t.values)
+        T_fl[k] = T_target[k] @ invert(tool_T)
         w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
         want[k] = w
         prev_flags = w
@@ -186,11 +196,13 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         s = sols.get(k, np.zeros((0, 6)))
         flags = "".join(n for n, f in zip(("rear ", "down ", "flip"), want[k]) if f).strip() or "front, up, no flip"
         if not len(s):
-            reason[k] = f"no inverse-kinematics solution on its branch ({flags})"
+            reason[k] = (f"no inverse-kinematics solution on its branch ({flags})"
+                         + _half_turn(chain, T_target[k], tools[k], flange, want[k]))
             continue
         cands = np.rad2deg(ik.expand_turns(chain, s))
         if not len(cands):
-            reason[k] = f"its branch ({flags}) has no solution within the joint ranges"
+            reason[k] = (f"its branch ({flags}) has no solution within the joint ranges"
+                         + _half_turn(chain, T_target[k], tools[k], flange, want[k]))
             continue
         if t.branch == CONFIG and t.turn is not None:
             okt = np.array([fm.turn_ok(fmt, t.turn, c) for c in cands])
@@ -201,7 +213,25 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         best = cands[np.argmin(np.abs(cands - prev).max(axis=1))]
         q[k] = best
         prev = best
-    return Played(q, reason, tools, bases)
+    return Played(q, reason, tools, bases, notes)
+
+
+def _half_turn(chain, T_target, tool_T, flange, want) -> str:
+    """Why a Cartesian target has no solution when it is a half-turn of its tool: ``''``, or the words
+    naming the axis of the vendor's flange frame about which the tool turned by 180 deg reaches it on its
+    branch within the joint ranges (the frame of a URDF's link taken for the vendor's flange, say).
+
+    ``T_target`` (4, 4) mm the TCP in the robot's base frame; ``tool_T`` (4, 4) mm the TCP in {N};
+    ``flange`` the :class:`~pipeline.programs.flanges.VendorFlange`; ``want`` (3,) bool the branch flags."""
+    tcp = invert(flange.pose) @ tool_T                   # the TCP in the vendor's flange frame
+    for axis, H in HALF_TURNS.items():
+        T = T_target @ invert(flange.pose @ H @ tcp)
+        s = ik.solve_branch(chain, T[None], np.asarray(want, bool)[None])[0]
+        if len(s) and len(ik.expand_turns(chain, s)):
+            return (f"; it has one with its tool turned half a turn (180 deg) about the {axis} axis of {flange.name}"
+                    ": the tool frame (the program's tool, --tool) is a half-turn off the vendor's flange frame "
+                    "(a frame read off another convention, a URDF link's?)")
+    return ""
 
 
 @dataclass
@@ -212,6 +242,7 @@ class Filtered:
     rows: list                      # dicts: file, line, name, kind, status, reason, max_correction_arcsec, move_mm
     texts: list = field(default_factory=list)
     conflicts: list = field(default_factory=list)   # rows of a declared target used again under another frame or load
+    notes: list = field(default_factory=list)       # the controller's notes (a vendor flange taken as {N})
 
 
 def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=None, payload_kg=None,
@@ -321,7 +352,7 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
                 changes[(num.file, num.start, num.end)] = s
         row["max_correction_arcsec"] = float(dq)
         row["move_mm"] = move
-    return Filtered(changes, rows, conflicts=conflicts)
+    return Filtered(changes, rows, conflicts=conflicts, notes=list(played.notes))
 
 
 def _uses_differ(a, b) -> list:

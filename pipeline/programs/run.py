@@ -70,7 +70,7 @@ class FilteredProgram:
                   for r in rows if r["status"] not in ("ok", "same_target")]
         lines += [f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}"
                   for r in res.conflicts]
-        lines += [f"  {note}" for note in notes]
+        lines += [f"  {note}" for note in (*notes, *res.notes)]
         if payload_kg is not None and any(r["payload_source"].startswith("program:") for r in rows):
             lines.append(f"  --payload {payload_kg:g} kg is used where the program states no payload; where it "
                          "states one, the program's")

@@ -122,3 +122,85 @@ def test_poses_planned_for_the_region_beat_random_ones(setup):
     # 8 poses the plan does not win (0.174 against a median 0.178), with 45 it does (0.068 against 0.099)
     assert planned < 0.6 * np.median(random), (planned, random)
     assert planned < min(random), (planned, random)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """A simulated KR210 campaign ``a`` (synthetic), its model fitted (kinematics and a joint-1 map), and a pool
+    in another region: a's poses with joint 1 turned the other way (q1 -> -q1), under a's point ids."""
+    from conftest import cli_invoker
+
+    root = tmp_path_factory.mktemp("plan_region")
+    run = cli_invoker()
+    a = root / "a"
+    a.mkdir()
+    (a / "robot.toml").write_text(KR210.read_text(encoding="utf-8"), encoding="utf-8")
+    r = run("simulate", "robot", "--campaign", a, "--truth", root / "truth.json", "--seed", "52")
+    assert r.exit_code == 0, r.output
+    spec = root / "spec.toml"
+    spec.write_text(SPEC_TEXT, encoding="utf-8")
+    fit = root / "fit.json"
+    r = run("fit", "--campaign", a, "--spec", spec, "--out", fit)
+    assert r.exit_code == 0, r.output
+    poses = pd.read_csv(a / "poses.csv", dtype={"point_id": str})
+    pool = poses[poses["set"] == "sample"][["point_id"] + [f"q{j}" for j in range(1, 7)]].copy()
+    pool["q1"] = -pool["q1"]
+    pool_path = root / "pool.csv"
+    pool.to_csv(pool_path, index=False)
+    return {"root": root, "a": a, "fit": fit, "pool": pool_path, "pool_df": pool, "run": run}
+
+
+def test_plan_for_a_region_from_the_command_line(fitted, tmp_path):
+    run, f = fitted["run"], fitted
+    outs = []
+    for k, extra in enumerate((["--campaign", f["a"]], [])):       # the campaign given, or the one the model names
+        out, js = tmp_path / f"plan{k}.csv", tmp_path / f"plan{k}.json"
+        r = run("plan", "--robot", KR210, "--model", f["fit"], "--pool", f["pool"], "--region", f["pool"], "--n", 15,
+                "--out", out, "--json", js, *extra)
+        assert r.exit_code == 0, r.output
+        outs.append((out.read_bytes(), js.read_bytes()))
+    assert outs[0] == outs[1]
+    plan = pd.read_csv(tmp_path / "plan0.csv", dtype={"point_id": str})
+    doc = json.loads((tmp_path / "plan0.json").read_text())
+    pool = f["pool_df"].set_index("point_id")
+    # 15 distinct poses of the pool, under the pool's ids (which are the measured campaign's ids too)
+    assert len(plan) == 15 and plan["point_id"].is_unique and set(plan["set"]) == {"sample"}
+    assert np.allclose(plan[[f"q{j}" for j in range(1, 7)]].to_numpy(),
+                       pool.loc[plan["point_id"], [f"q{j}" for j in range(1, 7)]].to_numpy())
+    for key in ("n", "criterion", "parameters_identifiable", "predicted_rms_mm"):
+        assert key in doc
+    assert doc["n"] == 15 and doc["region"]["n"] == len(pool)
+    assert doc["region"]["predicted_rms_mm"] < 0.7 * doc["region"]["predicted_rms_mm_before"]
+    # a region elsewhere (the measured campaign's own poses) asks for other poses
+    r = run("plan", "--robot", KR210, "--model", f["fit"], "--pool", f["pool"], "--region", f["a"], "--n", 15,
+            "--out", tmp_path / "own.csv", "--campaign", f["a"])
+    assert r.exit_code == 0, r.output
+    assert set(pd.read_csv(tmp_path / "own.csv", dtype={"point_id": str})["point_id"]) != set(plan["point_id"])
+
+
+@pytest.mark.parametrize("case", ["region without model", "not a model", "no campaign"])
+def test_region_plans_refuse_what_they_cannot_use(fitted, tmp_path, case):
+    import re
+
+    run, f = fitted["run"], fitted
+    args = ["plan", "--robot", KR210, "--pool", f["pool"], "--n", 5, "--out", tmp_path / "plan.csv"]
+    if case == "region without model":
+        args += ["--spec", tmp_path / "missing.toml", "--region", f["pool"]]
+    elif case == "not a model":
+        bad = tmp_path / "bad.json"
+        bad.write_text('{"kind": "encoder"}', encoding="utf-8")
+        args += ["--model", bad]
+    else:
+        doc = json.loads(f["fit"].read_text())
+        doc["campaign"] = str(tmp_path / "gone")
+        doc.pop("campaigns", None)
+        moved = tmp_path / "moved.json"
+        moved.write_text(json.dumps(doc), encoding="utf-8")
+        args += ["--model", moved]
+    r = run(*args)
+    assert r.exit_code == 2, r.output
+    assert not (tmp_path / "plan.csv").exists()
+    if case != "region without model":
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and re.match(r"^jointcal: error: [^:]+:[^:]+:[^:]+: \S", lines[0]), r.stderr
+        assert "Traceback" not in r.output

@@ -126,7 +126,7 @@ class _VCriterion:
         self.Minv = 0.5 * (self.Minv + self.Minv.T)
         B = self.A @ self.Minv
         self.G = np.einsum("nkp,nlp->nkl", B, self.A)
-        self.Q = np.einsum("nkp,pq,nlq->nkl", B, self.W, B)
+        self.Q = np.einsum("nkp,nlp->nkl", B @ self.W, B)
         self.value = float(np.sum(self.W * self.Minv))
 
     def gains(self) -> np.ndarray:
@@ -142,7 +142,7 @@ class _VCriterion:
         UWU = U.T @ self.W @ U
         cross = np.einsum("nka,ab,nlb->nkl", R, C, S)
         self.Q = (self.Q - cross - np.transpose(cross, (0, 2, 1))
-                  + np.einsum("nka,ab,bc,cd,nld->nkl", R, C, UWU, C, R))
+                  + np.einsum("nka,ab,nlb->nkl", R, C @ UWU @ C, R))
         self.G = self.G - np.einsum("nka,ab,nlb->nkl", R, C, R)
         self.value -= float(np.trace(C @ UWU))
         self.Minv = self.Minv - U @ C @ U.T

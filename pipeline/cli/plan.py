@@ -78,6 +78,12 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     joint motion; a payload change costs more than any motion, so payloads are visited together). The console and --json say how many parameters the poses identify, which ones
     the pool cannot identify and why, and the position error (mm RMS over the pool) that the
     parameters' uncertainty leaves for --noise-mm.
+
+    With --model FIT.json: the poses of a second campaign (its own tracker frame) that most lower the
+    fitted model's prediction variance over --region (V-optimal; the model's joint maps laid over the
+    region as unknowns, the region judged after its own registration, as predict --register judges it).
+    Measure them, fit them with the model's campaign (fit --campaign FIRST --campaign NEW), and the model
+    holds there too (docs/planning.md).
     """
     from ..core.errors import InputError
     from ..core.files import write_json, write_text

@@ -204,3 +204,21 @@ def test_region_plans_refuse_what_they_cannot_use(fitted, tmp_path, case):
         lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and re.match(r"^jointcal: error: [^:]+:[^:]+:[^:]+: \S", lines[0]), r.stderr
         assert "Traceback" not in r.output
+
+
+def test_the_region_is_judged_after_its_own_registration():
+    """An error the region's own rigid re-registration takes out (``predict --register``) weighs nothing: a
+    parameter direction that moves every region pose by one shift and turn has zero weight, one that bends
+    the poses' positions apart keeps its weight."""
+    from pipeline.plan.region import frame_blocks, region_weight
+
+    rng = np.random.default_rng(0)
+    P = rng.uniform(-1000, 1000, (40, 3))
+    t, w = np.array([0.3, -0.2, 0.1]), np.array([1e-4, -2e-4, 3e-4])
+    rigid = t + np.cross(w, P)                         # (40, 3) mm: one shift and small turn
+    bend = 1e-4 * P * P[:, [0]] / 1000.0               # not rigid
+    A = np.stack([rigid, bend], axis=2)                # (40, 3, 2): two parameters' position blocks
+    W = region_weight(A, frame_blocks(P, 3, None))
+    assert W[0, 0] < 1e-12 * W[1, 1]
+    # the bend keeps most of its weight (its mean squared size over the region's poses)
+    assert W[1, 1] > 0.3 * np.mean(np.sum(bend ** 2, axis=1))

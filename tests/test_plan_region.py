@@ -222,3 +222,22 @@ def test_the_region_is_judged_after_its_own_registration():
     assert W[0, 0] < 1e-12 * W[1, 1]
     # the bend keeps most of its weight (its mean squared size over the region's poses)
     assert W[1, 1] > 0.3 * np.mean(np.sum(bend ** 2, axis=1))
+
+
+def test_a_program_is_a_region(fitted, tmp_path):
+    """--region PROGRAM: the program's targets as the nominal controller plays them (here a URScript written
+    from 12 poses of the other region) are the poses the model must hold on."""
+    import program_samples as ps
+
+    run, f = fitted["run"], fitted
+    robot = load_robot(KR210)
+    Q = f["pool_df"][[f"q{j}" for j in range(1, 7)]].to_numpy(float)[:12]
+    prog = tmp_path / "prog.script"
+    prog.write_text(ps.urscript(robot, Q), encoding="utf-8")
+    js = tmp_path / "plan.json"
+    r = run("plan", "--robot", KR210, "--model", f["fit"], "--pool", f["pool"], "--region", prog, "--n", 10,
+            "--out", tmp_path / "plan.csv", "--json", js)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(js.read_text())
+    assert doc["region"]["source"] == str(prog) and doc["region"]["n"] >= 12
+    assert doc["region"]["predicted_rms_mm"] < doc["region"]["predicted_rms_mm_before"]

@@ -109,7 +109,7 @@ def test_poses_planned_for_the_region_beat_random_ones(setup):
     robot, effects, measured, pool_q, region_error = setup
     pay = np.full(len(pool_q), ROBOT_FIXTURE["payload_kg"])
     pool = pool_data(robot, pool_q, pay)
-    plan = plan_region(robot, effects, measured, pool, pool, K)
+    plan = plan_region(robot, effects, measured, pool, None, K)     # the region: the pool itself
     assert len(set(plan.chosen.tolist())) == K
     # the predicted error over the region falls with every pose, from far above to far below
     curve = [p["region_rms_mm"] for p in plan.curve]
@@ -171,6 +171,13 @@ def test_plan_for_a_region_from_the_command_line(fitted, tmp_path):
         assert key in doc
     assert doc["n"] == 15 and doc["region"]["n"] == len(pool)
     assert doc["region"]["predicted_rms_mm"] < 0.7 * doc["region"]["predicted_rms_mm_before"]
+    # without --region the region is the pool itself
+    r = run("plan", "--robot", KR210, "--model", f["fit"], "--pool", f["pool"], "--n", 15, "--out", tmp_path / "d.csv",
+            "--json", tmp_path / "d.json")
+    assert r.exit_code == 0, r.output
+    default = json.loads((tmp_path / "d.json").read_text())
+    assert default["region"]["n"] == len(pool) and default["region"]["source"] == str(f["pool"])
+    assert default["region"]["predicted_rms_mm"] < 0.7 * default["region"]["predicted_rms_mm_before"]
     # a region elsewhere (the measured campaign's own poses) asks for other poses
     r = run("plan", "--robot", KR210, "--model", f["fit"], "--pool", f["pool"], "--region", f["a"], "--n", 15,
             "--out", tmp_path / "own.csv", "--campaign", f["a"])

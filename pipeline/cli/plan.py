@@ -235,7 +235,7 @@ def _plan_region(robot, robot_path, model_path, spec_path, pool_path, region_pat
     if region_path is not None:
         region_q, region_pay = _region_q(region_path, robot)
     else:
-        region_q, region_pay = pool.q_deg, pool.payload_kg
+        region_q, region_pay = None, None
 
     def say(msg):
         click.echo(f"plan: {msg}", err=True)

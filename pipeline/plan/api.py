@@ -86,7 +86,8 @@ def plan_for_region(robot, effects, pool: Pool, region_q_deg, n: int, measured, 
     robot : Robot (N joints)
     effects : list of RobotEffect: the model's (a fitted model's joint maps are laid again over every pose)
     pool : Pool (joint values deg, payloads kg): the poses the new campaign can measure
-    region_q_deg : ndarray, shape (R, N), deg: the controller's joint values where the model must hold
+    region_q_deg : ndarray, shape (R, N), deg, or None: the controller's joint values where the model must hold
+        (None: the pool's own poses)
     n : int
     measured : RobotData: the poses the model was fitted on (joint values are read, never a measurement)
     noise_mm : float: measurement noise, mm (1 sigma per coordinate)
@@ -99,8 +100,9 @@ def plan_for_region(robot, effects, pool: Pool, region_q_deg, n: int, measured, 
     pool_q = robot.kinematic_angles(pool.q_deg)
     data = pool_data(robot, pool_q, pool.payload_kg)
     data.point_id = np.asarray(pool.point_id, object)
-    rq = robot.kinematic_angles(np.asarray(region_q_deg, float))
-    region = pool_data(robot, rq, region_payload_kg)
+    region = None
+    if region_q_deg is not None:
+        region = pool_data(robot, robot.kinematic_angles(np.asarray(region_q_deg, float)), region_payload_kg)
     done = pool_data(robot, measured.q_deg, measured.payload_kg)
     plan = plan_region(robot, effects, done, data, region, n, noise_mm, noise_arcsec, say)
     chosen = plan.chosen
@@ -113,7 +115,7 @@ def plan_for_region(robot, effects, pool: Pool, region_q_deg, n: int, measured, 
     summary = {"n": int(len(chosen)), "criterion": "V-optimal over the region",
                "parameters_identifiable": int(plan.n_params), "n_params": int(plan.n_params),
                "predicted_rms_mm": plan.region_rms_mm, "noise_mm": float(noise_mm),
-               "region": {"n": int(region.n), "predicted_rms_mm_before": plan.region_rms_mm_before,
+               "region": {"n": int(pool.q_deg.shape[0] if region is None else region.n), "predicted_rms_mm_before": plan.region_rms_mm_before,
                           "predicted_rms_mm": plan.region_rms_mm},
                "model_poses": int(measured.n), "curve": plan.curve,
                "path_deg": path_cost(qc, order), "notes": notes,

@@ -148,7 +148,7 @@ class _VCriterion:
         self.Minv = self.Minv - U @ C @ U.T
 
 
-def plan_region(robot, effects, measured: RobotData, pool: RobotData, region: RobotData, n: int,
+def plan_region(robot, effects, measured: RobotData, pool: RobotData, region: RobotData | None, n: int,
                 noise_mm: float = 0.05, noise_arcsec: float | None = None, say=None) -> RegionPlan:
     """Choose ``n`` poses of ``pool`` (a new campaign, its own tracker frame) that most lower the model's
     prediction variance over ``region`` (V-optimal; see the module's text).
@@ -159,7 +159,7 @@ def plan_region(robot, effects, measured: RobotData, pool: RobotData, region: Ro
     effects : list of RobotEffect: the model's (its joint maps laid again over every pose seen here)
     measured : RobotData: the poses the model was fitted on (joint values only are read)
     pool : RobotData: candidate poses of the new campaign
-    region : RobotData: the poses where the model must hold
+    region : RobotData or None: the poses where the model must hold (None: the pool's own poses)
     n : int: poses to choose (at most the pool's distinct poses)
     noise_mm : float: measurement noise (mm, 1 sigma per coordinate) of the predicted errors
     noise_arcsec : float, optional: a 6-DoF probe's orientation noise (arcsec, 1 sigma per axis): the
@@ -167,8 +167,9 @@ def plan_region(robot, effects, measured: RobotData, pool: RobotData, region: Ro
     """
     say = say or (lambda msg: None)
     weight = None if noise_arcsec is None else noise_mm / (noise_arcsec / ARCSEC_PER_MRAD)
-    m, P, Rn = measured.n, pool.n, region.n
-    union = concat_data(concat_data(measured, pool), region)
+    m, P = measured.n, pool.n
+    Rn = P if region is None else region.n
+    union = concat_data(measured, pool) if region is None else concat_data(concat_data(measured, pool), region)
     if weight is not None:
         union = with_probe(union, weight)
     est = effects_estimator(robot, unprepared(effects))
@@ -193,7 +194,8 @@ def plan_region(robot, effects, measured: RobotData, pool: RobotData, region: Ro
     Am = A_all[:m]
     M0[:q, :q] += np.einsum("nkp,nkq->pq", Am, Am)
     W = np.zeros((q + nf, q + nf))
-    W[:q, :q] = region_weight(A_all[m + P:, :3, :], frame_blocks(P_mm[m + P:], 3, None))
+    r0 = m if region is None else m + P           # the region's rows: the pool's own, or its own after the pool's
+    W[:q, :q] = region_weight(A_all[r0:r0 + Rn, :3, :], frame_blocks(P_mm[r0:r0 + Rn], 3, None))
     # candidates: distinct pool poses (point ids of another campaign may equal the measured one's)
     cand = distinct_rows(np.hstack([pool.q_deg, pool.payload_kg[:, None]]))
     n = min(n, int(cand.sum()))

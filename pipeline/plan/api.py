@@ -73,3 +73,53 @@ def plan_from_pool(robot, effects, pool: Pool, n: int, measured=None, reveal=Non
     text = format_plan_csv(ids, robot.recorded_angles(q),
                            pool.payload_kg[chosen % pool.q_deg.shape[0]] if pool.has_payload else None, directions)
     return text, summary
+
+
+def plan_for_region(robot, effects, pool: Pool, region_q_deg, n: int, measured, noise_mm: float = 0.05,
+                    say=None, noise_arcsec: float | None = None, region_payload_kg=None) -> tuple[str, dict]:
+    """Choose ``n`` poses of ``pool`` to measure as a new campaign (its own tracker frame) so that the model
+    fitted on ``measured`` holds over a region (V-optimal: :func:`pipeline.plan.region.plan_region`);
+    returns (plan CSV text, summary dict).
+
+    Parameters
+    ----------
+    robot : Robot (N joints)
+    effects : list of RobotEffect: the model's (a fitted model's joint maps are laid again over every pose)
+    pool : Pool (joint values deg, payloads kg): the poses the new campaign can measure
+    region_q_deg : ndarray, shape (R, N), deg, or None: the controller's joint values where the model must hold
+        (None: the pool's own poses)
+    n : int
+    measured : RobotData: the poses the model was fitted on (joint values are read, never a measurement)
+    noise_mm : float: measurement noise, mm (1 sigma per coordinate)
+    noise_arcsec : float, optional: a 6-DoF probe's orientation noise (arcsec per axis); None: an SMR
+    region_payload_kg : ndarray, shape (R,), kg, optional (default 0)
+    """
+    from .design import path_cost, visiting_order
+    from .region import plan_region
+
+    pool_q = robot.kinematic_angles(pool.q_deg)
+    data = pool_data(robot, pool_q, pool.payload_kg)
+    data.point_id = np.asarray(pool.point_id, object)
+    region = None
+    if region_q_deg is not None:
+        region = pool_data(robot, robot.kinematic_angles(np.asarray(region_q_deg, float)), region_payload_kg)
+    done = pool_data(robot, measured.q_deg, measured.payload_kg)
+    plan = plan_region(robot, effects, done, data, region, n, noise_mm, noise_arcsec, say)
+    chosen = plan.chosen
+    qc = data.q_deg[chosen]
+    pay = pool.payload_kg[chosen] if np.ptp(pool.payload_kg) > 0 else None
+    order = visiting_order(qc, payload_kg=pay)
+    notes = []
+    if len(chosen) < n:
+        notes.append(f"the pool has only {len(chosen)} distinct poses; {len(chosen)} chosen")
+    summary = {"n": int(len(chosen)), "criterion": "V-optimal over the region",
+               "parameters_identifiable": int(plan.n_params), "n_params": int(plan.n_params),
+               "predicted_rms_mm": plan.region_rms_mm, "noise_mm": float(noise_mm),
+               "region": {"n": int(pool.q_deg.shape[0] if region is None else region.n), "predicted_rms_mm_before": plan.region_rms_mm_before,
+                          "predicted_rms_mm": plan.region_rms_mm},
+               "model_poses": int(measured.n), "curve": plan.curve,
+               "path_deg": path_cost(qc, order), "notes": notes,
+               "point_ids": [str(p) for p in data.point_id[chosen[order]]]}
+    text = format_plan_csv(data.point_id[chosen[order]], robot.recorded_angles(qc[order]),
+                           pool.payload_kg[chosen[order]] if pool.has_payload else None)
+    return text, summary

@@ -77,14 +77,14 @@ def split_fit(tmp_path_factory):
     out = tmp / "p.json"
     r2 = cli_invoker()("predict", "--campaign", camp, "--model", fit, "--json", out)
     assert r2.exit_code == 0, r2.output
-    return json.loads(fit.read_text()), json.loads(out.read_text()), r2.output
+    return json.loads(fit.read_text()), json.loads(out.read_text()), r2.output, r.output
 
 
 def test_the_stated_u95_holds_beyond_the_range_the_model_was_fitted_on(split_fit):
     """Every judged pose lies beyond joint 1's sampled range, where the joint map knows nothing: the stated
     radius covers at least 85 % of their errors and is sharp (mean u95 at most 1.5x the errors' 95th
     percentile). The one-width guess before it covered about half of them."""
-    doc, p, _ = split_fit
+    doc, p, _, _ = split_fit
     e = np.array([x["error_mm"] for x in p["points"]])
     u = np.array([x["u95_mm"] for x in p["points"]])
     assert p["outside_sampled_range"] == p["n"] > 100
@@ -98,19 +98,21 @@ def test_the_stated_u95_holds_beyond_the_range_the_model_was_fitted_on(split_fit
 def test_the_fit_learns_which_joint_extrapolates_badly(split_fit):
     """The fit JSON states, per joint, the error it learned beyond the range (the joint with the map and the
     hidden harmonic: far more than the others)."""
-    doc, _, _ = split_fit
+    doc, _, _, fit_output = split_fit
     pu = doc["prediction_uncertainty"]
     level = np.array(pu["extrapolation_mm"], float)
     slope = np.array(pu["extrapolation_mm_per_deg"], float)
-    assert level.shape == slope.shape == (6,) and np.all(level >= 0) and np.all(slope >= 0)
-    width = np.ptp(np.array([doc["sampled_range"]["lower_deg"], doc["sampled_range"]["upper_deg"]]), axis=0)
-    one_width = level + slope * width
-    assert one_width[0] == one_width.max() and one_width[0] > 3.0 * pu["unexplained_rms_mm"]
+    reach = np.array(pu["extrapolation_reach_deg"], float)
+    assert level.shape == slope.shape == reach.shape == (6,) and np.all(level >= 0) and np.all(slope >= 0)
+    farthest = level + slope * reach
+    assert farthest[0] == farthest.max() and farthest[0] > 3.0 * pu["unexplained_rms_mm"]
     assert all(n > 50 for n in pu["extrapolation_judged_poses"])
+    # and says so before any target is measured: the fit's console names the joint first
+    assert f"region splits add (1 sigma, every direction alike) joint 1 {farthest[0]:.3f} mm" in fit_output
 
 
 def test_predict_says_where_each_point_extrapolates_and_that_its_u95_is_wider_there(split_fit):
-    _, p, output = split_fit
+    _, p, output, _ = split_fit
     far = [x for x in p["points"] if "extrapolates" in x]
     assert len(far) == p["outside_sampled_range"]
     assert all(1 in x["extrapolates"]["joints"] and x["extrapolates"]["beyond_deg"] > 0 for x in far)
@@ -125,16 +127,17 @@ def test_learned_extrapolation_is_zero_inside_and_adds_level_and_slope_beyond():
     q = np.array([[0.0, 0.0], [10.0, -10.0], [10.0 + EXTRAPOLATION_RAMP_DEG / 2, 0.0], [30.0, 0.0], [30.0, 30.0]])
     Jq = np.zeros((len(q), 3, 2))
     U = np.eye(3) * 0.01
-    level, slope = np.array([0.3, 0.1]), np.array([0.01, 0.0])
-    S = extrapolation_covariance(q, sampled, Jq, U, growth=(level, slope))
+    level, slope, reach = np.array([0.3, 0.1]), np.array([0.01, 0.0]), np.array([15.0, 15.0])
+    S = extrapolation_covariance(q, sampled, Jq, U, growth=(level, slope, reach))
     size = np.sqrt(np.einsum("nkk->n", S))
     assert size[0] == 0.0 and size[1] == 0.0
     assert size[2] == pytest.approx(0.3 * 0.5 + 0.01 * EXTRAPOLATION_RAMP_DEG / 2)
-    assert size[3] == pytest.approx(0.3 + 0.01 * 20.0)
-    assert size[4] == pytest.approx(np.hypot(0.3 + 0.01 * 20.0, 0.1))       # two joints: in quadrature
+    # the growth as far as the splits judged (15 deg), no further
+    assert size[3] == pytest.approx(0.3 + 0.01 * 15.0)
+    assert size[4] == pytest.approx(np.hypot(0.3 + 0.01 * 15.0, 0.1))       # two joints: in quadrature
     assert np.allclose(S[3], np.eye(3) * size[3] ** 2 / 3.0)                   # every direction alike
     # a joint not learned (NaN) keeps the one-width guess: with no lever arm it adds nothing
-    S2 = extrapolation_covariance(q, sampled, Jq, U, growth=(np.array([np.nan, 0.1]), np.array([np.nan, 0.0])))
+    S2 = extrapolation_covariance(q, sampled, Jq, U, growth=(np.array([np.nan, 0.1]), np.array([np.nan, 0.0]), reach))
     assert np.sqrt(np.einsum("nkk->n", S2))[3] == 0.0
 
 
@@ -152,8 +155,9 @@ def test_growth_is_learned_from_judged_errors_to_cover_95_percent(grows):
     e = rng.normal(0.0, 0.05, (n, 3)) + rng.normal(size=(n, 3)) * (size / np.sqrt(3.0))[:, None]
     splits = [{"joint": 2, "judged": np.arange(n), "beyond_deg": b, "position_mm": e}]
     S_in = np.broadcast_to(np.eye(3) * 0.05 ** 2, (n, 3, 3))
-    level, slope = extrapolation_growth(splits, S_in, 1.0, np.array([100.0, 100.0, 100.0]))
+    level, slope, reach = extrapolation_growth(splits, S_in, 1.0, np.array([100.0, 100.0, 100.0]))
     assert np.isnan(level[0]) and np.isnan(slope[0])          # no judged poses: not learned
+    assert reach[1] == pytest.approx(b.max())
     got = level[1] * np.minimum(b / EXTRAPOLATION_RAMP_DEG, 1.0) + slope[1] * b
     u = _radius95_of(np.full((n, 3), 0.05 ** 2) + got[:, None] ** 2 / 3.0)
     assert np.mean(np.linalg.norm(e, axis=1) <= u) == pytest.approx(0.95, abs=0.005)

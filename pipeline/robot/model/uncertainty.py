@@ -31,13 +31,17 @@ hold). What this states, and what it does not:
    the covariance of the held-out residuals less the part (1) accounts for (at the folds' size), floored
    at 0 (:func:`unexplained_covariance`). It holds the tracker's noise, the robot's repeatability and
    every effect the model lacks;
-3. beyond the joint ranges the model was fitted on (:func:`extrapolation_covariance`): a joint's angle
-   error there is not determined by any measurement (a joint map fades to 0 at the edge: a guess), and is
-   taken as unknown with a standard deviation that grows from 0 at the edge, one sampled width beyond it
-   (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle (its
-   lever arm to the SMR) together with the spread of the model's own angle error of that joint over its
-   sample poses (:func:`joint_angle_spread`: what a joint map or backlash does inside the range), and
-   stays there.
+3. beyond the joint ranges the model was fitted on (:func:`extrapolation_covariance`): what the model does
+   there is settled by no measurement (a joint map fades to 0 at the edge; the fit's trade-offs hold in
+   the region they were made in). The fit learns how much it errs there from its own sample poses
+   (:func:`region_split_errors`: each joint, refitted below its 60th percentile and judged above, and the
+   mirror, by one linearised Gauss-Newton step at the solution): each joint's error beyond its range, a
+   level at the edge plus a growth with the distance (:func:`extrapolation_growth`), is stated in the fit
+   JSON and added, of every direction alike, for a pose that far beyond. A fit JSON without it keeps
+   the older guess: an unknown angle error growing from 0 at the edge, one sampled width beyond it
+   (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle
+   together with the spread of the model's own angle error of that joint over its sample poses
+   (:func:`joint_angle_spread`).
 
 The 95 % radius of a 3-D error of covariance ``S`` is the 0.95 quantile of ``|e|``, ``e ~ N(0, S)``:
 ``|e|^2`` is a weighted sum of chi-square(1) variables (weights: eigenvalues of ``S``), taken as a
@@ -286,7 +290,8 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
 
     A joint whose error beyond its range the fit learned from its region splits (``growth``,
     :func:`extrapolation_growth`) adds an error of every direction alike whose size (sqrt of the trace) is
-    ``level_j min(b_j / EXTRAPOLATION_RAMP_DEG, 1) + slope_j b_j`` at ``b_j`` (deg) beyond the sampled range;
+    ``level_j min(b_j / EXTRAPOLATION_RAMP_DEG, 1) + slope_j min(b_j, reach_j)`` at ``b_j`` (deg) beyond the
+    sampled range;
     the sizes of several joints add in quadrature. A joint without one
     (NaN; every joint of a fit JSON written before them) keeps the guess below.
 
@@ -310,8 +315,8 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     Jturn : ndarray, shape (n, 3, N), optional
         The probe frame's turn per joint angle (mrad per rad): then the same unknown joint angle errors as
         the probe's orientation covariance (mrad^2) instead of the position's.
-    growth : (level, slope), ndarrays of shape (N,), optional
-        Each joint's learned error beyond its range (:func:`extrapolation_growth`): mm and mm per deg (the
+    growth : (level, slope, reach), ndarrays of shape (N,), optional
+        Each joint's learned error beyond its range (:func:`extrapolation_growth`): mm, mm per deg and deg (the
         probe frame's turn, mrad and mrad per deg, with ``Jturn``); NaN where not learned.
     """
     q = np.asarray(q_deg, float)
@@ -319,11 +324,13 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     width = np.maximum(hi - lo, 1e-6)
     beyond = np.maximum(np.maximum(lo - q, q - hi), 0.0)
     grow = np.minimum(beyond / (EXTRAPOLATION_WIDTHS * width), 1.0)                 # (n, N)
-    level, slope = (np.full(q.shape[1], np.nan),) * 2 if growth is None else (np.asarray(g, float) for g in growth)
-    learned = np.isfinite(level) & np.isfinite(slope)
+    level, slope, reach = ((np.full(q.shape[1], np.nan),) * 3 if growth is None
+                           else (np.asarray(g, float) for g in growth))
+    learned = np.isfinite(level) & np.isfinite(slope) & np.isfinite(reach)
     extra = 0.0
     if learned.any():
-        size = np.where(learned, level, 0.0) * _ramp(beyond) + np.where(learned, slope, 0.0) * beyond
+        size = (np.where(learned, level, 0.0) * _ramp(beyond)
+                + np.where(learned, slope, 0.0) * np.minimum(beyond, np.where(learned, reach, 0.0)))
         extra = np.sum(size ** 2, axis=1)[:, None, None] / 3.0 * np.eye(3)          # (n, 3, 3)
         grow = np.where(learned, 0.0, grow)
     scale = float(np.sqrt(max(np.trace(np.asarray(unexplained, float)), 0.0) / 3.0))
@@ -398,7 +405,9 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
 
 def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: str = "position_mm") -> tuple:
     """Each joint's error beyond its sampled range, learned from the region splits: a size at the edge and
-    a growth with the distance, ``size(b) = level_j min(b / EXTRAPOLATION_RAMP_DEG, 1) + slope_j b``.
+    a growth with the distance as far as the splits judged, ``size(b) = level_j min(b / EXTRAPOLATION_RAMP_DEG, 1)
+    + slope_j min(b, reach_j)`` (``reach_j`` the farthest judged pose: beyond it nothing was measured and the
+    size stays what it was there).
 
     A judged pose ``b`` (deg) beyond the refitted poses' range of joint ``j`` is given the covariance it
     would have inside the range (``S_in``: the parameters' part and the unexplained scatter) plus an error
@@ -418,13 +427,13 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
 
     Returns
     -------
-    (level, slope): ndarrays, shape (N,), mm and mm per deg (mrad, mrad per deg); NaN where a joint's
-    splits judged fewer than :data:`SPLIT_MIN_POSES` poses.
+    (level, slope, reach): ndarrays, shape (N,), mm, mm per deg (mrad, mrad per deg) and deg; NaN where a
+    joint's splits judged fewer than :data:`SPLIT_MIN_POSES` poses.
     """
     widths = np.asarray(widths, float)
     N = widths.size
     lam_all, V_all = np.linalg.eigh(np.asarray(S_in, float)) if len(splits) else (np.zeros((0, 3)), None)
-    level, slope = np.full(N, np.nan), np.full(N, np.nan)
+    level, slope, reach = np.full(N, np.nan), np.full(N, np.nan), np.full(N, np.nan)
     for j in range(N):
         parts = [s for s in splits if s["joint"] == j + 1 and s.get(key) is not None]
         idx = np.concatenate([s["judged"] for s in parts]) if parts else np.zeros(0, int)
@@ -451,8 +460,8 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
             if best is None or loglik > best[0]:
                 best = (loglik, a, t)
         _, a, t = best
-        level[j], slope[j] = a * (1.0 - t), a * t / w
-    return level, slope
+        level[j], slope[j], reach[j] = a * (1.0 - t), a * t / w, float(b.max())
+    return level, slope, reach
 
 
 #: The shapes :func:`extrapolation_growth` chooses among: the share of a joint's error one sampled width beyond
@@ -598,6 +607,23 @@ def describe_relative(rows: list[dict]) -> str:
     return "; ".join(parts)
 
 
+def describe_beyond(pred: dict) -> str:
+    """In words, what a fit JSON's ``prediction_uncertainty`` (``pred``) adds beyond the sampled joint ranges:
+    each learned joint's 1-sigma size at the farthest its region splits judged, largest first ('' when
+    none was learned)."""
+    level, slope, reach = (pred.get(k) for k in ("extrapolation_mm", "extrapolation_mm_per_deg",
+                                                 "extrapolation_reach_deg"))
+    if not (isinstance(level, list) and isinstance(slope, list) and isinstance(reach, list)):
+        return ""
+    sizes = [(l + s * r, j + 1, r) for j, (l, s, r) in enumerate(zip(level, slope, reach))
+             if l is not None and s is not None and r is not None]
+    if not sizes:
+        return ""
+    sizes.sort(key=lambda x: (-x[0], x[1]))
+    return ("beyond a joint's sampled range its own region splits add (1 sigma, every direction alike) "
+            + ", ".join(f"joint {j} {v:.3f} mm ({r:.0f} deg beyond)" for v, j, r in sizes))
+
+
 def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientation=None) -> dict:
     """What the fit JSON says of its uncertainty, and what ``predict`` and ``correct`` need for ``u95_mm``.
 
@@ -640,7 +666,7 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
     splits = region_split_errors(model, sample)
     N = np.asarray(sample.q_deg).shape[1]
     widths = np.ptp(np.asarray(sample.q_deg, float), axis=0)
-    level, slope = extrapolation_growth(splits, S_cv, factor, widths)
+    level, slope, reach = extrapolation_growth(splits, S_cv, factor, widths)
     judged = [int(sum(s["judged"].size for s in splits if s["joint"] == j + 1)) for j in range(N)]
     live = [k for k in range(len(model.names_)) if sd[k] > 0]
     pred = {"parameters": [model.names_[k] for k in live],
@@ -661,6 +687,7 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
             "extrapolation_ramp_deg": EXTRAPOLATION_RAMP_DEG,
             "extrapolation_mm": _json_rates(level),
             "extrapolation_mm_per_deg": _json_rates(slope),
+            "extrapolation_reach_deg": _json_rates(reach),
             "method": ("u95_mm = coverage_factor x the 95 % radius of a 3-D Gaussian error whose covariance is the "
                        "parameters' covariance propagated to the pose + the unexplained scatter of the "
                        f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an error growing with "
@@ -677,7 +704,7 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
         pred["unexplained_orientation_mrad2"] = Uo.tolist()
         pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD_EXACT
         pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
-        level_o, slope_o = extrapolation_growth(splits, at_o + Uo, pred["orientation_coverage_factor"], widths,
+        level_o, slope_o, _ = extrapolation_growth(splits, at_o + Uo, pred["orientation_coverage_factor"], widths,
                                                 "orientation_mrad")
         pred["extrapolation_arcsec"] = _json_rates(level_o * ARCSEC_PER_MRAD_EXACT)
         pred["extrapolation_arcsec_per_deg"] = _json_rates(slope_o * ARCSEC_PER_MRAD_EXACT)
@@ -705,11 +732,12 @@ def _rates(block: dict, key: str, scale: float = 1.0):
 
 
 def _growth(block: dict, level_key: str, slope_key: str, scale: float = 1.0):
-    """A fit JSON's learned error beyond the ranges as ``(level, slope)`` arrays (N,), or None when absent."""
+    """A fit JSON's learned error beyond the ranges as ``(level, slope, reach)`` arrays (N,), or None when absent."""
     level, slope = _rates(block, level_key, scale), _rates(block, slope_key, scale)
-    if level is None or slope is None or level.shape != slope.shape:
+    reach = _rates(block, "extrapolation_reach_deg")
+    if level is None or slope is None or reach is None or not level.shape == slope.shape == reach.shape:
         return None
-    return level, slope
+    return level, slope, reach
 
 
 def load_prediction(doc: dict, model):

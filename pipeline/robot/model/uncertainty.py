@@ -74,6 +74,9 @@ SPLIT_QUANTILE = 0.6
 #: Fewest judged poses a joint's splits need for its growth to be learned (:func:`extrapolation_growth`);
 #: a joint with fewer keeps the one-width guess (:data:`EXTRAPOLATION_WIDTHS`)
 SPLIT_MIN_POSES = 12
+#: At most this many judged poses a joint (evenly spaced) are used to learn its error beyond the range
+#: (:func:`extrapolation_growth`): more change the 95 % quantile by little and cost time (docs/speed.md)
+GROWTH_MAX_POSES = 2000
 #: Beyond a joint's sampled range its learned error (:func:`extrapolation_growth`) rises from 0 at the edge
 #: to its whole size at this many degrees beyond it, and stays there: on the real UR10's region splits
 #: the error beyond a split is already whole a few degrees past it and then about flat with the distance
@@ -382,6 +385,15 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
     x = np.asarray(model.coef_, float)
     q = np.asarray(data.q_deg, float)
     n = data.n
+    # the residual and Jacobian at the solution (the one the steps use): each refit's residuals are their linear
+    # change, as the step is the linearised refit
+    if not sparse:
+        F0, J0 = d.residual_and_jacobian(x)
+    elif d.oriented:
+        _, F0, J0 = d.residual_and_sparse_jacobian(x)
+    else:
+        P0, J0 = d.predict_and_sparse_jacobian(x)
+        F0 = (P0 - np.asarray(data.measured_mm, float)).ravel()
     out = []
     for j in range(q.shape[1]):
         lo_cut, hi_cut = np.quantile(q[:, j], [1.0 - quantile, quantile])
@@ -394,7 +406,7 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
             if d.oriented:
                 rows = np.concatenate([rows, rows])
             xs, _ = steps_without(d, B, Pen, x, rows, sparse, data.measured_mm, max_steps=1)
-            F = d.residual(xs)
+            F = F0 + J0 @ (xs - x)
             out.append({"joint": j + 1, "judged": np.flatnonzero(judged),
                         "beyond_deg": np.abs(q[judged, j] - edge),
                         "position_mm": F[:3 * n].reshape(n, 3)[judged],
@@ -441,6 +453,10 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
             continue
         b = np.concatenate([s["beyond_deg"] for s in parts])
         e = np.concatenate([s[key] for s in parts])
+        if idx.size > GROWTH_MAX_POSES:
+            # a large campaign: evenly spaced judged poses of both splits (the 95 % quantile to about 0.5 %)
+            keep = np.linspace(0, idx.size - 1, GROWTH_MAX_POSES).round().astype(int)
+            idx, b, e = idx[keep], b[keep], e[keep]
         r = np.linalg.norm(e, axis=1)
         lam = lam_all[idx]
         # the judged errors in the eigen-axes of their in-range covariance: their likelihood at any extra size
@@ -449,12 +465,7 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
         best = None
         for t in EXTRAPOLATION_SHAPES:
             shape = (1.0 - t) * _ramp(b) + t * b / w
-
-            def covered(a, shape=shape):
-                u = factor * _radius95_of(lam + ((a * shape) ** 2 / 3.0)[:, None])
-                return float(np.quantile(r / np.where(u > 0, u, np.inf), P95)) <= 1.0
-
-            a = _least(covered, float(np.quantile(r, P95)))
+            a = _least_amplitude(r / factor, lam, shape)
             var = np.maximum(lam + ((a * shape) ** 2 / 3.0)[:, None], 1e-300)
             loglik = -0.5 * float(np.sum(np.log(var) + z2 / var))
             if best is None or loglik > best[0]:
@@ -469,20 +480,45 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
 EXTRAPOLATION_SHAPES = (0.0, 0.25, 0.5, 0.75, 1.0)
 
 
-def _least(covered, start: float) -> float:
-    """The least amplitude ``a >= 0`` with ``covered(a)`` (monotone: False below it, True from it), by bisection
-    from ``start`` (doubled until covered)."""
-    if covered(0.0):
-        return 0.0
-    lo, hi = 0.0, max(start, 1e-12)
-    for _ in range(200):
-        if covered(hi):
-            break
-        lo, hi = hi, 2.0 * hi
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if covered(mid) else (mid, hi)
-    return hi
+def _least_amplitude(r, lam, shape, p: float = P95) -> float:
+    """The least amplitude ``a >= 0`` at which ``radius95`` of the covariances of eigenvalues ``lam + (a shape)^2 / 3``
+    ((n, 3), mm^2) holds the share ``p`` of the errors ``r`` (n,): each pose's own least amplitude (``|r_i|`` on
+    its radius, found by bisection for every pose at once; 0 where its radius holds it already), and their ``p``
+    quantile. The radius's chi-square quantile is read from a table over its degrees of freedom (1 to 3)."""
+    r, lam, shape = np.asarray(r, float), np.asarray(lam, float), np.asarray(shape, float)
+    radius = _radius95_table(p)
+    need = (radius(lam) < r) & (shape > 0)
+    a_i = np.zeros(r.size)
+    if need.any():
+        rr, ll, sh = r[need], lam[need], shape[need]
+        lo, hi = np.zeros(rr.size), np.sqrt(3.0) * rr / sh           # at hi the extra error alone is |r| in size
+        for _ in range(24):                            # to 6e-8 of the bracket
+            mid = 0.5 * (lo + hi)
+            ok = radius(ll + ((mid * sh) ** 2 / 3.0)[:, None]) >= rr
+            lo, hi = np.where(ok, lo, mid), np.where(ok, mid, hi)
+        a_i[need] = hi
+    a_i[(radius(lam) < r) & (shape <= 0)] = np.inf
+    k = int(np.ceil(p * r.size)) - 1                   # the least a covering at least p of the poses
+    return float(np.sort(a_i)[max(k, 0)]) if r.size else 0.0
+
+
+def _radius95_table(p: float = P95):
+    """:func:`_radius95_of` with the chi-square quantile interpolated from a table over 1 to 3 degrees of freedom
+    (relative error below 1e-7): the bisection of :func:`_least_amplitude` evaluates it many times."""
+    from scipy import special
+
+    nus = np.linspace(1.0, 3.0, 401)
+    table = 2.0 * special.gammaincinv(nus / 2.0, p)
+
+    def radius(lam):
+        lam = np.clip(lam, 0.0, None)
+        s1, s2 = lam.sum(axis=-1), (lam ** 2).sum(axis=-1)
+        ok = s2 > 0
+        a = np.where(ok, s2 / np.where(ok, s1, 1.0), 0.0)
+        nu = np.where(ok, s1 ** 2 / np.where(ok, s2, 1.0), 1.0)
+        return np.sqrt(a * np.interp(nu, nus, table))
+
+    return radius
 
 
 def joint_angle_spread(model, data) -> np.ndarray:

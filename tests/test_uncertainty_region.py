@@ -149,7 +149,7 @@ def test_growth_is_learned_from_judged_errors_to_cover_95_percent(grows):
     from pipeline.robot.model.uncertainty import EXTRAPOLATION_RAMP_DEG, _radius95_of, extrapolation_growth
 
     rng = np.random.default_rng(3)
-    n = 4000
+    n = 1000
     b = rng.uniform(0.0, 40.0, n) + 1e-3
     size = (0.4 * b / 40.0) if grows else 0.4 * np.minimum(b / EXTRAPOLATION_RAMP_DEG, 1.0)
     e = rng.normal(0.0, 0.05, (n, 3)) + rng.normal(size=(n, 3)) * (size / np.sqrt(3.0))[:, None]

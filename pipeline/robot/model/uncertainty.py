@@ -76,7 +76,7 @@ SPLIT_QUANTILE = 0.6
 SPLIT_MIN_POSES = 12
 #: At most this many judged poses a joint (evenly spaced) are used to learn its error beyond the range
 #: (:func:`extrapolation_growth`): more change the 95 % quantile by little and cost time (docs/speed.md)
-GROWTH_MAX_POSES = 2000
+GROWTH_MAX_POSES = 1000
 #: Beyond a joint's sampled range its learned error (:func:`extrapolation_growth`) rises from 0 at the edge
 #: to its whole size at this many degrees beyond it, and stays there: on the real UR10's region splits
 #: the error beyond a split is already whole a few degrees past it and then about flat with the distance
@@ -373,6 +373,7 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
     directions or too few poses.
     """
     from .gauss_newton import steps_without
+    from .normal import scaled_min_norm_step
 
     B = getattr(model, "basis_", None)
     if B is None or np.asarray(B).shape[1] == 0 or data.n < 2 * SPLIT_MIN_POSES:
@@ -394,6 +395,12 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
     else:
         P0, J0 = d.predict_and_sparse_jacobian(x)
         F0 = (P0 - np.asarray(data.measured_mm, float)).ravel()
+    if not sparse:
+        # a small model (the dense Jacobian, a few dozen directions): each split's normal equations are the whole
+        # campaign's less its judged rows', solved as steps_without solves them (one home: normal.py)
+        JB = J0 @ B
+        PB = Pen @ B
+        H_all, g_all = JB.T @ JB + PB.T @ PB, JB.T @ F0 + PB.T @ (Pen @ x)
     out = []
     for j in range(q.shape[1]):
         lo_cut, hi_cut = np.quantile(q[:, j], [1.0 - quantile, quantile])
@@ -402,11 +409,16 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
             if not judged.any() or fitted.sum() < SPLIT_MIN_POSES:
                 continue
             edge = q[fitted, j].max() if up else q[fitted, j].min()
-            rows = np.repeat(fitted, 3).astype(float)
+            rows = np.repeat(fitted, 3)
             if d.oriented:
                 rows = np.concatenate([rows, rows])
-            xs, _ = steps_without(d, B, Pen, x, rows, sparse, data.measured_mm, max_steps=1)
-            F = F0 + J0 @ (xs - x)
+            if sparse:
+                xs, _ = steps_without(d, B, Pen, x, rows.astype(float), sparse, data.measured_mm, max_steps=1)
+                F = F0 + J0 @ (xs - x)
+            else:
+                Jc, Fc = JB[~rows], F0[~rows]
+                dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
+                F = F0 + JB @ dz
             out.append({"joint": j + 1, "judged": np.flatnonzero(judged),
                         "beyond_deg": np.abs(q[judged, j] - edge),
                         "position_mm": F[:3 * n].reshape(n, 3)[judged],
@@ -453,8 +465,9 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
             continue
         b = np.concatenate([s["beyond_deg"] for s in parts])
         e = np.concatenate([s[key] for s in parts])
+        farthest = float(b.max())
         if idx.size > GROWTH_MAX_POSES:
-            # a large campaign: evenly spaced judged poses of both splits (the 95 % quantile to about 0.5 %)
+            # a large campaign: evenly spaced judged poses of both splits (the 95 % quantile to about 0.7 %)
             keep = np.linspace(0, idx.size - 1, GROWTH_MAX_POSES).round().astype(int)
             idx, b, e = idx[keep], b[keep], e[keep]
         r = np.linalg.norm(e, axis=1)
@@ -471,7 +484,7 @@ def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: s
             if best is None or loglik > best[0]:
                 best = (loglik, a, t)
         _, a, t = best
-        level[j], slope[j], reach[j] = a * (1.0 - t), a * t / w, float(b.max())
+        level[j], slope[j], reach[j] = a * (1.0 - t), a * t / w, farthest
     return level, slope, reach
 
 
@@ -492,7 +505,7 @@ def _least_amplitude(r, lam, shape, p: float = P95) -> float:
     if need.any():
         rr, ll, sh = r[need], lam[need], shape[need]
         lo, hi = np.zeros(rr.size), np.sqrt(3.0) * rr / sh           # at hi the extra error alone is |r| in size
-        for _ in range(24):                            # to 6e-8 of the bracket
+        for _ in range(20):                            # to 1e-6 of the bracket
             mid = 0.5 * (lo + hi)
             ok = radius(ll + ((mid * sh) ** 2 / 3.0)[:, None]) >= rr
             lo, hi = np.where(ok, lo, mid), np.where(ok, mid, hi)

@@ -165,3 +165,26 @@ def test_growth_is_learned_from_judged_errors_to_cover_95_percent(grows):
         assert slope[1] * 40.0 > 2.0 * level[1]
     else:
         assert level[1] > 2.0 * slope[1] * 40.0
+
+
+def test_a_small_models_splits_are_the_gauss_newton_steps_of_a_large_one(monkeypatch):
+    """The region splits of a model of a few dozen directions (normal equations of the whole campaign less the
+    judged rows') are the splits the fit's own Gauss-Newton step gives (steps_without, the sparse Jacobian)."""
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+    from pipeline.robot.model.estimator import RobotErrorModel
+    from pipeline.robot.model.uncertainty import region_split_errors
+
+    robot, (sample,) = robot_data_sets(KR210, ("sample",))
+    model = fit_effects(robot, list(load_spec(ROOT / "specs" / "robot_kinematic.toml").effects), sample)
+    small = region_split_errors(model, sample)
+    monkeypatch.setattr(RobotErrorModel, "solves_on_normal_equations", lambda self, data: True)
+    large = region_split_errors(model, sample)
+    assert len(small) == len(large) == 12
+    for a, b in zip(small, large):
+        assert a["joint"] == b["joint"] and np.array_equal(a["judged"], b["judged"])
+        assert np.allclose(a["position_mm"], b["position_mm"], rtol=0, atol=1e-9)
+        # and the refit moved: the judged poses' errors are not the model's own residuals
+        assert np.abs(a["position_mm"] - model.predict(sample.subset(np.isin(np.arange(sample.n), a["judged"])))
+                      + sample.measured_mm[a["judged"]]).max() > 1e-6

@@ -650,13 +650,14 @@ def _fit_console(out, result: dict) -> None:
                + (f", weakly determined: {', '.join(weak[:6])}{' ...' if len(weak) > 6 else ''}" if weak else ""),
                err=True)
     if result.get("largest_relative_uncertainty"):
-        from ..robot.model.uncertainty import describe_relative
+        from ..robot.model.uncertainty import describe_beyond, describe_relative
 
         pu = result["prediction_uncertainty"]
+        beyond = describe_beyond(pu)
         click.echo(f"  least sure (1 sigma): {describe_relative(result['largest_relative_uncertainty'])}; "
                    f"{len(result['correlations'])} pair(s) correlated beyond 0.9; a pose inside the sampled ranges is "
                    f"stated to +-{pu['unexplained_rms_mm']:.3f} mm (1 sigma, unexplained scatter) and more from the "
-                   "parameters (u95_mm: jointcal predict)", err=True)
+                   "parameters" + (f"; {beyond}" if beyond else "") + " (u95_mm: jointcal predict)", err=True)
 
 
 @click.command("predict")

@@ -74,6 +74,26 @@ def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
 
 
 
+def beyond_range(q_deg, rng: dict) -> list:
+    """Per pose, where it lies beyond the joint ranges ``rng`` (:func:`sampled_range`): None inside them, else
+    ``{"joint": the joint farthest beyond (1-based), "beyond_deg": how far, "joints": every joint beyond}``.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+    """
+    q = np.asarray(q_deg, float)
+    lo, hi = np.asarray(rng["lower_deg"], float), np.asarray(rng["upper_deg"], float)
+    b = np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    out = []
+    for row in b:
+        far = np.flatnonzero(row > 1e-9)
+        out.append(None if not far.size else
+                   {"joint": int(np.argmax(row)) + 1, "beyond_deg": float(row.max()),
+                    "joints": [int(j) + 1 for j in far]})
+    return out
+
+
 def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) -> list[dict]:
     """Per joint, the targets whose angle lies outside the range the sample poses covered.
 
@@ -298,6 +318,9 @@ def predict_campaign(model, data, sets, measured_mm, sampled: dict, register: bo
     out["registration"] = registration
     e = np.linalg.norm(err, axis=1)
     out["points"] = [{"point_id": str(p), "error_mm": float(v)} for p, v in zip(np.asarray(data.point_id)[ev], e)]
+    for point, where in zip(out["points"], beyond_range(data.q_deg[ev], sampled)):
+        if where is not None:
+            point["extrapolates"] = where
     if measured_R is not None:
         a = angle_arcsec(orientation_errors(R_pred[ev], meas_R[ev]))
         out.update({"orientation_n": int(a.size), "orientation_rms_arcsec": float(np.sqrt(np.mean(a ** 2))),
@@ -351,6 +374,9 @@ def _with_stated(out, model, data, sets, ev, stated, sampled, e, a, meas, pred) 
         out["orientation_error_p95_arcsec"] = float(np.quantile(a, P95))
     out["coverage_95"] = coverage(e, u["u95_mm"])
     out["u95_mm"] = float(np.mean(u["u95_mm"]))
+    far = outside_range(data.q_deg[ev], sampled)
+    out["u95_inside_mm"] = float(np.mean(u["u95_mm"][~far])) if (~far).any() else None
+    out["u95_outside_mm"] = float(np.mean(u["u95_mm"][far])) if far.any() else None
     out["error_p95_mm"] = float(np.quantile(e, P95))
     out["u95_parts_mm"] = {k: float(np.sqrt(np.mean(u[k] ** 2)))
                            for k in ("parameters_mm", "unexplained_mm", "extrapolation_mm")}
@@ -443,6 +469,14 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     except ValueError as exc:
         raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
     result.update(wild.document())
+    ev = clean == "target" if (clean == "target").any() else clean != "wild"
+    outside = outside_calibrated_range(np.array([sampled["lower_deg"], sampled["upper_deg"]], float), data.q_deg[ev],
+                                       np.asarray(data.point_id)[ev])
+    if outside:
+        # before any error is looked at: where the model extrapolates, and (stated u95) how much wider it says it is
+        warn(f"warning: {outside_message(outside, worst=True).replace('targets', 'points', 1)}"
+             + (f"; their mean u95_mm {result['u95_outside_mm']:.3f} against {result['u95_inside_mm']:.3f} inside"
+                if result.get("u95_outside_mm") is not None and result.get("u95_inside_mm") is not None else ""))
     note = coverage_note(result)
     if note:
         result["coverage_note"] = note

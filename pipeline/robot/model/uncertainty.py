@@ -31,13 +31,17 @@ hold). What this states, and what it does not:
    the covariance of the held-out residuals less the part (1) accounts for (at the folds' size), floored
    at 0 (:func:`unexplained_covariance`). It holds the tracker's noise, the robot's repeatability and
    every effect the model lacks;
-3. beyond the joint ranges the model was fitted on (:func:`extrapolation_covariance`): a joint's angle
-   error there is not determined by any measurement (a joint map fades to 0 at the edge: a guess), and is
-   taken as unknown with a standard deviation that grows from 0 at the edge, one sampled width beyond it
-   (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle (its
-   lever arm to the SMR) together with the spread of the model's own angle error of that joint over its
-   sample poses (:func:`joint_angle_spread`: what a joint map or backlash does inside the range), and
-   stays there.
+3. beyond the joint ranges the model was fitted on (:func:`extrapolation_covariance`): what the model does
+   there is settled by no measurement (a joint map fades to 0 at the edge; the fit's trade-offs hold in
+   the region they were made in). The fit learns how much it errs there from its own sample poses
+   (:func:`region_split_errors`: each joint, refitted below its 60th percentile and judged above, and the
+   mirror, by one linearised Gauss-Newton step at the solution): each joint's error beyond its range, a
+   level at the edge plus a growth with the distance (:func:`extrapolation_growth`), is stated in the fit
+   JSON and added, of every direction alike, for a pose that far beyond. A fit JSON without it keeps
+   the older guess: an unknown angle error growing from 0 at the edge, one sampled width beyond it
+   (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle
+   together with the spread of the model's own angle error of that joint over its sample poses
+   (:func:`joint_angle_spread`).
 
 The 95 % radius of a 3-D error of covariance ``S`` is the 0.95 quantile of ``|e|``, ``e ~ N(0, S)``:
 ``|e|^2`` is a weighted sum of chi-square(1) variables (weights: eigenvalues of ``S``), taken as a
@@ -64,6 +68,20 @@ CORRELATION_LIMIT = 0.9
 #: whole unexplained scatter (as that joint's angle) at this many sampled widths beyond it
 #: (:func:`extrapolation_covariance`); further, it stays there.
 EXTRAPOLATION_WIDTHS = 1.0
+#: Region splits (:func:`region_split_errors`): each joint's sample poses below this quantile of its angle
+#: are refitted on and those above judged, and the mirror (above the ``1 -`` quantile, judged below)
+SPLIT_QUANTILE = 0.6
+#: Fewest judged poses a joint's splits need for its growth to be learned (:func:`extrapolation_growth`);
+#: a joint with fewer keeps the one-width guess (:data:`EXTRAPOLATION_WIDTHS`)
+SPLIT_MIN_POSES = 12
+#: At most this many judged poses a joint (evenly spaced) are used to learn its error beyond the range
+#: (:func:`extrapolation_growth`): more change the 95 % quantile by little and cost time (docs/speed.md)
+GROWTH_MAX_POSES = 1000
+#: Beyond a joint's sampled range its learned error (:func:`extrapolation_growth`) rises from 0 at the edge
+#: to its whole size at this many degrees beyond it, and stays there: on the real UR10's region splits
+#: the error beyond a split is already whole a few degrees past it and then about flat with the distance
+#: (docs/uncertainty.md)
+EXTRAPOLATION_RAMP_DEG = 1.0
 #: Singular values of the column-scaled fitted Jacobian below this (relative) are left out of the
 #: covariance (directions the fit could not move: none, normally)
 COVARIANCE_RCOND = 1e-12
@@ -235,9 +253,14 @@ def radius95(S, p: float = P95) -> np.ndarray:
     -------
     ndarray, shape (n,), mm
     """
+    return _radius95_of(np.linalg.eigvalsh(np.asarray(S, float)), p)
+
+
+def _radius95_of(lam, p: float = P95) -> np.ndarray:
+    """:func:`radius95` from the covariances' eigenvalues ``lam`` (n, 3), mm^2 (``S + c I`` has ``lam + c``)."""
     from scipy import special  # chi2.ppf(p, nu) is 2 gammaincinv(nu / 2, p); scipy.stats costs 2 s to import
 
-    lam = np.clip(np.linalg.eigvalsh(np.asarray(S, float)), 0.0, None)
+    lam = np.clip(np.asarray(lam, float), 0.0, None)
     s1, s2 = lam.sum(axis=-1), (lam ** 2).sum(axis=-1)
     ok = s2 > 0
     a = np.where(ok, s2 / np.where(ok, s1, 1.0), 0.0)
@@ -264,8 +287,16 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
-def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None) -> np.ndarray:
+def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None,
+                             growth=None) -> np.ndarray:
     """What a pose beyond the sampled joint ranges adds (3 x 3 per pose, mm^2; 0 inside them).
+
+    A joint whose error beyond its range the fit learned from its region splits (``growth``,
+    :func:`extrapolation_growth`) adds an error of every direction alike whose size (sqrt of the trace) is
+    ``level_j min(b_j / EXTRAPOLATION_RAMP_DEG, 1) + slope_j min(b_j, reach_j)`` at ``b_j`` (deg) beyond the
+    sampled range;
+    the sizes of several joints add in quadrature. A joint without one
+    (NaN; every joint of a fit JSON written before them) keeps the guess below.
 
     Joint ``j`` beyond its range by ``b_j`` (deg) has an unknown angle error of standard deviation
     ``min(b_j / (EXTRAPOLATION_WIDTHS w_j), 1) g_j`` (``w_j`` the sampled width), moving the point along
@@ -287,18 +318,220 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     Jturn : ndarray, shape (n, 3, N), optional
         The probe frame's turn per joint angle (mrad per rad): then the same unknown joint angle errors as
         the probe's orientation covariance (mrad^2) instead of the position's.
+    growth : (level, slope, reach), ndarrays of shape (N,), optional
+        Each joint's learned error beyond its range (:func:`extrapolation_growth`): mm, mm per deg and deg (the
+        probe frame's turn, mrad and mrad per deg, with ``Jturn``); NaN where not learned.
     """
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
     width = np.maximum(hi - lo, 1e-6)
     beyond = np.maximum(np.maximum(lo - q, q - hi), 0.0)
     grow = np.minimum(beyond / (EXTRAPOLATION_WIDTHS * width), 1.0)                 # (n, N)
+    level, slope, reach = ((np.full(q.shape[1], np.nan),) * 3 if growth is None
+                           else (np.asarray(g, float) for g in growth))
+    learned = np.isfinite(level) & np.isfinite(slope) & np.isfinite(reach)
+    extra = 0.0
+    if learned.any():
+        size = (np.where(learned, level, 0.0) * _ramp(beyond)
+                + np.where(learned, slope, 0.0) * np.minimum(beyond, np.where(learned, reach, 0.0)))
+        extra = np.sum(size ** 2, axis=1)[:, None, None] / 3.0 * np.eye(3)          # (n, 3, 3)
+        grow = np.where(learned, 0.0, grow)
     scale = float(np.sqrt(max(np.trace(np.asarray(unexplained, float)), 0.0) / 3.0))
     lever = np.linalg.norm(Jq, axis=1)                                               # (n, N) mm/rad
     spread = np.zeros(q.shape[1]) if spread_rad is None else np.asarray(spread_rad, float)
     sigma = grow * np.sqrt((scale / np.maximum(lever, 1e-9)) ** 2 + spread ** 2)     # rad
     cols = (Jq if Jturn is None else Jturn) * sigma[:, None, :]
-    return np.einsum("nkj,nlj->nkl", cols, cols)
+    return np.einsum("nkj,nlj->nkl", cols, cols) + extra
+
+
+def _ramp(beyond_deg) -> np.ndarray:
+    """How much of a joint's learned error beyond its range a pose ``beyond_deg`` (deg) past it has (0 to 1)."""
+    return np.minimum(np.asarray(beyond_deg, float) / EXTRAPOLATION_RAMP_DEG, 1.0)
+
+
+def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[dict]:
+    """How a fitted model errs beyond the range it was fitted on, learned from its own sample poses.
+
+    For each joint, the model is refitted on the poses whose angle of that joint lies at or below its
+    ``quantile`` and judged on the poses above, and the mirror (fitted at or above the ``1 - quantile``,
+    judged below). A refit is one Gauss-Newton step from the model's solution in its fitted directions,
+    with its penalty rows and orientation weight (:func:`pipeline.robot.model.gauss_newton.steps_without`,
+    on the one Jacobian at the solution): the linearised refit on that subset.
+
+    Parameters
+    ----------
+    model : RobotErrorModel, fitted on ``data`` (``basis_``, ``penalty_``)
+    data : RobotData, n poses (``q_deg`` (n, N) deg, ``measured_mm`` (n, 3) mm)
+    quantile : float
+
+    Returns
+    -------
+    list of dict, one a joint and side: ``joint`` (1-based), ``judged`` (m,) the judged poses' indices,
+    ``beyond_deg`` (m,) how far each lies beyond the refitted poses' range of that joint (deg, > 0),
+    ``position_mm`` (m, 3) their position errors (predicted - measured, mm) and ``orientation_mrad``
+    (m, 3) their orientation errors (a 6-DoF fit; else None). Empty when the model has no fitted
+    directions or too few poses.
+    """
+    from .gauss_newton import steps_without
+    from .normal import scaled_min_norm_step
+
+    B = getattr(model, "basis_", None)
+    if B is None or np.asarray(B).shape[1] == 0 or data.n < 2 * SPLIT_MIN_POSES:
+        return []
+    B = np.asarray(B, float)
+    Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, B.shape[0]))), float)
+    d = model.design(data)
+    d.keep_last = True                    # the Jacobian at the solution: made once for every split
+    sparse = model.solves_on_normal_equations(data)
+    x = np.asarray(model.coef_, float)
+    q = np.asarray(data.q_deg, float)
+    n = data.n
+    # the residual and Jacobian at the solution (the one the steps use): each refit's residuals are their linear
+    # change, as the step is the linearised refit
+    if not sparse:
+        F0, J0 = d.residual_and_jacobian(x)
+    elif d.oriented:
+        _, F0, J0 = d.residual_and_sparse_jacobian(x)
+    else:
+        P0, J0 = d.predict_and_sparse_jacobian(x)
+        F0 = (P0 - np.asarray(data.measured_mm, float)).ravel()
+    if not sparse:
+        # a small model (the dense Jacobian, a few dozen directions): each split's normal equations are the whole
+        # campaign's less its judged rows', solved as steps_without solves them (one home: normal.py)
+        JB = J0 @ B
+        PB = Pen @ B
+        H_all, g_all = JB.T @ JB + PB.T @ PB, JB.T @ F0 + PB.T @ (Pen @ x)
+    out = []
+    for j in range(q.shape[1]):
+        lo_cut, hi_cut = np.quantile(q[:, j], [1.0 - quantile, quantile])
+        for fitted, up in ((q[:, j] <= hi_cut, True), (q[:, j] >= lo_cut, False)):
+            judged = ~fitted
+            if not judged.any() or fitted.sum() < SPLIT_MIN_POSES:
+                continue
+            edge = q[fitted, j].max() if up else q[fitted, j].min()
+            rows = np.repeat(fitted, 3)
+            if d.oriented:
+                rows = np.concatenate([rows, rows])
+            if sparse:
+                xs, _ = steps_without(d, B, Pen, x, rows.astype(float), sparse, data.measured_mm, max_steps=1)
+                F = F0 + J0 @ (xs - x)
+            else:
+                Jc, Fc = JB[~rows], F0[~rows]
+                dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
+                F = F0 + JB @ dz
+            out.append({"joint": j + 1, "judged": np.flatnonzero(judged),
+                        "beyond_deg": np.abs(q[judged, j] - edge),
+                        "position_mm": F[:3 * n].reshape(n, 3)[judged],
+                        "orientation_mrad": (F[3 * n:].reshape(n, 3)[judged] / d.weight) if d.oriented else None})
+    d.keep_last, d._last = False, None
+    return out
+
+
+def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: str = "position_mm") -> tuple:
+    """Each joint's error beyond its sampled range, learned from the region splits: a size at the edge and
+    a growth with the distance as far as the splits judged, ``size(b) = level_j min(b / EXTRAPOLATION_RAMP_DEG, 1)
+    + slope_j min(b, reach_j)`` (``reach_j`` the farthest judged pose: beyond it nothing was measured and the
+    size stays what it was there).
+
+    A judged pose ``b`` (deg) beyond the refitted poses' range of joint ``j`` is given the covariance it
+    would have inside the range (``S_in``: the parameters' part and the unexplained scatter) plus an error
+    of every direction alike of that size. Its shape (how much of it is the level, how much the growth:
+    :data:`EXTRAPOLATION_SHAPES` of the size one sampled width ``w_j`` beyond) is the one under which the
+    judged errors are likeliest (3-D Gaussian); its amplitude the smallest at which ``factor radius95(S_in +
+    size^2 / 3 I)`` holds 95 % of the judged errors of both splits of that joint (bisection: coverage grows
+    with it). A size of 0: the model holds beyond its range as it holds inside (geometry extrapolates).
+
+    Parameters
+    ----------
+    splits : list of dict (:func:`region_split_errors`)
+    S_in : ndarray, shape (n, 3, 3): each sample pose's in-range covariance (mm^2, or mrad^2)
+    factor : float, the coverage factor of the stated radius
+    widths : ndarray, shape (N,), deg: each joint's sampled width
+    key : ``"position_mm"`` or ``"orientation_mrad"``
+
+    Returns
+    -------
+    (level, slope, reach): ndarrays, shape (N,), mm, mm per deg (mrad, mrad per deg) and deg; NaN where a
+    joint's splits judged fewer than :data:`SPLIT_MIN_POSES` poses.
+    """
+    widths = np.asarray(widths, float)
+    N = widths.size
+    lam_all, V_all = np.linalg.eigh(np.asarray(S_in, float)) if len(splits) else (np.zeros((0, 3)), None)
+    level, slope, reach = np.full(N, np.nan), np.full(N, np.nan), np.full(N, np.nan)
+    for j in range(N):
+        parts = [s for s in splits if s["joint"] == j + 1 and s.get(key) is not None]
+        idx = np.concatenate([s["judged"] for s in parts]) if parts else np.zeros(0, int)
+        if idx.size < SPLIT_MIN_POSES:
+            continue
+        b = np.concatenate([s["beyond_deg"] for s in parts])
+        e = np.concatenate([s[key] for s in parts])
+        farthest = float(b.max())
+        if idx.size > GROWTH_MAX_POSES:
+            # a large campaign: evenly spaced judged poses of both splits (the 95 % quantile to about 0.7 %)
+            keep = np.linspace(0, idx.size - 1, GROWTH_MAX_POSES).round().astype(int)
+            idx, b, e = idx[keep], b[keep], e[keep]
+        r = np.linalg.norm(e, axis=1)
+        lam = lam_all[idx]
+        # the judged errors in the eigen-axes of their in-range covariance: their likelihood at any extra size
+        z2 = np.einsum("nk,nkl->nl", e, V_all[idx]) ** 2
+        w = max(float(widths[j]), 1e-6)
+        best = None
+        for t in EXTRAPOLATION_SHAPES:
+            shape = (1.0 - t) * _ramp(b) + t * b / w
+            a = _least_amplitude(r / factor, lam, shape)
+            var = np.maximum(lam + ((a * shape) ** 2 / 3.0)[:, None], 1e-300)
+            loglik = -0.5 * float(np.sum(np.log(var) + z2 / var))
+            if best is None or loglik > best[0]:
+                best = (loglik, a, t)
+        _, a, t = best
+        level[j], slope[j], reach[j] = a * (1.0 - t), a * t / w, farthest
+    return level, slope, reach
+
+
+#: The shapes :func:`extrapolation_growth` chooses among: the share of a joint's error one sampled width beyond
+#: its range that grew with the distance (0: all of it there at the edge, 1: growing from 0 at the edge)
+EXTRAPOLATION_SHAPES = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def _least_amplitude(r, lam, shape, p: float = P95) -> float:
+    """The least amplitude ``a >= 0`` at which ``radius95`` of the covariances of eigenvalues ``lam + (a shape)^2 / 3``
+    ((n, 3), mm^2) holds the share ``p`` of the errors ``r`` (n,): each pose's own least amplitude (``|r_i|`` on
+    its radius, found by bisection for every pose at once; 0 where its radius holds it already), and their ``p``
+    quantile. The radius's chi-square quantile is read from a table over its degrees of freedom (1 to 3)."""
+    r, lam, shape = np.asarray(r, float), np.asarray(lam, float), np.asarray(shape, float)
+    radius = _radius95_table(p)
+    need = (radius(lam) < r) & (shape > 0)
+    a_i = np.zeros(r.size)
+    if need.any():
+        rr, ll, sh = r[need], lam[need], shape[need]
+        lo, hi = np.zeros(rr.size), np.sqrt(3.0) * rr / sh           # at hi the extra error alone is |r| in size
+        for _ in range(20):                            # to 1e-6 of the bracket
+            mid = 0.5 * (lo + hi)
+            ok = radius(ll + ((mid * sh) ** 2 / 3.0)[:, None]) >= rr
+            lo, hi = np.where(ok, lo, mid), np.where(ok, mid, hi)
+        a_i[need] = hi
+    a_i[(radius(lam) < r) & (shape <= 0)] = np.inf
+    k = int(np.ceil(p * r.size)) - 1                   # the least a covering at least p of the poses
+    return float(np.sort(a_i)[max(k, 0)]) if r.size else 0.0
+
+
+def _radius95_table(p: float = P95):
+    """:func:`_radius95_of` with the chi-square quantile interpolated from a table over 1 to 3 degrees of freedom
+    (relative error below 1e-7): the bisection of :func:`_least_amplitude` evaluates it many times."""
+    from scipy import special
+
+    nus = np.linspace(1.0, 3.0, 401)
+    table = 2.0 * special.gammaincinv(nus / 2.0, p)
+
+    def radius(lam):
+        lam = np.clip(lam, 0.0, None)
+        s1, s2 = lam.sum(axis=-1), (lam ** 2).sum(axis=-1)
+        ok = s2 > 0
+        a = np.where(ok, s2 / np.where(ok, s1, 1.0), 0.0)
+        nu = np.where(ok, s1 ** 2 / np.where(ok, s2, 1.0), 1.0)
+        return np.sqrt(a * np.interp(nu, nus, table))
+
+    return radius
 
 
 def joint_angle_spread(model, data) -> np.ndarray:
@@ -423,6 +656,23 @@ def describe_relative(rows: list[dict]) -> str:
     return "; ".join(parts)
 
 
+def describe_beyond(pred: dict) -> str:
+    """In words, what a fit JSON's ``prediction_uncertainty`` (``pred``) adds beyond the sampled joint ranges:
+    each learned joint's 1-sigma size at the farthest its region splits judged, largest first ('' when
+    none was learned)."""
+    level, slope, reach = (pred.get(k) for k in ("extrapolation_mm", "extrapolation_mm_per_deg",
+                                                 "extrapolation_reach_deg"))
+    if not (isinstance(level, list) and isinstance(slope, list) and isinstance(reach, list)):
+        return ""
+    sizes = [(l + s * r, j + 1, r) for j, (l, s, r) in enumerate(zip(level, slope, reach))
+             if l is not None and s is not None and r is not None]
+    if not sizes:
+        return ""
+    sizes.sort(key=lambda x: (-x[0], x[1]))
+    return ("beyond a joint's sampled range its own region splits add (1 sigma, every direction alike) "
+            + ", ".join(f"joint {j} {v:.3f} mm ({r:.0f} deg beyond)" for v, j, r in sizes))
+
+
 def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientation=None) -> dict:
     """What the fit JSON says of its uncertainty, and what ``predict`` and ``correct`` need for ``u95_mm``.
 
@@ -461,6 +711,12 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
     r_cv = np.linalg.norm(np.asarray(cv_residuals, float), axis=1)
     base = radius95(S_cv)
     factor = float(np.quantile(r_cv / np.where(base > 0, base, np.inf), P95)) if n else 1.0
+    # how its error grows beyond the range it saw, learned from its own region splits (extrapolation_growth)
+    splits = region_split_errors(model, sample)
+    N = np.asarray(sample.q_deg).shape[1]
+    widths = np.ptp(np.asarray(sample.q_deg, float), axis=0)
+    level, slope, reach = extrapolation_growth(splits, S_cv, factor, widths)
+    judged = [int(sum(s["judged"].size for s in splits if s["joint"] == j + 1)) for j in range(N)]
     live = [k for k in range(len(model.names_)) if sd[k] > 0]
     pred = {"parameters": [model.names_[k] for k in live],
             "covariance": cov_rep[np.ix_(live, live)].tolist(),
@@ -473,11 +729,21 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
             # how much each joint's angle error in the model varies over the sample poses (arcsec): beyond the
             # sampled range it is not known (extrapolation_covariance)
             "joint_angle_spread_arcsec": (joint_angle_spread(model, sample) * ARCSEC_PER_RAD).tolist(),
+            # learned from the region splits: the size of the error beyond each joint's sampled range (None: too
+            # few judged poses, the one-width guess instead)
+            "extrapolation_split_quantile": SPLIT_QUANTILE,
+            "extrapolation_judged_poses": judged,
+            "extrapolation_ramp_deg": EXTRAPOLATION_RAMP_DEG,
+            "extrapolation_mm": _json_rates(level),
+            "extrapolation_mm_per_deg": _json_rates(slope),
+            "extrapolation_reach_deg": _json_rates(reach),
             "method": ("u95_mm = coverage_factor x the 95 % radius of a 3-D Gaussian error whose covariance is the "
                        "parameters' covariance propagated to the pose + the unexplained scatter of the "
-                       f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an unknown joint angle "
-                       "error (docs/uncertainty.md); coverage_factor: the 0.95 quantile of the cross-validated "
-                       "residuals over their own Gaussian radius")}
+                       f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an error growing with "
+                       "the distance beyond them to the size the fit's own region splits show (each joint: refitted "
+                       f"below its {SPLIT_QUANTILE:g} quantile, judged above, and the mirror; docs/uncertainty.md); "
+                       "coverage_factor: the 0.95 quantile of the cross-validated residuals over their own Gaussian "
+                       "radius")}
     if cv_orientation is not None and "tool_ex" in model.names_:
         Jo = orientation_jacobian(model, sample, mv)
         at_o = prediction_covariance(Jo, cov_mv) * (n / max(train, 1.0))
@@ -487,6 +753,10 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
         pred["unexplained_orientation_mrad2"] = Uo.tolist()
         pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD_EXACT
         pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
+        level_o, slope_o, _ = extrapolation_growth(splits, at_o + Uo, pred["orientation_coverage_factor"], widths,
+                                                "orientation_mrad")
+        pred["extrapolation_arcsec"] = _json_rates(level_o * ARCSEC_PER_MRAD_EXACT)
+        pred["extrapolation_arcsec_per_deg"] = _json_rates(slope_o * ARCSEC_PER_MRAD_EXACT)
         pred["method_orientation"] = ("u95_arcsec: the same for the probe frame's orientation (its rows of the "
                                       "prediction Jacobian, the cross-validation's orientation errors, the joints' "
                                       "unknown angle errors beyond the sampled ranges turning the frame)")
@@ -495,6 +765,28 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
     penalised = [nm for nm, on in zip(model.names_, np.abs(Pen).sum(axis=0) > 0) if on]
     return {"uncertainty": unc, "correlations": correlated_pairs(model.names_, cov_rep, groups=groups),
             "prediction": pred, "penalised": penalised}
+
+
+def _json_rates(g) -> list:
+    """Rates (N,) as JSON: a number each, None where not learned (NaN)."""
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(g, float)]
+
+
+def _rates(block: dict, key: str, scale: float = 1.0):
+    """A fit JSON's rates (:func:`_json_rates`) as an array (N,) (NaN where None), or None when absent."""
+    v = block.get(key)
+    if not isinstance(v, list):
+        return None
+    return np.array([np.nan if x is None else float(x) for x in v], float) / scale
+
+
+def _growth(block: dict, level_key: str, slope_key: str, scale: float = 1.0):
+    """A fit JSON's learned error beyond the ranges as ``(level, slope, reach)`` arrays (N,), or None when absent."""
+    level, slope = _rates(block, level_key, scale), _rates(block, slope_key, scale)
+    reach = _rates(block, "extrapolation_reach_deg")
+    if level is None or slope is None or reach is None or not level.shape == slope.shape == reach.shape:
+        return None
+    return level, slope, reach
 
 
 def load_prediction(doc: dict, model):
@@ -521,11 +813,14 @@ def load_prediction(doc: dict, model):
         Uo = (np.asarray(block["unexplained_orientation_mrad2"], float).reshape(3, 3)
               if "unexplained_orientation_mrad2" in block else None)
         factor_o = float(block.get("orientation_coverage_factor", 1.0))
+        growth = _growth(block, "extrapolation_mm", "extrapolation_mm_per_deg")
+        growth_o = _growth(block, "extrapolation_arcsec", "extrapolation_arcsec_per_deg", ARCSEC_PER_MRAD_EXACT)
     except (KeyError, TypeError, ValueError):
         return None
     if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(U)) and np.isfinite(factor) and np.all(np.isfinite(spread))):
         return None
-    out = {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None}
+    out = {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None,
+           "growth": growth, "growth_orientation": growth_o}
     if Uo is not None and np.all(np.isfinite(Uo)) and np.isfinite(factor_o):
         out.update(unexplained_orientation=Uo, factor_orientation=factor_o)
     return out
@@ -549,8 +844,9 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
     mv = moving(stated["covariance"])
     cov_mv = np.asarray(stated["covariance"])[np.ix_(mv, mv)]
     Sp = prediction_covariance(model_jacobian(model, data, mv), cov_mv)
-    Se = extrapolation_covariance(data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"],
-                                  stated.get("spread_rad"))
+    Jq = joint_jacobian(model, data)
+    Se = extrapolation_covariance(data.q_deg, sampled, Jq, stated["unexplained"], stated.get("spread_rad"),
+                                  growth=stated.get("growth"))
     S = Sp + stated["unexplained"][None] + Se
     tr = lambda M: np.sqrt(np.clip(np.einsum("nkk->n", M), 0.0, None))  # noqa: E731
     out = {"u95_mm": stated["factor"] * radius95(S), "parameters_mm": tr(Sp),
@@ -559,8 +855,8 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
     if "unexplained_orientation" in stated and "tool_ex" in model.names_:
         So = prediction_covariance(orientation_jacobian(model, data, mv), cov_mv)
         So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
-            data.q_deg, sampled, joint_jacobian(model, data), stated["unexplained"], stated.get("spread_rad"),
-            Jturn=joint_jacobian(model, data, turn=True))
+            data.q_deg, sampled, Jq, stated["unexplained"], stated.get("spread_rad"),
+            Jturn=joint_jacobian(model, data, turn=True), growth=stated.get("growth_orientation"))
         out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD_EXACT
     return out
 

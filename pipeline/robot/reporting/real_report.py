@@ -174,8 +174,8 @@ def _uncertainty_pages(pdf, results: dict, table: dict, series: list) -> None:
         return
     lines = _wrap("Each fitted model states, for every pose, u95_mm: the radius within which it expects the robot "
                   "to land with 95 % probability (the parameters' covariance propagated to the pose, the scatter its "
-                  "5-fold cross-validation leaves unexplained, and an unknown joint angle error beyond the sampled "
-                  "joint ranges; docs/uncertainty.md). Coverage: the share of poses within their u95_mm, on the "
+                  "5-fold cross-validation leaves unexplained, and beyond the sampled joint ranges the error its own "
+                  "region splits show there; docs/uncertainty.md). Coverage: the share of poses within their u95_mm, on the "
                   "series' own held-out targets and on the other series (tracker re-registered). It should be "
                   "about 95 %; mean u95 / p95 (the errors' 95th percentile) near 1 says the intervals are not "
                   "simply wide.")

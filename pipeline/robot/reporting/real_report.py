@@ -438,6 +438,27 @@ def load_user_results(fits, predicts, others=(), series="campaign", other_name="
     return {series: r}
 
 
+def fitted_campaign(fits: dict, first_fit) -> str:
+    """The imported campaign a user's fits were fitted on, from the first fit JSON (its ``campaign``);
+    bad input (one line, naming the fit file) when it does not name one, or the folder is not there.
+
+    Parameters
+    ----------
+    fits : dict ``{model: fit JSON}`` in the --fit order
+    first_fit : path of the first --fit JSON (named in the message)
+    """
+    doc = next(iter(fits.values()), {})
+    named = doc.get("campaign")
+    if isinstance(named, list):        # fitted on several campaigns: which one is for the user to say
+        named = None
+    if not named or not (Path(named) / "poses.csv").exists():
+        why = (f"it names {named}, which has no poses.csv here" if named else
+               "it does not name a single campaign")
+        raise InputError(first_fit, f"--fit needs --campaign, the imported campaign it was fitted on (the folder "
+                                    f"jointcal import wrote, whose poses.csv gives the joint angles): {why}")
+    return str(named)
+
+
 def load_campaign(campaign_dir):
     """One imported campaign's ``poses.csv`` (point_id, set, q1..qN deg); missing is bad input."""
     path = Path(campaign_dir) / "poses.csv"

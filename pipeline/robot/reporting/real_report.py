@@ -440,8 +440,8 @@ def where_rows(table: dict, model: str) -> tuple[list, list, list[str]]:
             f"{t['rms_mm']:.3f} mm on {s} ({t['rms_mm'] / own[s]:.2f}x its own model's {own[s]:.3f})"
             for s, t in together.items() if own.get(s)) + ": the robot is one; what a single series teaches "
             "does not carry over to the other's region" + (
-            " (its own model there: " + ", ".join(
-                f"{table[o][f'{model}_on_{s}']['rms_mm']:.3f} mm from {o}" for s in together for o in series
+            " (one series' model on the other: " + ", ".join(
+                f"{o}'s on {s} {table[o][f'{model}_on_{s}']['rms_mm']:.3f} mm" for s in together for o in series
                 if f"{model}_on_{s}" in table[o]) + ")." if any(f"{model}_on_{s}" in table[o] for s in together
                                                                 for o in series) else "."))
     for s in series:

@@ -400,7 +400,7 @@ def interpolates(dof: float, n_poses: int, rows_per_pose: int, sigma_mm: float) 
     rows = rows_per_pose * n_poses
     if not np.isfinite(dof) or rows - dof >= MIN_RESIDUAL_DOF_FRACTION * rows:
         return ""
-    each = f"{rows_per_pose} a pose: position and orientation" if rows_per_pose == 6 else f"{rows_per_pose} a pose"  # noqa: PLR2004
+    each = f"{rows_per_pose} a pose" + (": position and orientation" if rows_per_pose > 3 else "")  # noqa: PLR2004
     return (f"the flexible model ({dof:.0f} effective parameters on {n_poses} sample poses, {rows} residual rows, "
             f"{each}) leaves {100 * (rows - dof) / rows:.0f} % of its residuals' degrees of freedom, less than "
             f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sigma_mm:.2g} mm), "

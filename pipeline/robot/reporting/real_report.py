@@ -436,14 +436,13 @@ def where_rows(table: dict, model: str) -> tuple[list, list, list[str]]:
         rows.append([f"Fitted together: {names}, each its own tracker frame"] + [""] * 7)
         for s, t in together.items():
             add(names, f"{s}'s held-out", t, s, t.get("coverage"))
-        notes.append(f"Fitted together, one model holds out at " + ", ".join(
+        carried = [f"{o}'s on {s} {table[o][f'{model}_on_{s}']['rms_mm']:.3f} mm" for s in together for o in series
+                   if f"{model}_on_{s}" in table[o]]
+        notes.append("Fitted together, one model holds out at " + ", ".join(
             f"{t['rms_mm']:.3f} mm on {s} ({t['rms_mm'] / own[s]:.2f}x its own model's {own[s]:.3f})"
             for s, t in together.items() if own.get(s)) + ": the robot is one; what a single series teaches "
-            "does not carry over to the other's region" + (
-            " (one series' model on the other: " + ", ".join(
-                f"{o}'s on {s} {table[o][f'{model}_on_{s}']['rms_mm']:.3f} mm" for s in together for o in series
-                if f"{model}_on_{s}" in table[o]) + ")." if any(f"{model}_on_{s}" in table[o] for s in together
-                                                                for o in series) else "."))
+            "does not carry over to the other's region" + (f" (one series' model on the other: {', '.join(carried)})"
+                                                            if carried else "") + ".")
     for s in series:
         splits = table[s].get("splits") or []
         if not splits:

@@ -55,5 +55,36 @@ $(REAL_RES)/$(1)_$(2)_on_$(3).json: $(REAL_RES)/$(1)_$(2).json interim/real/$(3)
 endef
 $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(eval $(call REAL_TRANSFER,$(s),$(m),$(call other,$(s))))))
 
-$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) $(REAL_LOOPS) $(CODE.robot.real_report_cmd) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series
+# issue 52: where a model holds. The series fitted together (one robot, each series its own tracker frame),
+# with the spec the loop ended with on REAL_TOGETHER_SPEC's series, judged on each series' held-out poses; and
+# region splits inside a series: for each joint, that spec fitted on the sample poses below the joint's 60th
+# percentile, judged on every pose above it (interim/real-split/<series>_q<joint>, jointcal robot region-split)
+REAL_TOGETHER_SPEC := C
+space := $(subst ,, )
+REAL_TOGETHER := $(REAL_RES)/$(subst $(space),,$(REAL_SERIES))_together
+REAL_SPLIT_SERIES := C
+REAL_SPLIT_JOINTS := 1 2 3 4 5 6
+REAL_SPLITS := $(foreach s,$(REAL_SPLIT_SERIES),$(foreach j,$(REAL_SPLIT_JOINTS),$(REAL_RES)/$(s)_split_q$(j)))
+REAL_WHERE := $(REAL_TOGETHER).json $(REAL_TOGETHER)_self.json $(foreach f,$(REAL_SPLITS),$(f).json $(f)_above.json)
+
+$(REAL_TOGETHER).json: $(foreach s,$(REAL_SERIES),interim/real/$(s)/poses.csv) $(REAL_RES)/$(REAL_TOGETHER_SPEC)_diagnosed.toml $(CODE.campaign.fit) | $(STAMP) ## every series fitted together (each its own tracker frame), the loop's spec
+	$(JC) fit $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --spec $(REAL_RES)/$(REAL_TOGETHER_SPEC)_diagnosed.toml --out $@
+
+$(REAL_TOGETHER)_self.json: $(REAL_TOGETHER).json $(CODE.robot.predict_cmd) | $(STAMP) ## the series fitted together, on each series' held-out poses
+	$(JC) predict $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --model $< --json $@ --point "0 0 300"
+
+# <series>_split_q<j>: the region split's campaign, its fit, and the fit on the poses above the split
+define REAL_SPLIT
+interim/real-split/$(1)_q$(2)/poses.csv: interim/real/$(1)/poses.csv $(CODE.robot.region_split_cmd) | $(STAMP)
+	$(JC) robot region-split --campaign interim/real/$(1) --joint $(2) --out interim/real-split/$(1)_q$(2)
+
+$(REAL_RES)/$(1)_split_q$(2).json: interim/real-split/$(1)_q$(2)/poses.csv $(REAL_RES)/$(1)_diagnosed.toml $(CODE.campaign.fit) | $(STAMP)
+	$(JC) fit --campaign interim/real-split/$(1)_q$(2) --spec $(REAL_RES)/$(1)_diagnosed.toml --out $$@
+
+$(REAL_RES)/$(1)_split_q$(2)_above.json: $(REAL_RES)/$(1)_split_q$(2).json $(CODE.robot.predict_cmd) | $(STAMP)
+	$(JC) predict --campaign interim/real-split/$(1)_q$(2) --model $$< --json $$@ --point "0 0 300"
+endef
+$(foreach s,$(REAL_SPLIT_SERIES),$(foreach j,$(REAL_SPLIT_JOINTS),$(eval $(call REAL_SPLIT,$(s),$(j)))))
+
+$(REAL_RES)/transfer.json reports/real.pdf &: $(REAL_FITS) $(REAL_SELF) $(REAL_XFER) $(REAL_LOOPS) $(REAL_WHERE) $(CODE.robot.real_report_cmd) | $(STAMP) ## nominal / kinematic / paper errors, per-pose errors against each joint, transfer between series, the series together, region splits
 	$(JC) robot real-report --results $(REAL_RES) --campaigns interim/real --out-json $(REAL_RES)/transfer.json --out reports/real.pdf --note "$(REAL_NOTE)"

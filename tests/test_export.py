@@ -408,3 +408,42 @@ def test_user_urdf_export_refuses_another_tool_or_urdf(tmp_path):
     assert "joint 'joint_3' of the URDF lies" in r.output and len(r.output.strip().splitlines()) == 1, r.output
     assert f"{other}:53:3:" in r.output            # the file, line and column of joint_3
     assert not (tmp_path / "cal.urdf").exists()
+
+
+def test_a_coupled_joints_table_is_in_its_drives_angle(ur10, tmp_path):
+    """Issue 53: with coupled joints (robot.toml [coupling] q3 = { q2 = 1, q3 = 1 }: the model's joint 3 turns by
+    the recorded J2 + J3, a FANUC's J2/J3), the drive table is in the drive's own (recorded) angle: the
+    controller commanding recorded angles r minus the table's error lands the chain alone where the whole
+    model puts r. The table was in the model's joint angle (a drive reading it would be off by J2)."""
+    import pandas as pd
+
+    from pipeline.export.chain import CHAIN_EFFECTS, TABLE_EFFECTS, model_data, predict_with
+    from pipeline.robot.arm.kinematics import parse_robot
+
+    robot = parse_robot(ur10.to_toml() + "\n[coupling]\nq3 = { q2 = 1.0, q3 = 1.0 }\n", "robot.toml")
+    spec = CHAIN_SPEC + '[[effect]]\nname = "joint_map"\njoints = [3]\nstep_deg = 5.0\nrange_deg = {"3" = [-150.0, 150.0]}\n'
+    model, params = synthetic_model(robot, spec, 5)
+    lo = np.array([-170.0, -150.0, -150.0, -170.0, -120.0, -170.0])
+    hi = np.array([170.0, -30.0, 150.0, 170.0, 60.0, 170.0])
+    (tmp_path / "fit.json").write_text(json.dumps(_fit_doc(robot, params, spec, lo, hi)))
+    r = cli_invoker()("export", "--model", tmp_path / "fit.json", "--format", "table", "--out", tmp_path / "t.csv",
+                      "--step-deg", "2")
+    assert r.exit_code == 0, r.output
+    text = (tmp_path / "t.csv").read_text()
+    assert "drive's own angle" in text and "drive(s) 2" in text
+    t = pd.read_csv(tmp_path / "t.csv", comment="#")
+    assert sorted(t["joint"].unique()) == [3]        # only joint 3's error: drive 3 alone corrects it
+    mid_r = robot.recorded_angles(((lo + hi) / 2)[None])[0]         # drive 2 at -90: drive 3 spans q3's range + 90
+    assert t.angle_deg.min() == pytest.approx(lo[2] - mid_r[1]) and t.angle_deg.max() == pytest.approx(hi[2] - mid_r[1])
+    dirs = np.ones((1, 6), int)
+    for _, row in t.sample(15, random_state=3).iterrows():
+        rec = mid_r.copy()
+        rec[2] = row.angle_deg
+        true = rec.copy()
+        true[2] -= row.error_arcsec / 3600.0
+        q, q_true = robot.kinematic_angles(rec[None]), robot.kinematic_angles(true[None])
+        whole = predict_with(robot, model, model_data(robot, q, dirs, np.zeros(1), np.full(1, 20.0)),
+                             CHAIN_EFFECTS + TABLE_EFFECTS)
+        chain = predict_with(robot, model, model_data(robot, q_true, dirs, np.zeros(1), np.full(1, 20.0)), CHAIN_EFFECTS)
+        assert np.abs(whole - chain).max() < 1e-6      # mm
+    assert t.error_arcsec.abs().max() > 1.0

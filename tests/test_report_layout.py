@@ -214,9 +214,12 @@ def test_fleet_report_layout(recorder, tmp_path):
     r = invoke("simulate", "fleet", "--out", tmp_path / "raw", "--truth", tmp_path / "truth", "--units", 8,
                "--seed", 11)
     assert r.exit_code == 0, r.output
-    check_report(recorder, lambda: invoke(
+    pages = check_report(recorder, lambda: invoke(
         "fleet", "--campaigns", f"{tmp_path}/raw/*", "--spec", ROOT / "specs" / "encoder_paper.toml", "--out-dir",
         tmp_path / "res", "--table", tmp_path / "fleet.parquet", "--report", tmp_path / "fleet.pdf", "--serial"))
+    # no page repeats another's picture (page 3 drew page 1's before / after again)
+    shown = [info["text"].count("Every unit: before and after") for _, info in pages]
+    assert sum(shown) == 1, shown
 
 
 # ---------------------------------------------------------------------------------------------- any robot
@@ -292,6 +295,70 @@ def test_real_report_of_two_series_by_makes_names(recorder, seven_joint_arm, tmp
     for s in campaigns:
         h = results[s]["fits"]["kinematic"]["heldout"]
         assert f"{h['rms_before_mm']:.3f}" in first and f"{h['rms_after_mm']:.3f}" in first, s
+
+
+def test_real_report_shows_the_series_together_and_the_region_splits(recorder, seven_joint_arm, tmp_path):
+    """Issue 52: make real's report with the series fitted together (make's <series...>_together.json and its
+    _self predict) and a region split of one series (<series>_split_q<j>.json and _above.json): a page beside
+    the summary states each, from those files' numbers, and draws where the models fail (synthetic arm)."""
+    import shutil
+
+    from pipeline.robot.reporting.real_report import load_campaigns, load_results, real_report
+
+    tmp, res = seven_joint_arm, tmp_path / "results"
+    shutil.copytree(seven_joint_arm / "results", res)
+    invoke = cli_invoker()
+    camps = [tmp / "campaigns" / "east", tmp / "campaigns" / "west"]
+    for s in ("east", "west"):       # make's "diagnosed": the arm's backlash fit
+        for suffix in ("", "_self", "_on_" + ("west" if s == "east" else "east")):
+            shutil.copy(res / f"{s}_backlash{suffix}.json", res / f"{s}_diagnosed{suffix}.json")
+    spec = tmp_path / "backlash.toml"
+    spec.write_text((ROOT / "specs" / "robot_kinematic.toml").read_text()
+                    + '\n[[effect]]\nname = "backlash"\njoints = [2]\n')
+    r = invoke("fit", "--campaign", camps[0], "--campaign", camps[1], "--spec", spec, "--out", res / "eastwest_together.json")
+    assert r.exit_code == 0, r.output
+    r = invoke("predict", "--campaign", camps[0], "--campaign", camps[1], "--model", res / "eastwest_together.json",
+               "--json", res / "eastwest_together_self.json")
+    assert r.exit_code == 0, r.output
+    r = invoke("robot", "region-split", "--campaign", camps[0], "--joint", 2, "--out", tmp_path / "east_q2")
+    assert r.exit_code == 0, r.output
+    r = invoke("fit", "--campaign", tmp_path / "east_q2", "--spec", spec, "--out", res / "east_split_q2.json")
+    assert r.exit_code == 0, r.output
+    r = invoke("predict", "--campaign", tmp_path / "east_q2", "--model", res / "east_split_q2.json",
+               "--json", res / "east_split_q2_above.json")
+    assert r.exit_code == 0, r.output
+    campaigns = load_campaigns(tmp / "campaigns")
+    results = load_results(res, list(campaigns))
+    table = {}
+    pages = check_report(recorder, lambda: table.update(real_report(results, campaigns, tmp_path / "real.pdf")))
+    where = [info for _, info in pages if "Where the models hold" in info["text"]]
+    assert len(where) == 1 and where[0]["table"] and where[0]["picture"]
+    text = where[0]["text"]
+    together = json.loads((res / "eastwest_together.json").read_text())
+    for c in together["campaigns"]:
+        assert f"{c['heldout']['rms_after_mm']:.3f}" in text, c["campaign"]
+    split = json.loads((res / "east_split_q2.json").read_text())["heldout"]
+    above = json.loads((res / "east_split_q2_above.json").read_text())
+    assert f"{split['rms_after_mm']:.3f}" in text and f"{100 * above['coverage_95']:.1f}" in text
+    assert table["east"]["splits"][0]["n"] == split["n_target"] and table["west"]["together"]["with"] == ["east", "west"]
+
+
+def test_real_report_without_campaign_takes_the_fits_or_says_in_one_line(seven_joint_arm, tmp_path):
+    """Issue 53: `robot real-report --fit F` without --campaign printed click's three-line usage error; it
+    takes the campaign the fit names, and when that is not there says so in one line (exit 2)."""
+    res = seven_joint_arm / "results"
+    ok = cli_invoker()("robot", "real-report", "--fit", res / "east_kinematic.json", "--predict",
+                       res / "east_kinematic_self.json", "--out", tmp_path / "a.pdf")
+    assert ok.exit_code == 0, ok.output
+    doc = json.loads((res / "east_kinematic.json").read_text())
+    doc["campaign"] = str(tmp_path / "moved")
+    (tmp_path / "fit.json").write_text(json.dumps(doc))
+    r = cli_invoker()("robot", "real-report", "--fit", tmp_path / "fit.json", "--predict",
+                      res / "east_kinematic_self.json", "--out", tmp_path / "b.pdf")
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert r.exit_code == 2 and len(lines) == 1, r.output
+    assert lines[0].startswith(f"jointcal: error: {tmp_path / 'fit.json'}:") and "--campaign" in lines[0]
+    assert not (tmp_path / "b.pdf").exists()
 
 
 def test_diagnosis_report_of_a_users_seven_joint_arm(recorder, seven_joint_arm, tmp_path):

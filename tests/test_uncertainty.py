@@ -282,3 +282,16 @@ def test_a_large_campaigns_covariance_is_the_dense_one(probe, tmp_path, monkeypa
     part = uncertainty.prediction_covariance(uncertainty.model_jacobian(model, sample, mv), Cz[np.ix_(mv, mv)])
     assert np.abs(full).max() > 0
     np.testing.assert_allclose(part, full, rtol=1e-12, atol=1e-12 * np.abs(full).max())
+
+
+def test_parameter_meanings_say_robot_tomls_dh_plus_beta():
+    """Issue 53: robot.toml's link transform is classic DH plus beta (contract section 2), for a robot written
+    by hand or imported from a URDF; the fit console and reports named its parameters "MDH". Each geometry
+    parameter names the robot.toml key it corrects."""
+    from pipeline.robot.model.uncertainty import meaning
+
+    for name, key in (("dd3", "d_mm of joint 3"), ("da2", "a_mm of joint 2"), ("dalpha4", "alpha_deg of joint 4"),
+                      ("dbeta2", "beta_deg of joint 2")):
+        text = meaning(name)
+        assert key in text and "MDH" not in text, (name, text)
+    assert "DH + beta" in meaning("dbeta2")

@@ -362,3 +362,28 @@ def test_folds_drawn_before_the_wild_poses_are_known_are_fitted_on_the_kept_ones
     g = FoldsBeforeWild(robot, effects, sample, first=first).start(keep, jobs=2)()
     assert np.array_equal(e.residuals, g.residuals)
     assert np.abs(e.residuals - ref).max() < 1e-3 * moved
+
+
+def test_the_no_scale_rule_counts_a_6dof_poses_six_rows(tmp_path):
+    """Issue 53: on a 6-DoF campaign every sample pose gives the fit 6 residual rows (position and
+    orientation); the rule that a flexible model interpolating its poses gives no scale counts them all,
+    and says poses and rows (it said "60 residuals" of 20 poses, half of them). Synthetic 6-DoF cell."""
+    import re
+
+    from pipeline.robot.model.outliers import interpolates
+
+    six_dof_cell(tmp_path / "c", tmp_path / "truth", 5)
+    _keep_first(tmp_path / "c", 20, 10)
+    out = tmp_path / "fit.json"
+    r = cli_invoker()("fit", "--campaign", tmp_path / "c", "--spec", SPEC, "--out", out)
+    assert r.exit_code == 0, r.output
+    why = json.loads(out.read_text())["outlier_rule"]["no_scale"]
+    m = re.search(r"\((\d+) effective parameters on (\d+) sample poses, (\d+) residual rows, 6 a pose.*?leaves (\d+) %", why)
+    assert m, why
+    dof, poses, rows, left = map(int, m.groups())
+    assert (poses, rows) == (20, 120)
+    assert abs(left - 100 * (rows - dof) / rows) <= 1
+    # the rule itself: 70 effective parameters leave a position-only fit of 20 poses (60 rows) no scale,
+    # a 6-DoF one (120 rows, 42 % used) its scale
+    assert "60 residual rows" in interpolates(70.0, 20, 3, 0.01)
+    assert interpolates(50.0, 20, 6, 0.01) == "" and interpolates(float("nan"), 20, 3, 0.01) == ""

@@ -419,7 +419,8 @@ def report_cmd(results_dir, beyond_path, diagnosis_path, out):
 @click.option("--other", "others", multiple=True, type=click.Path(dir_okay=False),
               help="Optional: jointcal predict --register JSON of each --fit on another campaign, in the same order.")
 @click.option("--campaign", "campaign_dir", default=None, type=click.Path(file_okay=False),
-              help="The imported campaign the --fit JSONs were fitted on (its poses.csv gives the joint angles).")
+              help="The imported campaign the --fit JSONs were fitted on (its poses.csv gives the joint angles); "
+                   "default: the one the first --fit JSON names, when it is there.")
 @click.option("--other-name", default="other", show_default=True, help="What to call the --other campaign.")
 @click.option("--results", "results_dir", default="results/real", show_default=True, type=click.Path(),
               help="make real: folder with <series>_<spec>.json (fit), _self.json and _on_<other>.json (predict).")
@@ -435,17 +436,17 @@ def real_report_cmd(fits, predicts, others, campaign_dir, other_name, results_di
     (mm, arcsec) on the campaign's held-out poses and on another campaign (registered), coverage of the
     stated u95, and each held-out pose's error against each joint angle (deg).
 
-    Your robot: --fit FIT.json --predict PRED.json --campaign CAMPAIGN [--other PRED_ON.json].
+    Your robot: --fit FIT.json --predict PRED.json [--campaign CAMPAIGN] [--other PRED_ON.json].
     make real: --results and --campaigns (every series' fits by make's file names)."""
     from ..core.files import write_json
-    from ..robot.reporting.real_report import (load_campaign, load_campaigns, load_results,
+    from ..robot.reporting.real_report import (fitted_campaign, load_campaign, load_campaigns, load_results,
                                                    load_user_results, model_names, real_report)
 
     if fits:
-        if not campaign_dir:
-            raise click.UsageError("--fit needs --campaign (the imported campaign it was fitted on)")
+        results = load_user_results(list(fits), list(predicts), list(others), "campaign", other_name)
+        campaign_dir = campaign_dir or fitted_campaign(results["campaign"]["fits"], fits[0])
         name = Path(campaign_dir).name or "campaign"
-        results = load_user_results(list(fits), list(predicts), list(others), name, other_name)
+        results = {name: results["campaign"]}
         campaigns = {name: load_campaign(campaign_dir)}
     else:
         campaigns = load_campaigns(campaigns_dir)
@@ -460,6 +461,24 @@ def real_report_cmd(fits, predicts, others, campaign_dir, other_name, results_di
             f", {k.split('_on_')[1]} {t[k]['rms_mm']:.3f}" for k in sorted(t) if k.startswith(f"{m}_on_"))
             for m in models if m in t)
         for s, t in table.items()), err=True)
+
+
+@robot_group.command("region-split")
+@click.option("--campaign", "campaign_dir", required=True, type=click.Path(file_okay=False),
+              help="An imported campaign (jointcal import --out).")
+@click.option("--joint", required=True, type=int, help="The joint whose angle splits the poses.")
+@click.option("--percentile", default=60.0, show_default=True, type=click.FloatRange(0, 100, min_open=True, max_open=True),
+              help="Of the joint's angles over the campaign's sample poses: the split's threshold.")
+@click.option("--out", required=True, type=click.Path(file_okay=False), help="The split campaign's folder.")
+def region_split_cmd(campaign_dir, joint, percentile, out):
+    """Write a campaign split by region: its sample poses at or below a joint's percentile are the
+    sample (fitted), every pose above it the targets. `jointcal fit --campaign OUT` then states the
+    error of a model on a region of the joint it never saw (mm)."""
+    from ..robot.campaign.regions import write_region_split
+
+    r = write_region_split(campaign_dir, joint, out, percentile)
+    click.echo(f"{out}: q{joint} <= {r['threshold_deg']:.3f} deg ({percentile:g}th percentile): "
+               f"{r['n_sample']} sample poses; above it {r['n_target']} target poses", err=True)
 
 
 @robot_group.command("diagnose-loop")

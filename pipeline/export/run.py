@@ -164,6 +164,7 @@ def export_robot(model_path, doc: dict, loaded: tuple, fmt: str, step_deg: float
         from .table import robot_table, table_csv
 
         table = robot_table(robot, model, sampled, step_deg)
+        comments += table.attrs.get("notes", [])
         if table.empty:
             comments.append("the model has no effect of a joint's own angle: the table is empty")
         texts = [("table", table_csv(table, comments))]

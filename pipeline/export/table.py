@@ -24,21 +24,39 @@ def _grid(lo: float, hi: float, step: float) -> np.ndarray:
     return g if g[-1] >= hi - 1e-9 else np.append(g, hi)
 
 
+def _drive_span(C: np.ndarray, mid_q: np.ndarray, lo: np.ndarray, hi: np.ndarray, k: int) -> tuple[float, float]:
+    """How far drive ``k`` (0-based) may turn from the middle, the other drives held, with every joint angle it
+    moves (``C[:, k] != 0``) inside its sampled range [lo, hi] (deg): (t_lo, t_hi), t_lo <= 0 <= t_hi."""
+    t_lo, t_hi = -np.inf, np.inf
+    for j in np.flatnonzero(C[:, k]):
+        a, b = (lo[j] - mid_q[j]) / C[j, k], (hi[j] - mid_q[j]) / C[j, k]
+        t_lo, t_hi = max(t_lo, min(a, b)), min(t_hi, max(a, b))
+    return float(t_lo), float(t_hi)
+
+
 def robot_table(robot, model, sampled: dict, step_deg: float = 1.0) -> pd.DataFrame:
-    """Per-joint angle error and correction (arcsec) on a grid over the sampled range.
+    """Per-drive angle error and correction (arcsec) on a grid over the sampled range.
+
+    A drive's table is in its own angle, the one the controller records and commands. Without coupled
+    joints that is the model's joint angle. With them (robot.toml ``[coupling]``: the kinematics take
+    joint angles q = C r of the recorded angles r, a FANUC's J2/J3), the model's joint angle errors dq are
+    the drives' errors C^-1 dq, so a coupled drive's table holds what it must correct for every joint it
+    moves, and each drive is tabled over the range of its own angle that keeps every joint it moves inside
+    the sampled range, the other drives at the middle of theirs; where a drive's correction also varies
+    with another drive's angle, the returned frame's ``attrs["notes"]`` says so.
 
     Parameters
     ----------
     robot : Robot
     model : RobotErrorModel (fitted)
-    sampled : dict ``{"lower_deg": [N], "upper_deg": [N]}``
+    sampled : dict ``{"lower_deg": [N], "upper_deg": [N]}``, the model's joint angles (deg)
     step_deg : float, deg
-        Grid step (the sampled range's upper end is added when the step does not divide it).
+        Grid step (the range's upper end is added when the step does not divide it).
 
     Returns
     -------
-    DataFrame ``joint, angle_deg, [direction,] error_arcsec, correction_arcsec`` for the joints that
-    have an effect of their own angle (empty when none has).
+    DataFrame ``joint, angle_deg, [direction,] error_arcsec, correction_arcsec`` for the drives that have
+    an effect to correct (``joint``: the drive's number, ``angle_deg``: its recorded angle; empty when none has).
     """
     _, idx = build_error_model(robot)
     nj = len(robot.joints)
@@ -46,31 +64,66 @@ def robot_table(robot, model, sampled: dict, step_deg: float = 1.0) -> pd.DataFr
     has_backlash = any(e.name == "backlash" for e, _ in parts)
     joints = sorted({j for e, _ in parts for j in e.joints(robot) if j <= nj})
     coef = np.asarray(model.coef_, float)
-    rows = []
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
-    for j in joints:
-        g = _grid(lo[j - 1], hi[j - 1], step_deg)
+    C = robot.coupling_matrix
+    Cinv = np.linalg.inv(C)
+    coupled = bool(robot.coupling)
+    channel = {int(idx.joints[j]): j for j in range(nj)}
+
+    def joint_errors(q, direction):
+        """The model's joint angle error -dq (n, N) rad at joint angles q (n, N) deg."""
+        n = len(q)
+        dirs = np.full((n, nj), direction, int)
+        data = RobotData(q, dirs, np.zeros(n), np.full(n, 20.0), np.zeros((n, nj)), robot.lower_deg, robot.upper_deg)
+        dq = np.zeros((n, nj))      # rad
+        for e, sl in parts:
+            for k, chans in enumerate(e.basis(robot, idx, data)):
+                for c, v in chans:
+                    if int(c) in channel:
+                        dq[:, channel[int(c)]] += coef[sl][k] * np.broadcast_to(np.asarray(v, float), (n,))
+        return -dq
+
+    # the drives to table: those whose correction is not zero (every joint of an effect, through C^-1)
+    drives = sorted({k + 1 for j in joints for k in np.flatnonzero(Cinv[:, j - 1])}) if coupled else joints
+    mid_q = (lo + hi) / 2
+    mid_r = robot.recorded_angles(mid_q[None])[0]
+    notes = []
+    rows = []
+    for d in drives:
+        if coupled:
+            t_lo, t_hi = _drive_span(C, mid_q, lo, hi, d - 1)
+            g = _grid(mid_r[d - 1] + t_lo, mid_r[d - 1] + t_hi, step_deg)
+            others = sorted({m + 1 for j in joints for m in np.flatnonzero(C[j - 1]) if Cinv[d - 1, j - 1] != 0
+                             and m + 1 != d})
+            if others:
+                notes.append(f"drive {d}'s correction also varies with drive(s) {', '.join(map(str, others))} (coupled "
+                             f"joints, robot.toml [coupling]): tabled with them at "
+                             + ", ".join(f"{mid_r[m - 1]:.3f}" for m in others) + " deg, the middle of the sampled range")
+        else:
+            g = _grid(lo[d - 1], hi[d - 1], step_deg)
         for direction in ((1, -1) if has_backlash else (1,)):
-            q = np.tile((lo + hi) / 2, (len(g), 1))
-            q[:, j - 1] = g
-            dirs = np.full((len(g), nj), direction, int)
-            data = RobotData(q, dirs, np.zeros(len(g)), np.full(len(g), 20.0), np.zeros((len(g), nj)),
-                             robot.lower_deg, robot.upper_deg)
-            dq = np.zeros(len(g))      # rad
-            for e, sl in parts:
-                for k, chans in enumerate(e.basis(robot, idx, data)):
-                    for c, v in chans:
-                        if int(c) == int(idx.joints[j - 1]):
-                            dq += coef[sl][k] * np.broadcast_to(np.asarray(v, float), (len(g),))
-            err = -dq * 1e3 * MRAD_ARCSEC
-            part = pd.DataFrame({"joint": j, "angle_deg": g})
+            if coupled:
+                r = np.tile(mid_r, (len(g), 1))
+                r[:, d - 1] = g
+                err_q = joint_errors(robot.kinematic_angles(r), direction)
+                err = (err_q @ Cinv.T)[:, d - 1] * 1e3 * MRAD_ARCSEC
+            else:
+                q = np.tile(mid_q, (len(g), 1))
+                q[:, d - 1] = g
+                err = joint_errors(q, direction)[:, d - 1] * 1e3 * MRAD_ARCSEC
+            part = pd.DataFrame({"joint": d, "angle_deg": g})
             if has_backlash:
                 part["direction"] = direction
             part["error_arcsec"] = err
             part["correction_arcsec"] = -err
             rows.append(part)
     cols = ["joint", "angle_deg"] + (["direction"] if has_backlash else []) + ["error_arcsec", "correction_arcsec"]
-    return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols)
+    out = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols)
+    if coupled:
+        notes.insert(0, "coupled joints (robot.toml [coupling]): each table is in its drive's own angle, the one the "
+                        "controller records and commands, not the model's joint angle")
+    out.attrs["notes"] = notes
+    return out
 
 
 def encoder_table(model, step_deg: float = 1.0, joint=1) -> pd.DataFrame:

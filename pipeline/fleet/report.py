@@ -96,9 +96,8 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
                      "family is flagged (red) and named.")
         save(pdf, fig)
 
-        # page 3: before vs after per unit, and the missing effects
-        fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8.27, 11.69 * 0.8))
-        _before_after(ax1, ok, flagged, measure, unit)
+        # page 3: the missing effects (every unit's before and after is page 1's picture, not repeated here)
+        fig, ax2 = plt.subplots(1, 1, figsize=(8.27, 11.69 * 0.8))      # the size of page 2
         if len(eff):
             top = eff.head(15).iloc[::-1]
             ax2.barh(top["effect"], top["units"], color="tab:purple")
@@ -110,8 +109,8 @@ def fleet_report(table: pd.DataFrame, summary: dict, out, spec_path: str, z_out:
         ax2.set_xlabel(f"units whose diagnosis finds the effect missing (of {len(ok)})")
         ax2.set_title("Effects the diagnosis finds most often (add them to the spec)")
         fig.tight_layout(rect=(0, 0.05, 1, 1))
-        caption(fig, "Top: units far above the dotted lines gained less from compensation than the others; bottom: an "
-                     "effect missing on many units is a design or batch defect, worth adding to the spec.")
+        caption(fig, "An effect missing on many units is a design or batch defect, worth adding to the spec; one "
+                     "missing on a few is those units' own (their diagnosis, in the appendix).")
         save(pdf, fig)
 
 

@@ -381,6 +381,32 @@ def _wild(found: dict, sample, target, campaign, keep: bool) -> Wild:
     return wild
 
 
+def interpolates(dof: float, n_poses: int, rows_per_pose: int, sigma_mm: float) -> str:
+    """Why the flexible model's residuals give no scale to judge wild points by, or '' when they do (the
+    rule of the module docstring: less than :data:`MIN_RESIDUAL_DOF_FRACTION` of the residuals' degrees of
+    freedom left).
+
+    Parameters
+    ----------
+    dof : float
+        The flexible model's effective number of parameters (nan: unknown, never too many).
+    n_poses : int
+        Sample poses fitted.
+    rows_per_pose : int
+        Residual rows each pose gives the fit: 3 (a position), 6 (a 6-DoF probe's position and orientation).
+    sigma_mm : float
+        The residuals' robust sigma (mm), said in the reason.
+    """
+    rows = rows_per_pose * n_poses
+    if not np.isfinite(dof) or rows - dof >= MIN_RESIDUAL_DOF_FRACTION * rows:
+        return ""
+    each = f"{rows_per_pose} a pose" + (": position and orientation" if rows_per_pose > 3 else "")  # noqa: PLR2004
+    return (f"the flexible model ({dof:.0f} effective parameters on {n_poses} sample poses, {rows} residual rows, "
+            f"{each}) leaves {100 * (rows - dof) / rows:.0f} % of its residuals' degrees of freedom, less than "
+            f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sigma_mm:.2g} mm), "
+            "so they give no scale to judge wild points by; none is named")
+
+
 def _search(robot, effects, flex, sample, target) -> dict:
     """The robust fit and the rule of the module docstring: the wild sample and target poses (indices), the
     size of each (mm), the robust sigmas, or why there is no scale (JSON-ready)."""
@@ -408,13 +434,10 @@ def _search(robot, effects, flex, sample, target) -> dict:
             model = first.refit_without(sample, ~ws, determined=False)
         rs = sample.measured_mm - model.predict(sample)
         sig_s = robust_sigma(rs)
-        n_res = rs.shape[1] * n_fitted
-        dof = getattr(model, "dof_", float("nan"))
-        if np.isfinite(dof) and n_res - dof < MIN_RESIDUAL_DOF_FRACTION * n_res:
-            why = (f"the flexible model ({dof:.0f} effective parameters on {n_fitted} sample poses, {n_res} residuals) "
-                   f"leaves {100 * (n_res - dof) / n_res:.0f} % of its residuals' degrees of freedom, less than "
-                   f"{100 * MIN_RESIDUAL_DOF_FRACTION:g} %: it nearly interpolates them (robust sigma {sig_s:.2g} mm), "
-                   "so they give no scale to judge wild points by; none is named")
+        # a 6-DoF fit has an orientation's 3 rows besides the position's 3 for every pose
+        per_pose = rs.shape[1] * (2 if getattr(model, "weight_", None) or getattr(first, "weight_", None) else 1)
+        why = interpolates(getattr(model, "dof_", float("nan")), n_fitted, per_pose, sig_s)
+        if why:
             return {"sample": [], "target": [], "sample_mm": [], "target_mm": [], "sigma": {}, "no_scale": why}
         new = _flag(rs, sig_s, qs, qs, rs, ~ws, own=np.arange(sample.n))
         if sample.has_orientation:

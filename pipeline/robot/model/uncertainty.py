@@ -590,10 +590,14 @@ def correlated_pairs(names, cov, limit: float = CORRELATION_LIMIT, groups=()) ->
 
 _MEANING = [
     (r"^dtheta(\d+)$", "joint {0}'s zero offset (the angle it reads at its zero)"),
-    (r"^dd(\d+)$", "the offset along joint {0}'s axis (MDH d)"),
-    (r"^da(\d+)$", "link {0}'s length (MDH a)"),
-    (r"^dalpha(\d+)$", "the twist of joint {0}'s axis about the link's x (MDH alpha)"),
-    (r"^dbeta(\d+)$", "the tilt of joint {0}'s axis about the link's y (MDH beta: axes nearly parallel)"),
+    # robot.toml's link transform (contract section 2), whether written by hand or imported from a URDF or a
+    # calibration.conf: classic DH plus a tilt beta, T_i = Rz(q_i + theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)
+    (r"^dd(\d+)$", "the offset along joint {0}'s axis (robot.toml's d_mm of joint {0}: DH d)"),
+    (r"^da(\d+)$", "link {0}'s length along its common normal (robot.toml's a_mm of joint {0}: DH a)"),
+    (r"^dalpha(\d+)$", "the twist from joint {0}'s axis to the next joint's, about the link's x (robot.toml's "
+                       "alpha_deg of joint {0}: DH alpha)"),
+    (r"^dbeta(\d+)$", "the tilt from joint {0}'s axis to the next joint's, about the link's y (robot.toml's "
+                      "beta_deg of joint {0}: the beta of DH + beta, for nearly parallel axes)"),
     (r"^base_d([xyz])$", "the base frame's offset along {0} (where the tracker sees the robot)"),
     (r"^base_e([xyz])$", "the base frame's rotation about {0}"),
     (r"^tool_d([xyz])$", "the SMR's offset on the flange along {0}"),

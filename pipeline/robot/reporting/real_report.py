@@ -104,6 +104,10 @@ def transfer_table(results: dict) -> dict:
         wild = {o["point_id"]: o for fit in r["fits"].values() for o in fit.get("outliers", [])}
         if wild:   # issue 23: the wild measurements the fits named and left out
             row["outliers"] = [wild[k] for k in sorted(wild)]
+        if r.get("together"):
+            row["together"] = _together_row(r["together"])
+        if r.get("splits"):
+            row["splits"] = [_split_row(j, sp) for j, sp in sorted(r["splits"].items())]
         if "loop" in r:
             row["loop"] = [{"round": x["round"], "own": x["own"], "other": x["other"], "cv_rms_mm": x["cv_rms_mm"],
                             "added": [a["label"] for a in x["recommended"]],
@@ -113,6 +117,41 @@ def transfer_table(results: dict) -> dict:
                            for x in r["loop"]["rounds"]]
         out[s] = row
     return out
+
+
+def _held(h: dict) -> dict:
+    """A fit's held-out block (``heldout`` of a fit JSON, or one campaign's) as the report's numbers (mm, arcsec)."""
+    out = {"n": h["n_target"], "n_sample": h["n_sample"], "rms_mm": h["rms_after_mm"], "max_mm": h["after"]["max_mm"],
+           "nominal_rms_mm": h["rms_before_mm"], "outside_sampled_range": h.get("outside_sampled_range")}
+    if "orientation_rms_after_arcsec" in h:
+        out["orientation_rms_arcsec"] = h["orientation_rms_after_arcsec"]
+    return out
+
+
+def _together_row(together: dict) -> dict:
+    """One series' numbers in the fit of every series together (issue 52): its held-out error there, and
+    the coverage of the stated u95 on it (from the predict JSON of the joint fit, when there is one)."""
+    fit, campaign = together["fit"], together["campaign"]
+    entry = next(c for c in fit["campaigns"] if Path(c["campaign"]).name == campaign)
+    row = {**_held(entry["heldout"]), "with": [Path(c["campaign"]).name for c in fit["campaigns"]],
+           "frame_effect": entry["frame_effect"], "cv_rms_mm": fit.get("cv_rms_mm")}
+    part = next((c for c in (together.get("self") or {}).get("campaigns", [])
+                 if Path(c["campaign"]).name == campaign), None)
+    if part and "coverage_95" in part:
+        row["coverage"] = _coverage(part)
+    return row
+
+
+def _split_row(joint: int, split: dict) -> dict:
+    """A region split's numbers (issue 52): the poses fitted (below the joint's percentile), those judged
+    (above it), the error there (mm, arcsec) and the coverage of the stated u95 (from its predict JSON)."""
+    fit = split["fit"]
+    row = {"joint": joint, "below_deg": fit["sampled_range"]["upper_deg"][joint - 1], **_held(fit["heldout"]),
+           "cv_rms_mm": fit.get("cv_rms_mm")}
+    above = split.get("above") or {}
+    if "coverage_95" in above:
+        row["coverage"] = _coverage(above)
+    return row
 
 
 def _full_pose_lines(table: dict, models) -> list[str]:
@@ -359,6 +398,177 @@ def _summary(pdf, results, table, campaigns, series, models, note):
                  notes=notes, bold_rows=bold, table_fontsize=8.0)
 
 
+def _pct(c: dict | None) -> str:
+    return _fmt(None if not c else 100 * c["coverage_95"], ".1f")
+
+
+def where_rows(table: dict, model: str) -> tuple[list, list, list[str]]:
+    """The table of "where the models hold" (issue 52; pure): ``model`` of each series on its own held-out
+    poses and on the other series, the series fitted together, and the region splits; the rows to set bold;
+    plain-words notes. Columns: fitted on, judged on, poses, RMS and max (mm), orientation RMS (arcsec),
+    within u95 (%), RMS against the own held-out RMS of the series judged."""
+    series = sorted(table)
+    own = {s: table[s][model]["rms_mm"] for s in series if model in table[s]}
+    rows, bold, notes = [], [], []
+
+    def add(fitted, judged, e, of, cov=None):
+        rows.append([f"  {fitted}", judged, str(e.get("n", "")), _fmt(e.get("rms_mm")), _fmt(e.get("max_mm")),
+                     _fmt(e.get("orientation_rms_arcsec"), ".1f"), _pct(cov),
+                     _fmt(e["rms_mm"] / own[of] if own.get(of) else None, ".2f")])
+
+    if own:
+        bold.append(len(rows))
+        rows.append([f"Each series' own model ({model})"] + [""] * 7)
+        for s in series:
+            if model not in table[s]:
+                continue
+            t = table[s]
+            c = t.get(f"{model}_coverage") or {}
+            add(f"series {s}", f"{s}'s held-out", {**t[model], "n": t["n_target"]}, s, c.get("own"))
+            for k in sorted(t):
+                if k.startswith(f"{model}_on_"):
+                    o = k.split("_on_")[1]
+                    add(f"series {s}", f"{o} (registered)", t[k], o, c.get(o))
+    together = {s: table[s]["together"] for s in series if table[s].get("together")}
+    if together:
+        bold.append(len(rows))
+        names = " + ".join(next(iter(together.values()))["with"])
+        rows.append([f"Fitted together: {names}, each its own tracker frame"] + [""] * 7)
+        for s, t in together.items():
+            add(names, f"{s}'s held-out", t, s, t.get("coverage"))
+        carried = [f"{o}'s on {s} {table[o][f'{model}_on_{s}']['rms_mm']:.3f} mm" for s in together for o in series
+                   if f"{model}_on_{s}" in table[o]]
+        notes.append("Fitted together, one model holds out at " + ", ".join(
+            f"{t['rms_mm']:.3f} mm on {s} ({t['rms_mm'] / own[s]:.2f}x its own model's {own[s]:.3f})"
+            for s, t in together.items() if own.get(s)) + ": the robot is one; what a single series teaches "
+            "does not carry over to the other's region" + (f" (one series' model on the other: {', '.join(carried)})"
+                                                            if carried else "") + ".")
+    for s in series:
+        splits = table[s].get("splits") or []
+        if not splits:
+            continue
+        bold.append(len(rows))
+        rows.append([f"Region splits inside {s}: fitted below a joint's 60th percentile, judged above"] + [""] * 7)
+        for sp in splits:
+            add(f"{s}, q{sp['joint']} <= {sp['below_deg']:.1f} deg ({sp['n_sample']})", f"q{sp['joint']} above it",
+                sp, s, sp.get("coverage"))
+        if own.get(s):
+            notes.append(f"Inside {s}, judged beyond the range of one joint it was fitted on, the error rises from "
+                         f"{own[s]:.3f} mm (own held-out) to " + ", ".join(
+                             f"{sp['rms_mm']:.2f} (q{sp['joint']})" for sp in splits)
+                         + " mm: what a joint's map learned fades outside the range it sampled.")
+    return rows, bold, notes
+
+
+def _where_page(pdf, results, table, campaigns, series, models) -> None:
+    """Issue 52: a summary-like page of where the last model holds: on the other series, the series fitted
+    together, the region splits; the picture: where in the workspace each model fails."""
+    model = models[-1] if models else None
+    if model is None or not any(table[s].get("together") or table[s].get("splits") for s in series):
+        return
+    rows, bold, notes = where_rows(table, model)
+    header = ["fitted on (sample poses)", "judged on", "poses", "RMS\n(mm)", "max\n(mm)", "orientation\nRMS (″)",
+              "within\nu95 (%)", "x own\nheld-out"]
+    sub = ("The same model judged where it was fitted (own held-out poses), on the other series (tracker "
+           "re-registered), fitted on every series together (jointcal fit --campaign ... --campaign ...: one robot, "
+           "each series its own tracker frame) and inside one series split by region (jointcal robot region-split: "
+           "fitted on the sample poses below a joint's 60th percentile, judged on every pose above). 'x own': RMS "
+           "over the own model's held-out RMS of the series judged.")
+    pic = [s for s in series if s in campaigns and "x_mm" in campaigns[s]]
+
+    def draw(fig, rect):
+        _workspace_picture(fig, rect, results, campaigns, pic, model)
+
+    cap = ("Each mark is one held-out pose, coloured by its position error (RMS in mm in the titles), a column per "
+           "model; top: in the two joints whose ranges the series share least; bottom: where it puts the probe "
+           "(nominal kinematics, base frame, from above). In the workspace the series overlap; in the joints they "
+           "do not, and a model fails in the joint region its series never sampled.")
+    summary_page(pdf, "Where the models hold: other series, fitted together, region splits", sub, header, rows,
+                 draw, cap, notes=notes, bold_rows=bold, align=["l", "l", "r", "r", "r", "r", "r", "r"],
+                 table_fontsize=7.5)
+
+
+def apart_joints(campaigns: dict, k: int = 2) -> list[int]:
+    """The ``k`` joints (1-based) whose sampled ranges the series share least (pure): for each joint, the
+    overlap of the series' ranges over their union (the smallest over every pair of series), smallest first;
+    with one series, joints 1 .. k."""
+    names = sorted(campaigns)
+    n = min(sum(1 for c in campaigns[s].columns if c[:1] == "q" and c[1:].isdigit()) for s in names)
+    score = []
+    for j in range(1, n + 1):
+        r = [(float(campaigns[s][f"q{j}"].min()), float(campaigns[s][f"q{j}"].max())) for s in names]
+        shared = [max(0.0, min(a[1], b[1]) - max(a[0], b[0])) / max(max(a[1], b[1]) - min(a[0], b[0]), 1e-9)
+                  for i, a in enumerate(r) for b in r[i + 1:]]
+        score.append((min(shared) if shared else j, j))
+    return sorted(j for _, j in sorted(score)[:k])
+
+
+def _workspace_picture(fig, rect, results, campaigns, series, model):
+    """Held-out poses of every series, coloured by |error| (mm), a column per model (each series' own
+    model, the series fitted together): in the joints whose ranges the series share least (deg), and in the
+    workspace seen from above (x, y mm, base frame)."""
+    columns = []
+    for o in series:
+        pts = [(o, (results[o]["self"].get(model) or {}).get("points") or [])]
+        pts += [(s, (results[o]["on"].get(model, {}).get(s) or {}).get("points") or []) for s in series if s != o]
+        columns.append((f"{o}'s model", pts))
+    tog = next((results[s]["together"] for s in series if (results[s].get("together") or {}).get("self")), None)
+    if tog:
+        columns.append(("fitted together", [(Path(c["campaign"]).name, c["points"]) for c in tog["self"]["campaigns"]
+                                            if Path(c["campaign"]).name in series]))
+    columns = [(label, [(s, p) for s, p in parts if p]) for label, parts in columns]
+    columns = [c for c in columns if c[1]]
+    if not columns:
+        ax = fig.add_axes(rect)
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, "no per-pose errors to draw", ha="center", va="center", transform=ax.transAxes)
+        return
+    ja, jb = apart_joints({s: campaigns[s] for s in series})
+    views = [(f"q{ja}", f"q{jb}", f"q{ja} (deg)", f"q{jb} (deg)"), ("x_mm", "y_mm", "x (mm)", "y (mm)")]
+    left, bottom, width, height = rect
+    top = bottom + height
+    height = min(height, 0.5)
+    bottom = top - height
+    gs = fig.add_gridspec(2, len(columns), left=left, right=left + width * 0.9, bottom=bottom, top=top,
+                          wspace=0.1, hspace=0.32)
+    errs = np.concatenate([[p["error_mm"] for p in pts] for _, parts in columns for _, pts in parts])
+    vmax = float(np.quantile(errs, 0.99)) if errs.size else 1.0
+    markers = dict(zip(series, "o^sDv<>"))
+    sc = None
+    for i, (cx, cy, lx, ly) in enumerate(views):
+        for k, (label, parts) in enumerate(columns):
+            ax = fig.add_subplot(gs[i, k])
+            for s, pts in parts:
+                poses = campaigns[s].set_index("point_id")
+                if cx not in poses or cy not in poses:
+                    continue
+                kept = [p for p in pts if p["point_id"] in poses.index]
+                e = np.array([p["error_mm"] for p in kept])
+                xy = poses.loc[[p["point_id"] for p in kept], [cx, cy]].to_numpy(float)
+                order = np.argsort(e)              # the largest errors drawn last, on top
+                sc = ax.scatter(xy[order, 0], xy[order, 1], c=e[order], s=3 if markers[s] == "o" else 4,
+                                marker=markers[s], cmap="viridis", vmin=0, vmax=vmax, linewidths=0)
+            if i == 0:
+                rms = [f"{s}{' (own)' if label == f'{s}' + chr(39) + 's model' else ''} "
+                       f"{np.sqrt(np.mean(np.square([p['error_mm'] for p in pts]))):.3f}" for s, pts in parts]
+                ax.set_title(f"{label}\non " + ", ".join(rms) + " mm", fontsize=7)
+            ax.tick_params(labelsize=6, length=2, pad=1)
+            ax.locator_params(nbins=4)
+            ax.set_xlabel(lx, fontsize=7, labelpad=1)
+            if k == 0:
+                ax.set_ylabel(ly, fontsize=7)
+            else:
+                ax.tick_params(labelleft=False)
+    if sc is not None:
+        cax = fig.add_axes((left + width * 0.93, bottom + height * 0.15, 0.015, height * 0.7))
+        cb = fig.colorbar(sc, cax=cax)
+        cb.set_label("|position error| (mm)", fontsize=7)
+        cb.ax.tick_params(labelsize=6)
+        handles = [plt.Line2D([], [], ls="", marker=markers[s], color="0.3", ms=4, label=f"series {s}") for s in series]
+        fig.legend(handles=handles, loc="upper left", ncol=1, fontsize=7, frameon=False,
+                   bbox_to_anchor=(left + width * 0.91, top + 0.01))
+
+
 def _joint_picture(fig, rect, results, campaigns, series, models):
     """Error of each held-out pose against each joint angle (a row per series, a panel per joint):
     the first model grey, the last blue, the last model's worst 5 % red (mm against deg)."""
@@ -438,12 +648,53 @@ def load_user_results(fits, predicts, others=(), series="campaign", other_name="
     return {series: r}
 
 
+def fitted_campaign(fits: dict, first_fit) -> str:
+    """The imported campaign a user's fits were fitted on, from the first fit JSON (its ``campaign``);
+    bad input (one line, naming the fit file) when it does not name one, or the folder is not there.
+
+    Parameters
+    ----------
+    fits : dict ``{model: fit JSON}`` in the --fit order
+    first_fit : path of the first --fit JSON (named in the message)
+    """
+    doc = next(iter(fits.values()), {})
+    named = doc.get("campaign")
+    if len(doc.get("campaigns") or []) > 1:    # fitted on several campaigns: which one is for the user to say
+        named = None
+    if not named or not (Path(named) / "poses.csv").exists():
+        why = (f"it names {named}, which has no poses.csv here" if named else
+               "it does not name a single campaign")
+        raise InputError(first_fit, f"--fit needs --campaign, the imported campaign it was fitted on (the folder "
+                                    f"jointcal import wrote, whose poses.csv gives the joint angles): {why}")
+    return str(named)
+
+
 def load_campaign(campaign_dir):
-    """One imported campaign's ``poses.csv`` (point_id, set, q1..qN deg); missing is bad input."""
+    """One imported campaign's ``poses.csv`` (point_id, set, q1..qN deg), with where each pose puts the
+    probe in the workspace (:func:`with_workspace`); missing is bad input."""
     path = Path(campaign_dir) / "poses.csv"
     if not path.exists():
         raise InputError(path, "no imported campaign here: give the folder jointcal import wrote (--out)")
-    return pd.read_csv(path, dtype={"point_id": str})
+    return with_workspace(pd.read_csv(path, dtype={"point_id": str}), Path(campaign_dir) / "robot.toml")
+
+
+def with_workspace(poses: pd.DataFrame, robot_path) -> pd.DataFrame:
+    """``poses`` with ``x_mm, y_mm, z_mm``: the probe's nominal position at each pose in the robot's base
+    frame (mm; the campaign's ``robot.toml``, its coupled joints combined), where the pose is in the
+    workspace. Without a ``robot.toml`` the poses are returned as they are."""
+    from ..arm.kinematics import build_model, load_robot, positions
+
+    if not Path(robot_path).exists():
+        return poses
+    robot = load_robot(robot_path)
+    cols = [f"q{j}" for j in range(1, robot.n_joints + 1)]
+    if not all(c in poses for c in cols):
+        return poses
+    q = robot.kinematic_angles(poses[cols].to_numpy(float))
+    xyz = positions(build_model(robot), np.radians(q), "smr")
+    out = poses.copy()
+    out["x_mm"], out["y_mm"], out["z_mm"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    return out
 
 
 def load_campaigns(campaigns_dir) -> dict:
@@ -453,7 +704,7 @@ def load_campaigns(campaigns_dir) -> dict:
         if Path(campaigns_dir).is_dir() else []
     if not series:
         raise InputError(campaigns_dir, "no imported campaign (<series>/poses.csv): run `make real` or jointcal import")
-    return {s: pd.read_csv(Path(campaigns_dir) / s / "poses.csv", dtype={"point_id": str}) for s in series}
+    return {s: load_campaign(Path(campaigns_dir) / s) for s in series}
 
 
 def load_results(results_dir, series) -> dict:
@@ -474,6 +725,20 @@ def load_results(results_dir, series) -> dict:
             r["loop"] = read_json_input(d / f"{s}_loop.json")
         if (d / f"{s}_export.json").exists():   # jointcal export --heldout (issue #18)
             r["export"] = read_json_input(d / f"{s}_export.json")
+        # issue 52: the series fitted together; region splits (jointcal robot region-split, then fit and predict)
+        together = d / f"{''.join(series)}_together.json"
+        if len(series) > 1 and together.exists():
+            self_path = together.with_name(together.stem + "_self.json")
+            r["together"] = {"fit": read_json_input(together), "campaign": s,
+                             "self": read_json_input(self_path) if self_path.exists() else None}
+        splits = {}
+        for j in range(1, 8):
+            f = d / f"{s}_split_q{j}.json"
+            if f.exists():
+                a = f.with_name(f.stem + "_above.json")
+                splits[j] = {"fit": read_json_input(f), "above": read_json_input(a) if a.exists() else None}
+        if splits:
+            r["splits"] = splits
         out[s] = r
     return out
 
@@ -495,6 +760,7 @@ def real_report(results: dict, campaigns: dict, out, note: str | None = None) ->
     models = model_names(results)
     with pdf_pages(out, "jointcal real-robot report") as pdf:
         _summary(pdf, results, table, campaigns, series, models, note)
+        _where_page(pdf, results, table, campaigns, series, models)
         lines = ["Real laser-tracker measurements: errors on poses the fit never saw (mm)", "",
                  "Each series is split into sample poses (fitted) and target poses (held out) by",
                  "`jointcal import`. 'nominal' is the nominal kinematics after the best rigid fit of the",

@@ -56,10 +56,10 @@ endef
 $(foreach s,$(REAL_SERIES),$(foreach m,$(REAL_SPECS),$(eval $(call REAL_TRANSFER,$(s),$(m),$(call other,$(s))))))
 
 # issue 52: where a model holds. The series fitted together (one robot, each series its own tracker frame),
-# with the spec the loop ended with on REAL_TOGETHER_SPEC's series, judged on each series' held-out poses; and
+# with the spec the loop ends with when it runs on every series together (diagnose-loop --campaign B
+# --campaign C: a round kept only when no series' CV rises), judged on each series' held-out poses; and
 # region splits inside a series: for each joint, that spec fitted on the sample poses below the joint's 60th
 # percentile, judged on every pose above it (interim/real-split/<series>_q<joint>, jointcal robot region-split)
-REAL_TOGETHER_SPEC := C
 space := $(subst ,, )
 REAL_TOGETHER := $(REAL_RES)/$(subst $(space),,$(REAL_SERIES))_together
 REAL_SPLIT_SERIES := C
@@ -67,8 +67,11 @@ REAL_SPLIT_JOINTS := 1 2 3 4 5 6
 REAL_SPLITS := $(foreach s,$(REAL_SPLIT_SERIES),$(foreach j,$(REAL_SPLIT_JOINTS),$(REAL_RES)/$(s)_split_q$(j)))
 REAL_WHERE := $(REAL_TOGETHER).json $(REAL_TOGETHER)_self.json $(foreach f,$(REAL_SPLITS),$(f).json $(f)_above.json)
 
-$(REAL_TOGETHER).json: $(foreach s,$(REAL_SERIES),interim/real/$(s)/poses.csv) $(REAL_RES)/$(REAL_TOGETHER_SPEC)_diagnosed.toml $(CODE.campaign.fit) | $(STAMP) ## every series fitted together (each its own tracker frame), the loop's spec
-	$(JC) fit $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --spec $(REAL_RES)/$(REAL_TOGETHER_SPEC)_diagnosed.toml --out $@
+$(REAL_TOGETHER)_loop.json $(REAL_TOGETHER)_diagnosed.toml &: $(foreach s,$(REAL_SERIES),interim/real/$(s)/poses.csv) specs/robot_kinematic.toml $(CODE.robot.diagnose_loop_cmd) | $(STAMP) ## the diagnosis loop on every series together (one robot, each its own tracker frame)
+	$(JC) robot diagnose-loop $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --spec specs/robot_kinematic.toml --json $(REAL_TOGETHER)_loop.json --spec-out $(REAL_TOGETHER)_diagnosed.toml
+
+$(REAL_TOGETHER).json: $(foreach s,$(REAL_SERIES),interim/real/$(s)/poses.csv) $(REAL_TOGETHER)_diagnosed.toml $(CODE.campaign.fit) | $(STAMP) ## every series fitted together (each its own tracker frame), the spec their loop ended with
+	$(JC) fit $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --spec $(REAL_TOGETHER)_diagnosed.toml --out $@
 
 $(REAL_TOGETHER)_self.json: $(REAL_TOGETHER).json $(CODE.robot.predict_cmd) | $(STAMP) ## the series fitted together, on each series' held-out poses
 	$(JC) predict $(foreach s,$(REAL_SERIES),--campaign interim/real/$(s)) --model $< --json $@ --point "0 0 300"

@@ -470,8 +470,8 @@ def _where_page(pdf, results, table, campaigns, series, models) -> None:
     header = ["fitted on (sample poses)", "judged on", "poses", "RMS\n(mm)", "max\n(mm)", "orientation\nRMS (″)",
               "within\nu95 (%)", "x own\nheld-out"]
     sub = ("The same model judged where it was fitted (own held-out poses), on the other series (tracker "
-           "re-registered), fitted on every series together (jointcal fit --campaign ... --campaign ...: one robot, "
-           "each series its own tracker frame) and inside one series split by region (jointcal robot region-split: "
+           "re-registered), every series together (the spec the loop ends with on them all, robot diagnose-loop "
+           "--campaign ... --campaign ..., then fit: one robot, each series its own tracker frame) and inside one series split by region (jointcal robot region-split: "
            "fitted on the sample poses below a joint's 60th percentile, judged on every pose above). 'x own': RMS "
            "over the own model's held-out RMS of the series judged.")
     pic = [s for s in series if s in campaigns and "x_mm" in campaigns[s]]

@@ -756,7 +756,7 @@ def predict_cmd(campaigns, model_path, json_out, register, keep_outliers, point)
                + (f"; the point {' '.join(f'{v:g}' for v in result['point_mm'])} mm on the probe: RMS "
                   f"{result['point_rms_mm']:.3f} mm, max {result['point_max_mm']:.3f} mm" if "point_rms_mm" in result
                   else "")
-               + ("; orientation not judged (the model was fitted on positions alone)"
+               + ("; orientation not judged (the model was fitted on a campaign without orientations)"
                   if "orientation_not_judged" in result else "")
                + (f"; {100 * result['coverage_95']:.1f} % within their u95_mm (mean {result['u95_mm']:.3f} mm, "
                   f"errors' 95th percentile {result['error_p95_mm']:.3f} mm)" if "coverage_95" in result else ""),

@@ -154,7 +154,8 @@ def _outside(program, robot, kin, doc, sampled, tool, base, kg, rows) -> list:
         return []
     q = played.q_deg[idx]
     dirs = directions_from_sequence(q, start_deg=(robot.lower_deg + robot.upper_deg) / 2)
-    at = [idx.index(k) for k in far]
+    pos = {k: i for i, k in enumerate(idx)}
+    at = [pos[k] for k in far]
     payload = np.zeros(len(rows)) if kg is None else np.broadcast_to(np.asarray(kg, float), (len(rows),))
     stated = load_prediction(doc, kin.model)
     u = None

@@ -677,6 +677,11 @@ def _fit_console(out, result: dict) -> None:
                    f"{len(result['correlations'])} pair(s) correlated beyond 0.9; a pose inside the sampled ranges is "
                    f"stated to +-{pu['unexplained_rms_mm']:.3f} mm (1 sigma, unexplained scatter) and more from the "
                    "parameters" + (f"; {beyond}" if beyond else "") + " (u95_mm: jointcal predict)", err=True)
+    from ..robot.model.predict import carry_over_note
+
+    note = carry_over_note(result)
+    if note:
+        click.echo(f"  {note}", err=True)
 
 
 @click.command("predict")
@@ -751,6 +756,8 @@ def predict_cmd(campaigns, model_path, json_out, register, keep_outliers, point)
                + (f"; the point {' '.join(f'{v:g}' for v in result['point_mm'])} mm on the probe: RMS "
                   f"{result['point_rms_mm']:.3f} mm, max {result['point_max_mm']:.3f} mm" if "point_rms_mm" in result
                   else "")
+               + ("; orientation not judged (the model was fitted on a campaign without orientations)"
+                  if "orientation_not_judged" in result else "")
                + (f"; {100 * result['coverage_95']:.1f} % within their u95_mm (mean {result['u95_mm']:.3f} mm, "
                   f"errors' 95th percentile {result['error_p95_mm']:.3f} mm)" if "coverage_95" in result else ""),
                err=True)

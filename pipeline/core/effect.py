@@ -8,6 +8,10 @@ Each :class:`Effect` knows
   offsets / link twists for the robot model),
 * its **explanation**: the physical effect in plain words, for reports and diagnosis,
 * whether a campaign **can reveal** it at all (one direction only, no timestamps, ...),
+* how it **extrapolates** beyond the joint ranges the poses sampled (:attr:`Effect.extrapolates`,
+  :attr:`Effect.extrapolation`): a law that *carries* over (geometry, frames, gravity torque through the
+  masses, a periodicity over the joint's whole turn) or a curve that is *local* to the sampled ranges;
+  :func:`carry_over_line` says it of a model's effects,
 * optional hooks with defaults, so that diagnosis, compensation and the command line loop
   over the registry instead of naming effects: :attr:`Effect.acts_on`,
   :attr:`Effect.compensable` / :attr:`Effect.compensation`, :meth:`Effect.candidates`
@@ -49,6 +53,12 @@ class Effect:
     compensable: ClassVar[bool] = False
     #: ... and how, or why not, in plain words
     compensation: ClassVar[str] = ""
+    #: how the effect extends beyond the joint ranges the poses it was fitted on sampled: :data:`CARRIES` (a
+    #: physical law of the whole arm, or of the joint's whole turn, that holds there too) or :data:`LOCAL`
+    #: (learned over the sampled ranges only: it fades out, or extends a curve no law backs); "" not said
+    extrapolates: ClassVar[str] = ""
+    #: ... and why, in plain words (one sentence, for the console and reports)
+    extrapolation: ClassVar[str] = ""
 
     def __init__(self, **params):
         self.params = dict(params)
@@ -88,6 +98,54 @@ class Effect:
         """What in the held-out ``residual`` of a model without this effect shows it (one
         sentence for the diagnosis JSON); empty: the domain's adapter says it generically."""
         return ""
+
+
+#: :attr:`Effect.extrapolates`: the effect's law holds beyond the sampled joint ranges too ...
+CARRIES = "carries"
+#: ... or it was learned over those ranges only
+LOCAL = "local"
+
+
+def effect_labels(effects) -> list[str]:
+    """The names of ``effects``, one per name in the order they first come, each with the joints its instances are
+    on when their parameters name them (``joint_map (joints 1 2 5)``)."""
+    joints: dict[str, list | None] = {}
+    for e in effects:
+        js = e.params.get("joints")
+        named = isinstance(js, (list, tuple)) and len(js) > 0
+        if e.name not in joints:
+            joints[e.name] = list(js) if named else None
+        elif joints[e.name] is not None and named:
+            joints[e.name] += [j for j in js if j not in joints[e.name]]
+        else:
+            joints[e.name] = None     # one instance on every joint
+    return [name if js is None else f"{name} (joint{'s' if len(js) > 1 else ''} {' '.join(map(str, sorted(js)))})"
+            for name, js in joints.items()]
+
+
+def carry_over(effects) -> dict[str, list[Effect]]:
+    """A model's ``effects`` by how they extrapolate beyond the sampled joint ranges (:attr:`Effect.extrapolates`):
+    ``{"carries": [...], "local": [...], "": [...]}`` (the last: effects that do not say), each in the model's order."""
+    out: dict[str, list[Effect]] = {CARRIES: [], LOCAL: [], "": []}
+    for e in effects:
+        out[e.extrapolates if e.extrapolates in (CARRIES, LOCAL) else ""].append(e)
+    return out
+
+
+def carry_over_line(effects) -> str:
+    """In words, which of a model's ``effects`` carry over beyond the joint ranges its poses sampled and which are
+    local there (each local one with its reason, :attr:`Effect.extrapolation`); '' for a model without effects."""
+    groups = carry_over(effects)
+    parts = []
+    if groups[CARRIES]:
+        parts.append("these of the model's effects carry over: " + ", ".join(effect_labels(groups[CARRIES])))
+    if groups[LOCAL]:
+        names = list(dict.fromkeys(e.name for e in groups[LOCAL]))
+        why = "; ".join(f"{n}: {next(e for e in groups[LOCAL] if e.name == n).extrapolation}" for n in names)
+        parts.append(f"these are local: {', '.join(effect_labels(groups[LOCAL]))} ({why})")
+    if groups[""]:
+        parts.append("these do not say how they extrapolate: " + ", ".join(effect_labels(groups[""])))
+    return ("beyond the joint ranges the fit's poses sampled, " + "; ".join(parts)) if parts else ""
 
 
 def toml_value(value) -> str:

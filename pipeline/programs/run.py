@@ -11,11 +11,13 @@ commands for the program's motions.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..correct.robot import ModelKinematics
+from ..core.units import REFERENCE_TEMPERATURE_C
+from ..correct.robot import OUTSIDE, ModelKinematics
+from ..correct.run import outside_region, outside_summary, outside_where
 from ..robot.model.rigid import assumptions, model_payload
 from .filtering import PAYLOAD_EFFECTS, Filtered, filter_program, payloads, play
 from .model import Program
@@ -43,6 +45,9 @@ class FilteredProgram:
         ``(payload_kg, source) -> [rows]``: the motions by the payload they were corrected at, in order.
     assumed : str
         What the model assumes of the robot, in words.
+    outside : list
+        Per motion (``filtered.rows`` order), where a target left as given outside the calibrated region lies and
+        its stated u95, or None (:func:`pipeline.correct.run.outside_region`).
     """
 
     filtered: Filtered
@@ -52,9 +57,11 @@ class FilteredProgram:
     moved_mm: float
     payloads: dict
     assumed: str
+    outside: list = field(default_factory=list)
 
     def report(self, written, seconds: float, notes=(), payload_kg=None, closed=()) -> list[str]:
-        """The console's lines: motions filtered and left as given (each named at its file and line), the
+        """The console's lines: motions filtered and left as given (each named at its file and line; one outside
+        the calibrated region with its joint, how far beyond and its u95_mm, after a line on all of them), the
         largest joint correction (arcsec) and target move (mm), the program's notes, what was assumed and
         the payload of each motion with where it comes from.
 
@@ -66,8 +73,13 @@ class FilteredProgram:
                  f"{counts.get('ok', 0)} filtered (largest joint correction {self.largest_arcsec:.1f} arcsec, "
                  f"largest target move {self.moved_mm:.3f} mm), {len(res.changes)} numbers changed; left as given: "
                  + (", ".join(f"{v} {k}" for k, v in sorted(counts.items()) if k != "ok") or "none")]
+        where = self.outside or [None] * len(rows)
+        summary = outside_summary(where)
+        if summary:
+            lines.append(f"  {summary} (each named below, with how far beyond and its u95_mm)")
         lines += [f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) left as given: {r['reason']}"
-                  for r in rows if r["status"] not in ("ok", "same_target")]
+                  + (f"; {outside_where(w, angle=False)}" if w is not None else "")   # the reason names the joint
+                  for r, w in zip(rows, where) if r["status"] not in ("ok", "same_target")]
         lines += [f"  {r['file']}:{r['line']}: {r['name']} ({r['kind']}) used again: {r['reason']}"
                   for r in res.conflicts]
         lines += [f"  {note}" for note in (*notes, *res.notes)]
@@ -109,8 +121,8 @@ def filter_with_model(program: Program, doc: dict, loaded: tuple, tool=None, bas
     # the program's own payload, else --payload, else the model's one payload (as for a --targets row)
     dependent = tuple(sorted({e.name for e in effects} & set(PAYLOAD_EFFECTS)))
     kg, source = payloads(program, payload_kg, model_payload(doc.get("payloads_kg")), dependent)
-    res = filter_program(program, robot, ModelKinematics(robot, model), sampled, tool, base, kg,
-                         max_correction_deg, source)
+    kin = ModelKinematics(robot, model)
+    res = filter_program(program, robot, kin, sampled, tool, base, kg, max_correction_deg, source)
     texts = rewrite(program.sources, res.changes)
     counts = {}
     for r in res.rows:
@@ -121,7 +133,40 @@ def filter_with_model(program: Program, doc: dict, loaded: tuple, tool=None, bas
     used = {}
     for r in res.rows:
         used.setdefault((r["payload_kg"], r["payload_source"]), []).append(r)
-    return FilteredProgram(res, texts, counts, largest, moved, used, assumptions(doc, len(robot.joints)))
+    outside = _outside(program, robot, kin, doc, sampled, tool, base, kg, res.rows) if counts.get(OUTSIDE) else []
+    return FilteredProgram(res, texts, counts, largest, moved, used, assumptions(doc, len(robot.joints)), outside)
+
+
+def _outside(program, robot, kin, doc, sampled, tool, base, kg, rows) -> list:
+    """Per motion, where a target the filter left as given outside the calibrated region lies and its stated u95
+    (:func:`pipeline.correct.run.outside_region`), None for every other motion: the console names them.
+
+    The motions are played again (:func:`pipeline.programs.filtering.play`) for their joints (deg), each u95 taken
+    as ``correct_commands`` takes a row left as given: at the played joints, with the directions of the played
+    sequence, the motion's payload ``kg`` (kg, None: 0) and the reference temperature."""
+    from ..robot.arm.kinematics import directions_from_sequence
+    from ..robot.model.uncertainty import load_prediction, u95
+
+    played = play(program, robot, tool, base)
+    idx = [k for k in range(len(rows)) if not played.reason[k]]
+    far = [k for k in idx if rows[k]["status"] == OUTSIDE]
+    if not far:
+        return []
+    q = played.q_deg[idx]
+    dirs = directions_from_sequence(q, start_deg=(robot.lower_deg + robot.upper_deg) / 2)
+    pos = {k: i for i, k in enumerate(idx)}
+    at = [pos[k] for k in far]
+    payload = np.zeros(len(rows)) if kg is None else np.broadcast_to(np.asarray(kg, float), (len(rows),))
+    stated = load_prediction(doc, kin.model)
+    u = None
+    if stated is not None:
+        data = kin.data(q[at], dirs[at], payload[far], np.full(len(far), REFERENCE_TEMPERATURE_C))
+        u = u95(kin.model, data, stated, sampled)["u95_mm"]
+    where = outside_region(q[at], sampled, u)
+    out = [None] * len(rows)
+    for k, w in zip(far, where):
+        out[k] = w
+    return out
 
 
 @dataclass

@@ -26,7 +26,7 @@ from typing import ClassVar
 import numpy as np
 import pinocchio as pin
 
-from ...core.effect import REGISTRY, Effect
+from ...core.effect import CARRIES, LOCAL, REGISTRY, Effect
 from ...core.se3 import ARCSEC_PER_MRAD
 from ...core.units import REFERENCE_TEMPERATURE_C
 from .kinematics import TWIST, ErrorModelIndex, Robot, link_placement
@@ -311,6 +311,9 @@ class Geometry(RobotEffect):
     acts_on = "link frame"
     compensable = True
     compensation = "the calibrated MDH parameters in the controller's kinematic model"
+    extrapolates = CARRIES
+    extrapolation = ("the link lengths, offsets and axis directions are constants of the arm, the same at "
+                     "every joint angle")
     explanation = ("Kinematic (MDH) parameter errors: the real link lengths, offsets and axis directions differ "
                    "from the nominal ones by manufacturing and assembly tolerances (the paper's Eqs. 3-6).")
     signature = ("a smooth position error that follows the arm's geometry: constant joint offsets and link "
@@ -354,6 +357,8 @@ class Base(RobotEffect):
     acts_on = "base frame"
     compensable = True
     compensation = "the measured base frame in the controller (a frame registration)"
+    extrapolates = CARRIES
+    extrapolation = "one rigid frame of the whole robot, the same wherever the arm points"
     hidden_syntax = "base"
     explanation = "The robot base frame measured by the tracker is offset and rotated from where it was set up."
     signature = "a constant offset plus a rotation of all positions about the base origin"
@@ -455,6 +460,8 @@ class CampaignFrame(_OneCampaign):
     acts_on = "a campaign's tracker frame"
     compensable = False
     compensation = "none needed on the robot: it is where that campaign's tracker stood, not the robot"
+    extrapolates = CARRIES
+    extrapolation = "one rigid frame of the campaign's tracker station, the same wherever the arm points"
     explanation = ("Each campaign measures the robot from its own tracker station: its points are in a frame of "
                    "their own, shifted and turned from the first campaign's. The robot is one; each campaign "
                    "after the first keeps its own rigid tracker-to-base frame, fitted with the robot's shared "
@@ -495,6 +502,8 @@ class CampaignTool(_ProbeMounting, _OneCampaign):
     acts_on = "a campaign's probe mounting"
     compensable = True
     compensation = "that campaign's calibrated tool offset in the controller's tool frame"
+    extrapolates = CARRIES
+    extrapolation = "one rigid mounting on the flange, the same at every pose"
     explanation = ("The probe was mounted otherwise in this campaign (its robot.toml says where): its offset on "
                    "the flange is off by its own error, as the first campaign's is by the shared tool error.")
     signature = "an error that rotates with the flange, on one campaign's poses only"
@@ -526,6 +535,8 @@ class Tool(_ProbeMounting, RobotEffect):
     acts_on = "tool"
     compensable = True
     compensation = "the calibrated tool (SMR) offset in the controller's tool frame"
+    extrapolates = CARRIES
+    extrapolation = "one rigid mounting on the flange, the same at every pose"
     hidden_syntax = "tool"
     explanation = "The SMR sits elsewhere on the end effector than robot.toml says (tool offset error)."
     signature = "an error that rotates with the flange: depends on the wrist orientation, not on position"
@@ -582,6 +593,9 @@ class Chebyshev(RobotEffect):
     compensable = True
     compensation = ("the error transfer matrices in the controller's model (a joint-angle dependent "
                     "correction of every link frame)")
+    extrapolates = LOCAL
+    extrapolation = ("a polynomial in each joint's angle fitted over the angles the poses sampled; beyond them "
+                     "it extends the polynomial, not a physical law, and no measurement holds it there")
     explanation = ("Error transfer matrices (the second paper's Eqs. 7-13): every link frame carries a small "
                    "translation and rotation that varies smoothly with its joint angle, written as Chebyshev "
                    "polynomials; order 0 is geometry, higher orders are friction, transmission error and "
@@ -641,6 +655,9 @@ class Compliance(RobotEffect):
     acts_on = "joint angle"
     compensable = True
     compensation = "the controller adds compliance times the gravity torque of the pose and payload to the joint command"
+    extrapolates = CARRIES
+    extrapolation = ("the gravity torque at any pose follows from the arm's real masses and the payload, and "
+                     "the joint gives way by its compliance times that torque there too")
     hidden_syntax = "compliance:J"
     explanation = ("The joints give way under load: each joint deflects by its compliance times the gravity "
                    "torque it carries (arm weight and payload), so the arm sags more when stretched out or loaded.")
@@ -699,6 +716,8 @@ class Backlash(RobotEffect):
     acts_on = "joint angle"
     compensable = True
     compensation = "the controller adds half the play to the command, by the direction the joint last moved"
+    extrapolates = CARRIES
+    extrapolation = "one play per joint, the same at every angle, taken up by the direction the joint last moved"
     hidden_syntax = "backlash:J"
     explanation = ("Play in the gears: a joint stops short by half its backlash on one side or the other, "
                    "depending on the direction it last moved.")
@@ -738,6 +757,8 @@ class Thermal(RobotEffect):
     acts_on = "link lengths (temperature)"
     compensable = True
     compensation = "the controller scales the link lengths by the expansion at the measured temperature"
+    extrapolates = CARRIES
+    extrapolation = "one expansion of every link with temperature, the same at every joint angle"
     hidden_syntax = "thermal"
     explanation = "The links grow with temperature (steel/aluminium expansion): all lengths scale by alpha * (T - 20 degC)."
     signature = "error proportional to the distance from the base, growing with temperature"
@@ -813,6 +834,9 @@ class JointHarmonic(RobotEffect):
     acts_on = "joint angle"
     compensable = True
     compensation = "a table of the joint's angle error over its angle, subtracted from the command"
+    extrapolates = CARRIES
+    extrapolation = ("sinusoids over the joint's whole turn, as an encoder's or a transmission's periodic error "
+                     "is: the same law at angles the poses did not reach")
     hidden_syntax = "joint_harmonic:J"
     explanation = ("Periodic joint angle error of encoder and reducer (the first paper): each joint's angle is "
                    "off by a sum of sinusoids in the joint angle.")
@@ -908,6 +932,9 @@ class JointMap(RobotEffect):
     acts_on = "joint angle"
     compensable = True
     compensation = "a table of the joint's angle error over its angle, subtracted from the command"
+    extrapolates = LOCAL
+    extrapolation = ("an interpolation table over the joint range the poses sampled, which fades to zero beyond "
+                     "it: what the joint does there was not measured")
     explanation = ("Angle-dependent joint error: each joint's angle is off by an amount that varies with its own "
                    "angle - the transmission and encoder errors of the first paper, of every order, joint by joint. "
                    "Learned as a smooth curve on a grid over the joint range the poses sampled; it fades to zero "

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...core.effect import carry_over_line
 from ...core.errors import InputError
 from ...core.spec import parse_spec
 from ...core.se3 import angle_arcsec, orientation_errors
@@ -195,6 +196,17 @@ def unseen_directions(doc: dict, model) -> np.ndarray:
     return np.stack(cols, axis=1) if cols else np.zeros((len(model.names_), 0))
 
 
+def carry_over_note(doc: dict) -> str:
+    """For a fit JSON ``doc`` (:func:`model_document`): which of its effects carry over beyond the joint ranges its
+    poses sampled and which are local (:func:`pipeline.core.effect.carry_over_line`); '' when its effects cannot be
+    read."""
+    try:
+        spec = parse_spec('[model]\nkind = "robot"\n\n' + "\n\n".join(doc["spec_effects"]) + "\n", "fit JSON")
+    except (InputError, KeyError, TypeError):
+        return ""
+    return carry_over_line(spec.effects)
+
+
 def load_model_document(doc: dict, path) -> tuple:
     """Rebuild a fitted model from :func:`model_document` (``fit.json``); bad content -> InputError.
 
@@ -230,6 +242,20 @@ def load_model_document(doc: dict, path) -> tuple:
     model.weighting_ = doc.get("weighting") if isinstance(doc.get("weighting"), dict) else None
     frame = doc.get("frame") or {"frame": "base", "tracker_to_base": np.eye(4).tolist()}
     return robot, effects, model, doc["sampled_range"], frame
+
+
+#: Why ``jointcal predict`` leaves a 6-DoF campaign's orientation errors out for a model fitted on positions alone.
+ORIENTATION_NOT_JUDGED = ("the model was fitted on a campaign without the probe's orientations, so it never "
+                          "determined how the probe is turned on the flange; the angle between its probe frame and "
+                          "the measured one would be robot.toml's nominal mounting's error, not the model's "
+                          "(fit the model on a campaign with orientations to judge them)")
+
+
+def fitted_orientation(document: dict) -> bool:
+    """Whether the fit of ``document`` (a fit JSON) saw a 6-DoF probe's orientations: it weighed them against the
+    positions, or (``--positions-only``) registered the probe's mounting on them; its ``weighting`` says which. A
+    fit on a campaign of positions alone has no ``weighting``."""
+    return isinstance(document, dict) and isinstance(document.get("weighting"), dict)
 
 
 def same_robot_problem(a: Robot, b: Robot) -> str:
@@ -439,6 +465,13 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     if point_mm is not None and meas_R is None:
         raise InputError(Path(campaign) / "tracker.csv", "--point needs the probe's orientation (a 6-DoF probe: "
                          "columns qw, qx, qy, qz); this campaign has positions only", 1, "qw")
+    not_judged = ""
+    if meas_R is not None and not fitted_orientation(document):
+        # the model's probe frame is the nominal mounting's: its angle to the measured one is not the model's error
+        not_judged = ORIENTATION_NOT_JUDGED + (" (nor the error of --point, which rests on it)" if point_mm is not None
+                                               else "")
+        warn(f"note: orientation not judged: {not_judged}")
+        meas_R, point_mm = None, None
     if not register and frame_info and frame_info.get("frame") == "tracker":
         # the tracker has not moved: its points go through the fit campaign's transform
         raw = table[["x_tracker_mm", "y_tracker_mm", "z_tracker_mm"]].to_numpy(float)
@@ -469,6 +502,8 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     except ValueError as exc:
         raise InputError(Path(campaign) / "poses.csv", str(exc), None, "set") from None
     result.update(wild.document())
+    if not_judged:
+        result["orientation_not_judged"] = not_judged
     ev = clean == "target" if (clean == "target").any() else clean != "wild"
     outside = outside_calibrated_range(np.array([sampled["lower_deg"], sampled["upper_deg"]], float), data.q_deg[ev],
                                        np.asarray(data.point_id)[ev])
@@ -477,6 +512,10 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
         warn(f"warning: {outside_message(outside, worst=True).replace('targets', 'points', 1)}"
              + (f"; their mean u95_mm {result['u95_outside_mm']:.3f} against {result['u95_inside_mm']:.3f} inside"
                 if result.get("u95_outside_mm") is not None and result.get("u95_inside_mm") is not None else ""))
+        # what of the model holds there (the effect registry's word on each effect, pipeline.core.effect)
+        line = carry_over_line(effects)
+        if line:
+            warn(f"  {line}")
     note = coverage_note(result)
     if note:
         result["coverage_note"] = note

@@ -85,6 +85,8 @@ def _source(tmp, q_urdf, recorded, text: str, coupling_toml: str, seed: int = 3)
     ("coupling = { q3 = { q2 = 1.0, q3 = 1.0 } }\n", np.eye(6) + np.eye(6, k=-1) * (np.arange(6) == 2)[:, None]),
     # a coupling of joint 1 itself: C = C_sign @ C_map and C_map @ C_sign differ here
     ("coupling = { q1 = { q1 = 1.0, q2 = 0.5 } }\n", np.eye(6) + 0.5 * np.eye(6, k=1) * (np.arange(6) == 0)[:, None]),
+    # a controller counting joint 1 about +z: the map's -q1 and the URDF's undo each other (no [coupling])
+    ("coupling = { q1 = { q1 = -1.0 } }\n", np.diag([-1.0, 1, 1, 1, 1, 1])),
 ])
 def test_import_combines_the_sign_with_the_maps_coupling(invoke, tmp_path, coupling_toml, C_map):
     text = MINUS_Z.read_text()
@@ -101,6 +103,8 @@ def test_import_combines_the_sign_with_the_maps_coupling(invoke, tmp_path, coupl
     robot = load_robot(camp / "robot.toml")
     C_sign = np.diag([-1.0, 1, 1, 1, 1, 1])
     assert np.allclose(robot.coupling_matrix, C_sign @ C_map)
+    text = (camp / "robot.toml").read_text()
+    assert ("[coupling]" in text) == bool(robot.coupling) and "\n\n\n" not in text
     assert robot.kinematic_angles(recorded) == pytest.approx(q_urdf * [-1, 1, 1, 1, 1, 1], abs=1e-9)
 
 

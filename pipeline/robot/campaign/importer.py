@@ -1194,7 +1194,8 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
         rows = tuple((j, tuple(float(c) for c in C[j])) for j in range(robot.n_joints)
                      if not np.array_equal(C[j], np.eye(robot.n_joints)[j]))
         robot = replace(robot, coupling=rows)
-        robot_text = robot_text.replace(old_lines, "\n".join(robot.coupling_lines()))
+        robot_text = (robot_text.replace(old_lines, "\n".join(robot.coupling_lines())) if rows
+                      else robot_text.replace("\n\n" + old_lines, ""))      # the two undo each other
     elif imap.coupling:
         if robot.coupling and robot.coupling != imap.coupling:
             line, col = imap.where.key("joints", "coupling")

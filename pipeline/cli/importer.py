@@ -51,6 +51,8 @@ def import_cmd(source_path, map_path, robot_path, out_dir, tip, base, tool_mm, u
                f"nominal kinematics miss them by {s['nominal_rms_mm']:.3f} mm RMS {how}", err=True)
     for w in s.get("warnings", []):
         click.echo(f"  warning: {w}", err=True)
+    for n in s.get("notes", []):
+        click.echo(f"  note: {n}", err=True)
     o = s.get("orientation")
     if o:
         rpy = ", ".join(f"{v:.3f}" for v in o["mounting_rpy_deg"])

@@ -181,7 +181,8 @@ def _urdf_text(robot, chain_model, comments: list[str], urdf) -> str:
         return chain_urdf(robot.name + "_calibrated", chain, comments)
     path, tip, base_link, tool_mm = urdf
     return rewrite_urdf_file(path, tip, chain, comments, base_link,
-                             nominal=folded_chain(robot, chain_model, keep=()), tool_mm=tool_mm)
+                             nominal=folded_chain(robot, chain_model, keep=()), tool_mm=tool_mm,
+                             joint1_reversed=bool(robot.coupling_matrix[0, 0] < 0))
 
 
 def _ur_texts(robot, effects, doc: dict, chain: dict, comments: list[str]) -> list[tuple[str, str]]:

@@ -129,7 +129,7 @@ def _fmt_mm(v) -> str:
 
 
 def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: str | None = None, *,
-                 nominal: dict, tool_mm=None, smr_link: str = "smr") -> tuple[str, dict]:
+                 nominal: dict, tool_mm=None, smr_link: str = "smr", joint1_reversed: bool = False) -> tuple[str, dict]:
     """The user's URDF with the calibration folded into its revolute joints' ``<origin>`` elements.
 
     Every link keeps the frame the user's URDF gives it on its body: the user's link ``i`` (the child
@@ -160,6 +160,10 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
         checked against the model's nominal robot.
     smr_link : str
         Name of the SMR link written.
+    joint1_reversed : bool
+        The model's joint 1 angle is minus the recorded one (robot.toml's ``[coupling]`` row
+        ``q1 = { q1 = -1.0 }``, which import writes for a URDF whose joint 1 turns about -z): the URDF's
+        joint 1 axis may then be the model's z turned round; it is kept as the user wrote it.
 
     Returns
     -------
@@ -199,7 +203,8 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
     for i, (j, U) in enumerate(zip(moving, user)):
         Xi = nom[i].actInv(U)
         axis_in_J = Xi.rotation @ _axis(j)
-        off_deg = np.rad2deg(np.arccos(np.clip(axis_in_J[2], -1.0, 1.0)))
+        along = abs(axis_in_J[2]) if (i == 0 and joint1_reversed) else axis_in_J[2]   # a -z joint 1: -q1
+        off_deg = np.rad2deg(np.arccos(np.clip(along, -1.0, 1.0)))
         off_mm = float(np.linalg.norm(Xi.translation[:2])) * 1000.0
         if off_deg > AXIS_TOL_DEG or off_mm > AXIS_TOL_MM:
             raise UrdfProblem(f"joint '{j.get('name')}' of the URDF lies {off_mm:.4g} mm / {off_deg:.4g} deg from "
@@ -241,7 +246,7 @@ def rewrite_urdf(text: str, tip: str, chain: dict, comments: list[str], base: st
 
 
 def rewrite_urdf_file(path, tip: str, chain: dict, comments: list[str], base: str | None = None, *, nominal: dict,
-                      tool_mm=None) -> str:
+                      tool_mm=None, joint1_reversed: bool = False) -> str:
     """:func:`rewrite_urdf` on the file ``path``; a problem is an :class:`InputError` at the element it is about."""
     from ..core.errors import InputError
     from ..core.files import read_text_input
@@ -249,7 +254,8 @@ def rewrite_urdf_file(path, tip: str, chain: dict, comments: list[str], base: st
 
     text = read_text_input(path, "URDF")
     try:
-        return rewrite_urdf(text, tip, chain, comments, base, nominal=nominal, tool_mm=tool_mm)[0]
+        return rewrite_urdf(text, tip, chain, comments, base, nominal=nominal, tool_mm=tool_mm,
+                            joint1_reversed=joint1_reversed)[0]
     except UrdfProblem as exc:
         line, col = tag_line(text, exc.tag, exc.name)
         if line is None:

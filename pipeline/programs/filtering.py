@@ -205,7 +205,8 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
                          + _half_turn(chain, T_target[k], tools[k], flange, want[k]))
             continue
         if t.branch == CONFIG and t.turn is not None:
-            okt = np.array([fm.turn_ok(fmt, t.turn, c) for c in cands])
+            # a turn names the signs of the controller's angles (a URDF's -z joint 1: [coupling] q1 = -q1)
+            okt = np.array([fm.turn_ok(fmt, t.turn, c) for c in robot.recorded_angles(cands)])
             if not okt.any():
                 reason[k] = f"no solution on its branch ({flags}) has the turn it names ({t.turn})"
                 continue
@@ -334,7 +335,8 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             continue
         if t.kind == CARTESIAN:
             fa, fb = flags_a[k], flags_b[k]
-            if tuple(fa) != tuple(fb) or (t.branch == CONFIG and not fm.turn_ok(fmt, t.turn, qb)):
+            if tuple(fa) != tuple(fb) or (t.branch == CONFIG
+                                          and not fm.turn_ok(fmt, t.turn, robot.recorded_angles(qb[None])[0])):
                 row["status"] = "branch_change"
                 row["reason"] = "the corrected joints are on another branch or turn than the target names"
                 continue

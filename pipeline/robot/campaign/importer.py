@@ -1182,7 +1182,21 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     imap = parse_map(map_text, str(map_path))
     robot, robot_text, robot_line = load_import_robot(robot_path, tip, base, tool_mm, ur_model)
     check_joint_count(imap, robot, robot_path)
-    if imap.coupling:
+    notes = []
+    reversed1 = is_urdf(robot_path) and bool(robot.coupling)     # a URDF robot's own coupling: joint 1 about -z
+    if reversed1:
+        notes.append("joint 1 turns about -z in the URDF: its angle is taken as -q1 (a [coupling] row)")
+    if imap.coupling and reversed1:
+        # the map's coupling gives the URDF's angles from the recorded ones, the URDF's sign the kinematics' from
+        # the URDF's: C = C_sign @ C_map
+        old_lines = "\n".join(robot.coupling_lines())
+        C = robot.coupling_matrix @ replace(robot, coupling=imap.coupling).coupling_matrix
+        rows = tuple((j, tuple(float(c) for c in C[j])) for j in range(robot.n_joints)
+                     if not np.array_equal(C[j], np.eye(robot.n_joints)[j]))
+        robot = replace(robot, coupling=rows)
+        robot_text = (robot_text.replace(old_lines, "\n".join(robot.coupling_lines())) if rows
+                      else robot_text.replace("\n\n" + old_lines, ""))      # the two undo each other
+    elif imap.coupling:
         if robot.coupling and robot.coupling != imap.coupling:
             line, col = imap.where.key("joints", "coupling")
             raise InputError(imap.path, f"[joints] coupling differs from the [coupling] of {Path(robot_path).name}: "
@@ -1217,7 +1231,8 @@ def import_campaign(source_path, map_path, robot_path, out_dir, tip=None, base=N
     install_campaign(out_dir, camp.files, validate)
     n_s = int((camp.sets == "sample").sum())
     return {"n": len(camp.sets), "sample": n_s, "target": len(camp.sets) - n_s, "frame": imap.frame,
-            "nominal_rms_mm": rms, "orientation": oriented, "warnings": mass_warnings(robot, robot_path)}
+            "nominal_rms_mm": rms, "orientation": oriented, "warnings": mass_warnings(robot, robot_path),
+            "notes": notes}
 
 
 def mass_warnings(robot, robot_path) -> list[str]:

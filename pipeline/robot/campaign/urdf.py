@@ -10,9 +10,13 @@ pinocchio (fixed joints are composed into the links they hang from), walks the c
 revolute joints from the base link to the tip link, and derives the parameters from the
 joint axes at q = 0:
 
-* frame {0} is the base link's frame; its z axis must be joint 1's axis (same direction,
-  through its origin) - otherwise the arm cannot be written without a base transform and
-  the import is refused (``--base`` names another link of the fixed base, e.g. UR's ``base``);
+* frame {0} is the base link's frame; its z axis must be joint 1's axis, through its origin -
+  otherwise the arm cannot be written without a base transform and the import is refused
+  (``--base`` names another link of the fixed base, e.g. UR's ``base``). A joint 1 turning about
+  -z (ROS-Industrial's KUKA descriptions: ``joint_a1`` has axis ``0 0 -1``) is the same arm with
+  joint 1's angle counted the other way: a turn q about -z is a turn -q about +z, so the robot gets
+  the ``[coupling]`` row ``q1 = { q1 = -1.0 }`` (its kinematics take -q1 of the recorded, the
+  URDF's, angle) and joint 1's limits as that angle's, [-upper, -lower];
 * for skew axes x_i is the unit common normal, a_i its length, d_i the distance along
   z_{i-1}; for intersecting axes x_i = +-(z_{i-1} x z_i), a_i = 0; for parallel axes the
   common normal through O_{i-1} is taken (d_i = 0, the offset moves on to d_{i+1});
@@ -29,7 +33,8 @@ joint axes at q = 0:
   the URDF in degrees.
 
 The result is checked: the derived robot's SMR position must agree with pinocchio's URDF
-model to < 1e-6 mm at 64 random configurations, else the import is refused.
+model to < 1e-6 mm at 64 random configurations (the URDF's angles recorded, the robot's
+``[coupling]`` applied), else the import is refused.
 """
 
 from __future__ import annotations
@@ -251,7 +256,8 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
     info : dict
         ``chain`` (joint names), ``base``, ``tip``, ``fk_max_error_mm`` (the check), ``checks``,
         ``tip_in_flange`` (R (3, 3), t (3,) mm: the tip link's frame in the flange frame {N}, a point p
-        of the tip's frame at ``R p + t``).
+        of the tip's frame at ``R p + t``), ``joint1_reversed`` (True: joint 1 turns about -z of the base
+        frame in the URDF; the robot's ``[coupling]`` takes -q1).
     """
     text, root, model = _read_urdf(path)
     tip_fid = _body_frame(path, text, root, model, tip, "--tip")
@@ -278,7 +284,12 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
     smr = tip_p + tip_R @ tool_local
     base_name = model.frames[base_fid].name
     j1 = model.names[chain[0]]
-    if np.linalg.norm(dirs[0] - np.array([0.0, 0.0, 1.0])) > 1e-9 or np.linalg.norm(points[0][:2]) > 1e-6:
+    up = np.array([0.0, 0.0, 1.0])
+    # joint 1 about -z through the origin: the same arm, its angle counted the other way ([coupling] q1 = -q1)
+    reversed1 = bool(np.linalg.norm(dirs[0] + up) <= 1e-9 and np.linalg.norm(points[0][:2]) <= 1e-6)
+    if reversed1:
+        dirs[0] = up.copy()
+    if np.linalg.norm(dirs[0] - up) > 1e-9 or np.linalg.norm(points[0][:2]) > 1e-6:
         cands = []
         for k, f in enumerate(model.frames):
             if f.type != pin.FrameType.BODY or f.parentJoint != 0:
@@ -286,7 +297,7 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
             M = data.oMf[k]
             d = M.rotation.T @ (data.oMi[chain[0]].rotation @ axes[0])
             p = M.rotation.T @ (data.oMi[chain[0]].translation - M.translation) * 1000.0
-            if np.linalg.norm(d - np.array([0.0, 0.0, 1.0])) <= 1e-9 and np.linalg.norm(p[:2]) <= 1e-6:
+            if min(np.linalg.norm(d - up), np.linalg.norm(d + up)) <= 1e-9 and np.linalg.norm(p[:2]) <= 1e-6:
                 cands.append(f.name)
         hint = f"; links that would do: {', '.join(cands)}" if cands else ""
         what = ("turns about ({:.4g}, {:.4g}, {:.4g})".format(*dirs[0]) if np.linalg.norm(dirs[0] - [0, 0, 1]) > 1e-9
@@ -316,17 +327,20 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
         if not lo_deg < hi_deg:
             _fail(path, text, f"joint '{model.names[j]}' has no range (lower {lo:g} >= upper {hi:g} rad); "
                   "give it <limit lower=... upper=...>", "joint", model.names[j])
+        if i == 0 and reversed1:
+            lo_deg, hi_deg = -hi_deg, -lo_deg     # the limits are of the angle the kinematics take, -q1
         joints.append(Joint(a_mm=_clean(p["a"]), alpha_deg=_clean(np.rad2deg(p["alpha"])), d_mm=_clean(p["d"]),
                             theta_offset_deg=_clean(np.rad2deg(p["theta"])), beta_deg=0.0,
                             lower_deg=_clean(lo_deg), upper_deg=_clean(hi_deg), mass_kg=_clean(mass),
                             com_mm=tuple(_clean(c, 6) for c in com)))
+    coupling = ((0, (-1.0,) + (0.0,) * (len(chain) - 1)),) if reversed1 else ()
     robot = Robot(_sanitize(root.get("name") or Path(str(path)).stem), tuple(joints),
-                  tuple(_clean(c) for c in tool), str(path))
+                  tuple(_clean(c) for c in tool), str(path), coupling=coupling)
     err = fk_agreement(robot, model, chain, base_fid, tip_fid, tool_local, checks)
     # the tip link's frame in the flange frame {N}: a point p in the tip's frame is R p + t in {N}
     tip_in_flange = (TN[:3, :3].T @ tip_R, TN[:3, :3].T @ (tip_p - TN[:3, 3]))
     info = {"chain": [model.names[j] for j in chain], "base": base_name, "tip": tip, "fk_max_error_mm": err,
-            "checks": checks, "tip_in_flange": tip_in_flange}
+            "checks": checks, "tip_in_flange": tip_in_flange, "joint1_reversed": reversed1}
     if not err < FK_TOLERANCE_MM:
         _fail(path, text, f"the DH parameters derived from the URDF disagree with pinocchio's URDF model by up to "
               f"{err:.3g} mm at random configurations (tolerance {FK_TOLERANCE_MM:g} mm); refused", "joint", j1)
@@ -334,10 +348,14 @@ def robot_from_urdf(path, tip: str, base: str | None = None, tool_mm=None, check
 
 
 def fk_agreement(robot: Robot, model, chain, base_fid, tip_fid, tool_local_mm, n=FK_CHECKS, seed=0) -> float:
-    """Largest distance (mm) between the robot's SMR and the URDF's at ``n`` random configurations."""
+    """Largest distance (mm) between the robot's SMR and the URDF's at ``n`` random configurations.
+
+    The URDF is given the recorded angles, the robot's kinematics the angles its ``[coupling]`` makes
+    of them (a joint 1 about -z in the URDF: -q1)."""
     rng = np.random.default_rng(seed)
     Q = rng.uniform(np.deg2rad(robot.lower_deg), np.deg2rad(robot.upper_deg), size=(n, robot.n_joints))
     mine = positions(build_model(robot), Q, "smr")
+    Q = robot.recorded_angles(Q)          # (the coupling is linear: radians as degrees)
     data = model.createData()
     theirs = np.empty((n, 3))
     tool = np.asarray(tool_local_mm, float) / 1000.0

@@ -37,7 +37,9 @@ hold). What this states, and what it does not:
    (:func:`region_split_errors`: each joint, refitted below its 60th percentile and judged above, and the
    mirror, by one linearised Gauss-Newton step at the solution): each joint's error beyond its range, a
    level at the edge plus a growth with the distance (:func:`extrapolation_growth`), is stated in the fit
-   JSON and added, of every direction alike, for a pose that far beyond. A fit JSON without it keeps
+   JSON and added, of every direction alike, for a pose that far beyond; several joints' errors combine by
+   the norm their pair splits hold (:func:`region_pair_errors`, :func:`extrapolation_combination`: refitted
+   inside two joints' cuts at once, judged beyond both). A fit JSON without it keeps
    the older guess: an unknown angle error growing from 0 at the edge, one sampled width beyond it
    (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle
    together with the spread of the model's own angle error of that joint over its sample poses

@@ -535,16 +535,25 @@ def _split_refits(model, data, cases):
             rows = np.repeat(fitted, 3)
             if d.oriented:
                 rows = np.concatenate([rows, rows])
+            # only the judged poses' rows of the refit's residuals are needed
+            at = np.flatnonzero(np.repeat(judged, 3))
+            if d.oriented:
+                at = np.concatenate([at, 3 * n + at])
             if sparse:
                 xs, _ = steps_without(d, B, Pen, x, rows.astype(float), sparse, data.measured_mm, max_steps=1)
-                F = F0 + J0 @ (xs - x)
+                F = F0[at] + J0[at] @ (xs - x)
             else:
-                Jc, Fc = JB[~rows], F0[~rows]
-                dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
-                F = F0 + JB @ dz
+                if 2 * rows.sum() < rows.size:     # fewer rows refitted on than left out: their own normal equations
+                    Jc, Fc = JB[rows], F0[rows]
+                    dz, _ = scaled_min_norm_step(Jc.T @ Jc + PB.T @ PB, Jc.T @ Fc + PB.T @ (Pen @ x))
+                else:
+                    Jc, Fc = JB[~rows], F0[~rows]
+                    dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
+                F = F0[at] + JB[at] @ dz
+            m = int(judged.sum())
             yield label, fitted, judged, {
-                "position_mm": F[:3 * n].reshape(n, 3)[judged],
-                "orientation_mrad": (F[3 * n:].reshape(n, 3)[judged] / d.weight) if d.oriented else None}
+                "position_mm": F[:3 * m].reshape(m, 3),
+                "orientation_mrad": (F[3 * m:].reshape(m, 3) / d.weight) if d.oriented else None}
     finally:
         d.keep_last, d._last = False, None
 

@@ -188,3 +188,80 @@ def test_a_small_models_splits_are_the_gauss_newton_steps_of_a_large_one(monkeyp
         # and the refit moved: the judged poses' errors are not the model's own residuals
         assert np.abs(a["position_mm"] - model.predict(sample.subset(np.isin(np.arange(sample.n), a["judged"])))
                       + sample.measured_mm[a["judged"]]).max() > 1e-6
+
+
+def _beyond_several(rng, n, N=3, several=3):
+    """``n`` synthetic poses each beyond ``several`` of ``N`` joints' ranges by 5-40 deg."""
+    b = np.zeros((n, N))
+    b[:, :several] = rng.uniform(5.0, 40.0, (n, several))
+    return b
+
+
+@pytest.mark.parametrize("truth", ["largest", "quadrature"])
+def test_several_joints_combine_as_the_pair_splits_show_sharp_and_covering(truth):
+    """Synthetic pair splits and targets beyond three joints' ranges, each joint's learned size 0.4 mm, in-range
+    scatter 0.05 mm per axis. When one joint makes the error there ("largest": an error of 0.4 mm), the sizes in
+    quadrature (0.69 mm) state a radius about 1.7x the errors' 95th percentile: the combination learned from the
+    pair splits is sharp (at most 1.5x) and still covers. When the errors add up ("quadrature"), it keeps
+    covering them."""
+    from pipeline.robot.model.uncertainty import extrapolation_combination, extrapolation_covariance, radius95
+
+    rng = np.random.default_rng(52)
+    n, N = 2000, 3
+    growth = (np.full(N, 0.4), np.zeros(N), np.full(N, 60.0))
+    true_size = 0.4 if truth == "largest" else 0.4 * np.sqrt(3.0)
+
+    def errors(m):
+        return rng.normal(0.0, 0.05, (m, 3)) + rng.normal(0.0, true_size / np.sqrt(3.0), (m, 3))
+
+    S_in = np.broadcast_to(np.eye(3) * 0.05 ** 2, (n, 3, 3))
+    pairs = [{"joints": (1, 2), "judged": np.arange(n), "beyond_deg": _beyond_several(rng, n, N, 2 + k % 2),
+              "position_mm": errors(n)} for k in range(2)]
+    p = extrapolation_combination(pairs, S_in, 1.0, growth)
+
+    sampled = {"lower_deg": np.full(N, -10.0), "upper_deg": np.full(N, 10.0)}
+    q = 10.0 + _beyond_several(rng, n, N)
+    Jq = np.zeros((n, 3, N))
+    e = np.linalg.norm(errors(n), axis=1)
+    stated = lambda norm_p: radius95(S_in + extrapolation_covariance(q, sampled, Jq, S_in[0], growth=growth,  # noqa
+                                                                     norm_p=norm_p))
+    u, u_quadrature = stated(p), stated(2.0)
+    p95 = np.quantile(e, 0.95)
+    assert np.mean(e <= u) >= 0.85
+    if truth == "largest":
+        assert np.mean(u_quadrature) > 1.6 * p95            # today's rule (quadrature): too wide
+        assert np.mean(u) <= 1.5 * p95, (p, np.mean(u), p95)
+    else:
+        assert p <= 2.0
+        assert np.mean(e <= u) >= 0.93
+
+
+def test_pair_splits_judge_poses_beyond_both_joints_and_the_fit_states_the_combination(split_fit):
+    doc, _, _, _ = split_fit
+    pu = doc["prediction_uncertainty"]
+    p = pu["extrapolation_combination_p"]
+    assert p is None or p in (1.0, 1.5, 2.0, 3.0, 4.0, 8.0)
+    assert pu["extrapolation_pair_judged_poses"] > 100
+
+
+def test_region_pair_errors_refit_inside_both_cuts_and_judge_beyond_both():
+    from pipeline.core.spec import load_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+    from pipeline.robot.model.uncertainty import SPLIT_QUANTILE, region_pair_errors
+
+    robot, (sample,) = robot_data_sets(KR210, ("sample",))
+    model = fit_effects(robot, list(load_spec(ROOT / "specs" / "robot_kinematic.toml").effects), sample)
+    pairs = region_pair_errors(model, sample)
+    q = np.asarray(sample.q_deg, float)
+    assert 0 < len(pairs) <= 15 * 4
+    for s in pairs:
+        j, k = (i - 1 for i in s["joints"])
+        cut_j = np.quantile(q[:, j], [1 - SPLIT_QUANTILE, SPLIT_QUANTILE])
+        cut_k = np.quantile(q[:, k], [1 - SPLIT_QUANTILE, SPLIT_QUANTILE])
+        judged = q[s["judged"]]
+        # every judged pose is outside both joints' cut on one side each, and beyond both refitted ranges
+        assert np.all((judged[:, j] > cut_j[1]) | (judged[:, j] < cut_j[0]))
+        assert np.all((judged[:, k] > cut_k[1]) | (judged[:, k] < cut_k[0]))
+        assert np.all(s["beyond_deg"][:, [j, k]] > 0)
+        assert s["position_mm"].shape == (s["judged"].size, 3)

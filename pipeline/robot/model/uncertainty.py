@@ -37,7 +37,9 @@ hold). What this states, and what it does not:
    (:func:`region_split_errors`: each joint, refitted below its 60th percentile and judged above, and the
    mirror, by one linearised Gauss-Newton step at the solution): each joint's error beyond its range, a
    level at the edge plus a growth with the distance (:func:`extrapolation_growth`), is stated in the fit
-   JSON and added, of every direction alike, for a pose that far beyond. A fit JSON without it keeps
+   JSON and added, of every direction alike, for a pose that far beyond; several joints' errors combine by
+   the norm their pair splits hold (:func:`region_pair_errors`, :func:`extrapolation_combination`: refitted
+   inside two joints' cuts at once, judged beyond both). A fit JSON without it keeps
    the older guess: an unknown angle error growing from 0 at the edge, one sampled width beyond it
    (:data:`EXTRAPOLATION_WIDTHS`), to the unexplained scatter of (2) expressed as that joint's angle
    together with the spread of the model's own angle error of that joint over its sample poses
@@ -288,14 +290,15 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
 
 
 def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None,
-                             growth=None) -> np.ndarray:
+                             growth=None, norm_p: float = 2.0) -> np.ndarray:
     """What a pose beyond the sampled joint ranges adds (3 x 3 per pose, mm^2; 0 inside them).
 
     A joint whose error beyond its range the fit learned from its region splits (``growth``,
     :func:`extrapolation_growth`) adds an error of every direction alike whose size (sqrt of the trace) is
     ``level_j min(b_j / EXTRAPOLATION_RAMP_DEG, 1) + slope_j min(b_j, reach_j)`` at ``b_j`` (deg) beyond the
     sampled range;
-    the sizes of several joints add in quadrature. A joint without one
+    the sizes of several joints combine as their ``norm_p``-norm (2: in quadrature; ``inf``: the largest alone; the
+    fit learns it from its pair splits, :func:`extrapolation_combination`). A joint without one
     (NaN; every joint of a fit JSON written before them) keeps the guess below.
 
     Joint ``j`` beyond its range by ``b_j`` (deg) has an unknown angle error of standard deviation
@@ -321,6 +324,8 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     growth : (level, slope, reach), ndarrays of shape (N,), optional
         Each joint's learned error beyond its range (:func:`extrapolation_growth`): mm, mm per deg and deg (the
         probe frame's turn, mrad and mrad per deg, with ``Jturn``); NaN where not learned.
+    norm_p : float
+        How the learned sizes of several joints combine (:func:`combined_size`): 2 in quadrature, ``inf`` the largest.
     """
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
@@ -332,9 +337,8 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     learned = np.isfinite(level) & np.isfinite(slope) & np.isfinite(reach)
     extra = 0.0
     if learned.any():
-        size = (np.where(learned, level, 0.0) * _ramp(beyond)
-                + np.where(learned, slope, 0.0) * np.minimum(beyond, np.where(learned, reach, 0.0)))
-        extra = np.sum(size ** 2, axis=1)[:, None, None] / 3.0 * np.eye(3)          # (n, 3, 3)
+        size = learned_sizes(beyond, (level, slope, reach))
+        extra = combined_size(size, norm_p)[:, None, None] ** 2 / 3.0 * np.eye(3)    # (n, 3, 3)
         grow = np.where(learned, 0.0, grow)
     scale = float(np.sqrt(max(np.trace(np.asarray(unexplained, float)), 0.0) / 3.0))
     lever = np.linalg.norm(Jq, axis=1)                                               # (n, N) mm/rad
@@ -342,6 +346,76 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     sigma = grow * np.sqrt((scale / np.maximum(lever, 1e-9)) ** 2 + spread ** 2)     # rad
     cols = (Jq if Jturn is None else Jturn) * sigma[:, None, :]
     return np.einsum("nkj,nlj->nkl", cols, cols) + extra
+
+
+def combined_size(size, norm_p: float = 2.0) -> np.ndarray:
+    """The size of several joints' errors beyond their ranges together (n,): the ``norm_p``-norm of each pose's
+    sizes ``size`` (n, N) (1: they add; 2: in quadrature, independent errors; ``inf``: the largest alone)."""
+    size = np.asarray(size, float)
+    if size.shape[1] == 0:
+        return np.zeros(size.shape[0])
+    if np.isinf(norm_p):
+        return size.max(axis=1)
+    return np.sum(size ** norm_p, axis=1) ** (1.0 / norm_p)
+
+
+def learned_sizes(beyond_deg, growth) -> np.ndarray:
+    """Each joint's learned error size (n, N) at ``beyond_deg`` (n, N) deg beyond its range (:func:`extrapolation_growth`:
+    ``growth`` (level, slope, reach)); 0 where not learned (NaN)."""
+    b = np.asarray(beyond_deg, float)
+    level, slope, reach = (np.asarray(g, float) for g in growth)
+    learned = np.isfinite(level) & np.isfinite(slope) & np.isfinite(reach)
+    return (np.where(learned, level, 0.0) * _ramp(b)
+            + np.where(learned, slope, 0.0) * np.minimum(b, np.where(learned, reach, 0.0)))
+
+
+#: The combinations of several joints' learned errors :func:`extrapolation_combination` chooses among (the exponent
+#: of their norm: 1 they add, 2 in quadrature, ``inf`` the largest alone)
+EXTRAPOLATION_NORMS = (1.0, 1.5, 2.0, 3.0, 4.0, 8.0, np.inf)
+
+
+def extrapolation_combination(pairs: list[dict], S_in, factor: float, growth, key: str = "position_mm") -> float:
+    """How the learned errors of several joints beyond their ranges combine, learned from the pair splits
+    (:func:`region_pair_errors`): the sharpest norm of :data:`EXTRAPOLATION_NORMS` (the largest exponent) at which
+    ``factor radius95(S_in + combined_size^2 / 3 I)`` holds 95 % of the judged errors of the poses that lie beyond
+    two or more joints' refitted ranges, each joint's size from ``growth`` (:func:`extrapolation_growth`); 1 (they
+    add) when none does. Each joint's own size already holds 95 % of its splits' errors alone; whether the errors
+    of several joints add up (quadrature, or more) or one of them makes most of it (the largest) differs from model
+    to model, and the pair splits show which.
+
+    Parameters
+    ----------
+    pairs : list of dict (:func:`region_pair_errors`)
+    S_in : ndarray, shape (n, 3, 3): each sample pose's in-range covariance (mm^2, or mrad^2)
+    factor : float, the coverage factor of the stated radius
+    growth : (level, slope, reach), ndarrays (N,) (:func:`extrapolation_growth`)
+    key : ``"position_mm"`` or ``"orientation_mrad"``
+
+    Returns
+    -------
+    float: the exponent (``inf``: the largest alone); 2 (in quadrature) when the pair splits judged fewer than
+    :data:`SPLIT_MIN_POSES` poses beyond two or more joints.
+    """
+    sizes, errors, idx = [], [], []
+    for s in pairs:
+        if s.get(key) is None:
+            continue
+        several = np.sum(np.asarray(s["beyond_deg"]) > 0, axis=1) >= 2
+        sizes.append(learned_sizes(np.asarray(s["beyond_deg"])[several], growth))
+        errors.append(np.linalg.norm(np.asarray(s[key])[several], axis=1))
+        idx.append(np.asarray(s["judged"])[several])
+    idx = np.concatenate(idx) if idx else np.zeros(0, int)
+    if idx.size < SPLIT_MIN_POSES:
+        return 2.0
+    size, r = np.concatenate(sizes), np.concatenate(errors)
+    S = np.asarray(S_in, float)[idx]
+    radius = _radius95_table(P95)
+    lam = np.linalg.eigvalsh(S)
+    for p in sorted(EXTRAPOLATION_NORMS, reverse=True):
+        u = factor * radius(lam + (combined_size(size, p) ** 2 / 3.0)[:, None])
+        if np.mean(r <= u) >= P95:
+            return float(p)
+    return float(min(EXTRAPOLATION_NORMS))
 
 
 def _ramp(beyond_deg) -> np.ndarray:
@@ -372,19 +446,72 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
     (m, 3) their orientation errors (a 6-DoF fit; else None). Empty when the model has no fitted
     directions or too few poses.
     """
+    q = np.asarray(data.q_deg, float)
+    cases = []
+    for j in range(q.shape[1]):
+        lo_cut, hi_cut = np.quantile(q[:, j], [1.0 - quantile, quantile])
+        for fitted, up in ((q[:, j] <= hi_cut, True), (q[:, j] >= lo_cut, False)):
+            cases.append(((j, up), fitted, ~fitted))
+    out = []
+    for (j, up), fitted, judged, errors in _split_refits(model, data, cases):
+        edge = q[fitted, j].max() if up else q[fitted, j].min()
+        out.append({"joint": j + 1, "judged": np.flatnonzero(judged), "beyond_deg": np.abs(q[judged, j] - edge),
+                    **errors})
+    return out
+
+
+def region_pair_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[dict]:
+    """How a fitted model errs beyond the range of two joints at once, learned from its own sample poses: for each
+    pair of joints and each of their four sides, the model refitted (as :func:`region_split_errors` refits) on the
+    poses inside both joints' ``quantile`` cuts and judged on the poses beyond both.
+
+    Parameters
+    ----------
+    model : RobotErrorModel, fitted on ``data``
+    data : RobotData, n poses (``q_deg`` (n, N) deg)
+    quantile : float
+
+    Returns
+    -------
+    list of dict, one a pair and sides: ``joints`` (two, 1-based), ``judged`` (m,) indices, ``beyond_deg`` (m, N)
+    how far each judged pose lies beyond the refitted poses' range of every joint (deg, 0 inside), ``position_mm``
+    (m, 3) mm and ``orientation_mrad`` (m, 3) mrad or None. Pairs whose sides judged no pose are left out.
+    """
+    q = np.asarray(data.q_deg, float)
+    N = q.shape[1]
+    cuts = [np.quantile(q[:, j], [1.0 - quantile, quantile]) for j in range(N)]
+    inside = [(q[:, j] <= cuts[j][1], q[:, j] >= cuts[j][0]) for j in range(N)]
+    cases = []
+    for j in range(N):
+        for k in range(j + 1, N):
+            for fj in inside[j]:
+                for fk in inside[k]:
+                    cases.append(({"joints": (j + 1, k + 1)}, fj & fk, ~fj & ~fk))
+    out = []
+    for case, fitted, judged, errors in _split_refits(model, data, cases):
+        lo, hi = q[fitted].min(axis=0), q[fitted].max(axis=0)
+        beyond = np.maximum(np.maximum(lo - q[judged], q[judged] - hi), 0.0)
+        out.append(dict(case, judged=np.flatnonzero(judged), beyond_deg=beyond, **errors))
+    return out
+
+
+def _split_refits(model, data, cases):
+    """The linearised refits of :func:`region_split_errors` and :func:`region_pair_errors`: for each case
+    ``(label, fitted, judged)`` (boolean masks (n,) of the poses refitted on and judged) with at least one judged
+    pose and :data:`SPLIT_MIN_POSES` fitted ones, yields ``(label, fitted, judged, errors)``, ``errors`` the judged
+    poses' ``position_mm`` (m, 3) and ``orientation_mrad`` (m, 3, or None)."""
     from .gauss_newton import steps_without
     from .normal import scaled_min_norm_step
 
     B = getattr(model, "basis_", None)
     if B is None or np.asarray(B).shape[1] == 0 or data.n < 2 * SPLIT_MIN_POSES:
-        return []
+        return
     B = np.asarray(B, float)
     Pen = np.asarray(getattr(model, "penalty_", np.zeros((0, B.shape[0]))), float)
     d = model.design(data)
     d.keep_last = True                    # the Jacobian at the solution: made once for every split
     sparse = model.solves_on_normal_equations(data)
     x = np.asarray(model.coef_, float)
-    q = np.asarray(data.q_deg, float)
     n = data.n
     # the residual and Jacobian at the solution (the one the steps use): each refit's residuals are their linear
     # change, as the step is the linearised refit
@@ -401,30 +528,34 @@ def region_split_errors(model, data, quantile: float = SPLIT_QUANTILE) -> list[d
         JB = J0 @ B
         PB = Pen @ B
         H_all, g_all = JB.T @ JB + PB.T @ PB, JB.T @ F0 + PB.T @ (Pen @ x)
-    out = []
-    for j in range(q.shape[1]):
-        lo_cut, hi_cut = np.quantile(q[:, j], [1.0 - quantile, quantile])
-        for fitted, up in ((q[:, j] <= hi_cut, True), (q[:, j] >= lo_cut, False)):
-            judged = ~fitted
+    try:
+        for label, fitted, judged in cases:
             if not judged.any() or fitted.sum() < SPLIT_MIN_POSES:
                 continue
-            edge = q[fitted, j].max() if up else q[fitted, j].min()
             rows = np.repeat(fitted, 3)
             if d.oriented:
                 rows = np.concatenate([rows, rows])
+            # only the judged poses' rows of the refit's residuals are needed
+            at = np.flatnonzero(np.repeat(judged, 3))
+            if d.oriented:
+                at = np.concatenate([at, 3 * n + at])
             if sparse:
                 xs, _ = steps_without(d, B, Pen, x, rows.astype(float), sparse, data.measured_mm, max_steps=1)
-                F = F0 + J0 @ (xs - x)
+                F = F0[at] + J0[at] @ (xs - x)
             else:
-                Jc, Fc = JB[~rows], F0[~rows]
-                dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
-                F = F0 + JB @ dz
-            out.append({"joint": j + 1, "judged": np.flatnonzero(judged),
-                        "beyond_deg": np.abs(q[judged, j] - edge),
-                        "position_mm": F[:3 * n].reshape(n, 3)[judged],
-                        "orientation_mrad": (F[3 * n:].reshape(n, 3)[judged] / d.weight) if d.oriented else None})
-    d.keep_last, d._last = False, None
-    return out
+                if 2 * rows.sum() < rows.size:     # fewer rows refitted on than left out: their own normal equations
+                    Jc, Fc = JB[rows], F0[rows]
+                    dz, _ = scaled_min_norm_step(Jc.T @ Jc + PB.T @ PB, Jc.T @ Fc + PB.T @ (Pen @ x))
+                else:
+                    Jc, Fc = JB[~rows], F0[~rows]
+                    dz, _ = scaled_min_norm_step(H_all - Jc.T @ Jc, g_all - Jc.T @ Fc)
+                F = F0[at] + JB[at] @ dz
+            m = int(judged.sum())
+            yield label, fitted, judged, {
+                "position_mm": F[:3 * m].reshape(m, 3),
+                "orientation_mrad": (F[3 * m:].reshape(m, 3) / d.weight) if d.oriented else None}
+    finally:
+        d.keep_last, d._last = False, None
 
 
 def extrapolation_growth(splits: list[dict], S_in, factor: float, widths, key: str = "position_mm") -> tuple:
@@ -720,6 +851,9 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
     N = np.asarray(sample.q_deg).shape[1]
     widths = np.ptp(np.asarray(sample.q_deg, float), axis=0)
     level, slope, reach = extrapolation_growth(splits, S_cv, factor, widths)
+    # how the joints' sizes combine for a pose beyond several ranges, learned from the pair splits
+    pairs = region_pair_errors(model, sample) if np.isfinite(level).sum() >= 2 else []
+    norm_p = extrapolation_combination(pairs, S_cv, factor, (level, slope, reach))
     judged = [int(sum(s["judged"].size for s in splits if s["joint"] == j + 1)) for j in range(N)]
     live = [k for k in range(len(model.names_)) if sd[k] > 0]
     pred = {"parameters": [model.names_[k] for k in live],
@@ -741,11 +875,16 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
             "extrapolation_mm": _json_rates(level),
             "extrapolation_mm_per_deg": _json_rates(slope),
             "extrapolation_reach_deg": _json_rates(reach),
+            # the norm the joints' sizes combine by (2: quadrature; None: the largest alone), learned from the pairs
+            "extrapolation_combination_p": _json_norm(norm_p),
+            "extrapolation_pair_judged_poses": int(sum(np.sum(np.sum(s["beyond_deg"] > 0, axis=1) >= 2)
+                                                       for s in pairs)),
             "method": ("u95_mm = coverage_factor x the 95 % radius of a 3-D Gaussian error whose covariance is the "
                        "parameters' covariance propagated to the pose + the unexplained scatter of the "
                        f"{n_folds}-fold cross-validation + beyond the sampled joint ranges an error growing with "
                        "the distance beyond them to the size the fit's own region splits show (each joint: refitted "
-                       f"below its {SPLIT_QUANTILE:g} quantile, judged above, and the mirror; docs/uncertainty.md); "
+                       f"below its {SPLIT_QUANTILE:g} quantile, judged above, and the mirror; several joints' sizes "
+                       "combined by the norm under which the pair splits' judged errors are held; docs/uncertainty.md); "
                        "coverage_factor: the 0.95 quantile of the cross-validated residuals over their own Gaussian "
                        "radius")}
     if cv_orientation is not None and "tool_ex" in model.names_:
@@ -757,8 +896,10 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
         pred["unexplained_orientation_mrad2"] = Uo.tolist()
         pred["unexplained_orientation_rms_arcsec"] = float(np.sqrt(max(np.trace(Uo), 0.0))) * ARCSEC_PER_MRAD_EXACT
         pred["orientation_coverage_factor"] = float(np.quantile(ro / np.where(bo > 0, bo, np.inf), P95)) if n else 1.0
-        level_o, slope_o, _ = extrapolation_growth(splits, at_o + Uo, pred["orientation_coverage_factor"], widths,
-                                                "orientation_mrad")
+        level_o, slope_o, reach_o = extrapolation_growth(splits, at_o + Uo, pred["orientation_coverage_factor"],
+                                                         widths, "orientation_mrad")
+        pred["extrapolation_combination_p_orientation"] = _json_norm(extrapolation_combination(
+            pairs, at_o + Uo, pred["orientation_coverage_factor"], (level_o, slope_o, reach_o), "orientation_mrad"))
         pred["extrapolation_arcsec"] = _json_rates(level_o * ARCSEC_PER_MRAD_EXACT)
         pred["extrapolation_arcsec_per_deg"] = _json_rates(slope_o * ARCSEC_PER_MRAD_EXACT)
         pred["method_orientation"] = ("u95_arcsec: the same for the probe frame's orientation (its rows of the "
@@ -774,6 +915,19 @@ def uncertainty_document(model, sample, cv_residuals, n_folds: int, cv_orientati
 def _json_rates(g) -> list:
     """Rates (N,) as JSON: a number each, None where not learned (NaN)."""
     return [float(v) if np.isfinite(v) else None for v in np.asarray(g, float)]
+
+
+def _json_norm(p: float):
+    """A combination's exponent as JSON: a number, None for the largest alone (``inf``)."""
+    return None if np.isinf(p) else float(p)
+
+
+def _norm(block: dict, key: str) -> float:
+    """A fit JSON's combination exponent (:func:`_json_norm`): ``inf`` for None, 2 (quadrature) when absent."""
+    if key not in block:
+        return 2.0
+    v = block[key]
+    return np.inf if v is None else float(v)
 
 
 def _rates(block: dict, key: str, scale: float = 1.0):
@@ -819,12 +973,13 @@ def load_prediction(doc: dict, model):
         factor_o = float(block.get("orientation_coverage_factor", 1.0))
         growth = _growth(block, "extrapolation_mm", "extrapolation_mm_per_deg")
         growth_o = _growth(block, "extrapolation_arcsec", "extrapolation_arcsec_per_deg", ARCSEC_PER_MRAD_EXACT)
+        norm_p, norm_p_o = _norm(block, "extrapolation_combination_p"), _norm(block, "extrapolation_combination_p_orientation")
     except (KeyError, TypeError, ValueError):
         return None
     if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(U)) and np.isfinite(factor) and np.all(np.isfinite(spread))):
         return None
     out = {"covariance": cov, "unexplained": U, "factor": factor, "spread_rad": spread if spread.size else None,
-           "growth": growth, "growth_orientation": growth_o}
+           "growth": growth, "growth_orientation": growth_o, "norm_p": norm_p, "norm_p_orientation": norm_p_o}
     if Uo is not None and np.all(np.isfinite(Uo)) and np.isfinite(factor_o):
         out.update(unexplained_orientation=Uo, factor_orientation=factor_o)
     return out
@@ -850,7 +1005,7 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
     Sp = prediction_covariance(model_jacobian(model, data, mv), cov_mv)
     Jq = joint_jacobian(model, data)
     Se = extrapolation_covariance(data.q_deg, sampled, Jq, stated["unexplained"], stated.get("spread_rad"),
-                                  growth=stated.get("growth"))
+                                  growth=stated.get("growth"), norm_p=stated.get("norm_p", 2.0))
     S = Sp + stated["unexplained"][None] + Se
     tr = lambda M: np.sqrt(np.clip(np.einsum("nkk->n", M), 0.0, None))  # noqa: E731
     out = {"u95_mm": stated["factor"] * radius95(S), "parameters_mm": tr(Sp),
@@ -860,7 +1015,8 @@ def u95(model, data, stated: dict, sampled: dict) -> dict:
         So = prediction_covariance(orientation_jacobian(model, data, mv), cov_mv)
         So = So + stated["unexplained_orientation"][None] + extrapolation_covariance(
             data.q_deg, sampled, Jq, stated["unexplained"], stated.get("spread_rad"),
-            Jturn=joint_jacobian(model, data, turn=True), growth=stated.get("growth_orientation"))
+            Jturn=joint_jacobian(model, data, turn=True), growth=stated.get("growth_orientation"),
+            norm_p=stated.get("norm_p_orientation", 2.0))
         out["u95_arcsec"] = stated["factor_orientation"] * radius95(So) * ARCSEC_PER_MRAD_EXACT
     return out
 

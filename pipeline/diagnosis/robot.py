@@ -61,27 +61,26 @@ def pose_folds(data, n_folds: int = N_FOLDS) -> np.ndarray:
     """Each pose's fold by pose (n,) int: :func:`pipeline.robot.model.estimate.fold_ids`; with several
     campaigns, within each campaign (each fold holds out a share of every campaign's poses, so each
     campaign's own tracker frame is fitted on the rest of its poses)."""
-    ids = campaigns_of(data)
-    if ids is None:
-        return fold_ids(data.n, n_folds)
-    out = np.empty(data.n, int)
-    for k in ids:
-        m = data.campaign == k
-        out[m] = fold_ids(int(m.sum()), n_folds)
-    return out
+    return _within_campaigns(data, lambda m: fold_ids(int(m.sum()), n_folds))
 
 
 def campaign_region_folds(data, n_folds: int = N_FOLDS) -> np.ndarray:
     """Each pose's region of joint space (n,) int: :func:`pipeline.diagnosis.linear.region_folds`; with several
     campaigns, the regions of each campaign's own sampled joint box (fold r holds out region r of every
     campaign at once: what a gain is judged on is each campaign's poses away from those it was fitted on)."""
+    return _within_campaigns(data, lambda m: region_folds(data.q_deg[m], n_folds))
+
+
+def _within_campaigns(data, folds_of) -> np.ndarray:
+    """``folds_of(mask)`` (the folds of the poses in ``mask``, (m,) int) applied to every campaign's poses
+    on their own (one campaign: to all of them at once), shape (n,) int."""
     ids = campaigns_of(data)
     if ids is None:
-        return region_folds(data.q_deg, n_folds)
+        return folds_of(np.ones(data.n, bool))
     out = np.empty(data.n, int)
     for k in ids:
         m = data.campaign == k
-        out[m] = region_folds(data.q_deg[m], n_folds)
+        out[m] = folds_of(m)
     return out
 
 

@@ -28,8 +28,8 @@ def test_the_elbow_singularity_is_named():
 
 
 def test_the_elbow_rule_is_a_spherical_wrists():
-    """The rule is for arms whose wrist axes meet (FANUC, KUKA, ABB); a UR10's do not, and its refused rows
-    keep their words (results/real/C_corrected.csv, whose first row is a UR10 stretched out, the same bytes)."""
+    """The elbow rule is for arms whose wrist axes meet (FANUC, KUKA, ABB); a UR10's do not (its singular poses
+    are named by the rank rule below)."""
     from conftest import ROOT
     from pipeline.robot.arm.kinematics import load_robot
 
@@ -62,3 +62,18 @@ def test_the_shoulder_singularity_is_named():
     assert words.startswith("the shoulder singularity: the wrist point is 0.0 mm from joint 1's axis"), words
     q3_away = q[2] + math.degrees(100.0 / 1590.0)
     assert singularity(robot, np.array([30.0, 29.5, q3_away, -89.0, -18.0, -14.0])) == ""
+
+
+def test_a_ur10s_singular_pose_is_named_by_the_rank_its_joints_lose():
+    """A UR10's wrist axes do not meet, so neither the wrist (joints 4 and 6 on one line) nor the elbow rule
+    applies; yet at joint 5 = 0 with the arm straight up (results/real/C_corrected.csv's first row, refused as
+    "does not reach the point ... after 0 iterations") its joints move the flange in fewer than six directions:
+    the words say so and name the parallel joints. A pose with every joint away from it: no words."""
+    from conftest import ROOT
+    from pipeline.robot.arm.kinematics import load_robot
+
+    robot = load_robot(ROOT / "raw/real/ur10-ipa/robot.toml")
+    words = singularity(robot, np.array([-180.0, -90.0, 0.0, -90.0, 0.0, 0.0]))
+    assert words.startswith("at or near a singular pose: the joints move the flange in only "), words
+    assert "joints 2, 3, 4 and 6" in words, words
+    assert singularity(robot, np.array([-234.1, -154.4, 97.4, -116.3, 56.9, -3.8])) == ""

@@ -265,7 +265,8 @@ def singularity(robot, q_deg) -> str:
     (nearly) the same line, e.g. joints 4 and 6 at joint 5 = 0, the wrist singularity; a six-joint arm's
     elbow stretched out or folded back (a spherical wrist; joints 2 and 3 parallel, the wrist point within
     :data:`SINGULAR_DEG` of the line through their axes); its shoulder (the wrist point within
-    :data:`SHOULDER_MM` of joint 1's axis); "" when none.
+    :data:`SHOULDER_MM` of joint 1's axis); any other pose where the joints move the flange in fewer than six
+    directions (:func:`_rank_lost`: a UR's, whose wrist axes do not meet); "" when none.
 
     Parameters
     ----------
@@ -317,7 +318,38 @@ def singularity(robot, q_deg) -> str:
         if off_mm <= SHOULDER_MM:
             return (f"the shoulder singularity: the wrist point is {off_mm:.1f} mm from joint 1's axis, so joint 1 "
                     "hardly moves it and a sideways correction takes a large turn of joint 1")
-    return ""
+    return _rank_lost(axes, data.oMi[n].translation * 1000.0)
+
+
+#: the flange's motions of a pose (each joint's, lengths over the arm's reach there) span fewer than six
+#: directions when a singular value is below this share of the largest (:func:`_rank_lost`)
+RANK_RTOL = 1e-3
+
+
+def _rank_lost(axes, flange_mm) -> str:
+    """Any other singular pose (e.g. a UR's, whose wrist axes do not meet: joints 2, 3, 4 and 6 parallel at joint
+    5 = 0): the joints' motions of the flange, ``[(point (3,) mm, unit direction (3,)), ...]`` about
+    ``flange_mm`` (3,), span fewer than the six (three for fewer joints) directions; "" when they span them all."""
+    f = np.asarray(flange_mm, float)
+    reach = max(max(float(np.linalg.norm(f - p)) for p, _ in axes), 1.0)
+    J = np.array([np.concatenate([np.cross(u, f - p) / reach, u]) for p, u in axes]).T      # (6, N)
+    s = np.linalg.svd(J, compute_uv=False)
+    full = min(6, len(axes))
+    rank = int((s > RANK_RTOL * s[0]).sum())
+    if rank >= full:
+        return ""
+    groups: list[list[int]] = []          # joints (0-based) whose axes are parallel within SINGULAR_DEG
+    for i, (_, u) in enumerate(axes):
+        for g in groups:
+            if np.linalg.norm(np.cross(axes[g[0]][1], u)) <= np.sin(np.deg2rad(SINGULAR_DEG)):
+                g.append(i)
+                break
+        else:
+            groups.append([i])
+    sets = [", ".join(str(j + 1) for j in g[:-1]) + f" and {g[-1] + 1}" for g in groups if len(g) > 1]
+    said = (f"joints {sets[0]} turn about parallel axes" + "".join(f", and joints {t}" for t in sets[1:])) if sets else ""
+    return (f"at or near a singular pose: the joints move the flange in only {rank} of {full} directions here"
+            + (f" ({said})" if said else "") + ", so a correction along the others is not determined")
 
 
 def _spherical_wrist(axes) -> bool:

@@ -86,7 +86,6 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     holds there too (docs/planning.md).
     """
     from ..core.errors import InputError
-    from ..core.files import write_json, write_text
     from ..plan.api import plan_from_pool
     from ..plan.pool import read_pool
     from ..plan.reveal import parse_reveal
@@ -124,11 +123,7 @@ def plan_cmd(robot_path, tip, base, tool_mm, spec_path, pool_path, n, out_path, 
     six = probe == "6dof" or (measured is not None and measured.has_orientation)
     text, summary = plan_from_pool(robot, spec.effects, pool, n, measured, reveal, noise_mm, say, criterion,
                                    noise_arcsec if six else None)
-    if six:
-        summary["probe"] = {"kind": "6dof", "noise_mm": noise_mm, "noise_arcsec": noise_arcsec}
-    write_text(out_path, text)
-    if json_path:
-        write_json(json_path, summary)
+    _write_plan(out_path, json_path, text, summary, six, noise_mm, noise_arcsec)
     pred = summary["predicted_rms_mm"]
     click.echo(f"{out_path}: {summary['n']} poses ({summary['criterion']}); {summary['parameters_identifiable']} of "
                f"{summary['n_params']} parameters identified"
@@ -206,7 +201,6 @@ def _plan_region(robot, robot_path, model_path, spec_path, pool_path, region_pat
     from pathlib import Path
 
     from ..core.errors import InputError
-    from ..core.files import write_json, write_text
     from ..plan.api import plan_for_region
     from ..plan.pool import read_pool
     from ..robot.campaign.ingest import robot_data_sets
@@ -245,11 +239,7 @@ def _plan_region(robot, robot_path, model_path, spec_path, pool_path, region_pat
                                     noise_arcsec if six else None, region_pay)
     summary["model"] = str(model_path)
     summary["region"]["source"] = str(region_path) if region_path is not None else str(pool_path)
-    if six:
-        summary["probe"] = {"kind": "6dof", "noise_mm": noise_mm, "noise_arcsec": noise_arcsec}
-    write_text(out_path, text)
-    if json_path:
-        write_json(json_path, summary)
+    _write_plan(out_path, json_path, text, summary, six, noise_mm, noise_arcsec)
     reg = summary["region"]
     click.echo(f"{out_path}: {summary['n']} poses (V-optimal over the region's {reg['n']} poses, a new campaign "
                f"with its own tracker frame); predicted error over the region from the parameters' scatter "
@@ -257,3 +247,14 @@ def _plan_region(robot, robot_path, model_path, spec_path, pool_path, region_pat
                f"noise; path {summary['path_deg']:.0f} deg", err=True)
     for note in summary["notes"]:
         click.echo(f"note: {note}", err=True)
+
+
+def _write_plan(out_path, json_path, text: str, summary: dict, six: bool, noise_mm: float, noise_arcsec: float) -> None:
+    """A plan's poses (PLAN.csv) and, with ``--json``, its summary, which names a 6-DoF probe's noise (``six``)."""
+    from ..core.files import write_json, write_text
+
+    if six:
+        summary["probe"] = {"kind": "6dof", "noise_mm": noise_mm, "noise_arcsec": noise_arcsec}
+    write_text(out_path, text)
+    if json_path:
+        write_json(json_path, summary)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..robot.model.rigid import assumptions, model_payload
-from ..robot.model.uncertainty import load_prediction
+from ..robot.model.uncertainty import beyond_deg, load_prediction
 from .robot import Correction, ModelKinematics, correct_recorded
 from .targets import Targets, read_targets
 from .write import corrected_csv
@@ -44,7 +44,7 @@ def outside_region(q_deg, sampled: dict, u95_mm=None) -> list:
     """
     q = np.atleast_2d(np.asarray(q_deg, float))
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
-    b = np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    b = beyond_deg(q, sampled)
     out = []
     for k, row in enumerate(b):
         far = np.flatnonzero(row > 1e-9)      # the tolerance of pipeline.robot.model.predict.outside_range

@@ -32,6 +32,7 @@ from ...core.se3 import angle_arcsec, orientation_errors
 from .estimator import RobotErrorModel
 from .estimate import point_errors
 from .outliers import describe, find_wild
+from .uncertainty import beyond_deg
 from ...core.se3 import rigid_fit, rotation_angle_deg
 from ..campaign.frame import apply, from_matrix, to_matrix
 from ..campaign.ingest import robot_data_sets
@@ -83,11 +84,8 @@ def beyond_range(q_deg, rng: dict) -> list:
     ----------
     q_deg : ndarray, shape (n, N), deg
     """
-    q = np.asarray(q_deg, float)
-    lo, hi = np.asarray(rng["lower_deg"], float), np.asarray(rng["upper_deg"], float)
-    b = np.maximum(np.maximum(lo - q, q - hi), 0.0)
     out = []
-    for row in b:
+    for row in beyond_deg(q_deg, rng):
         far = np.flatnonzero(row > 1e-9)
         out.append(None if not far.size else
                    {"joint": int(np.argmax(row)) + 1, "beyond_deg": float(row.max()),

@@ -289,6 +289,19 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
     return (V * np.clip(w, 0.0, None)) @ V.T
 
 
+def beyond_deg(q_deg, sampled: dict) -> np.ndarray:
+    """How far each joint of each pose lies beyond the joint ranges ``sampled`` (``lower_deg`` / ``upper_deg``
+    (N,), :func:`pipeline.robot.model.predict.sampled_range`), shape (n, N), deg; 0 inside them.
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+    """
+    q = np.asarray(q_deg, float)
+    lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
+    return np.maximum(np.maximum(lo - q, q - hi), 0.0)
+
+
 def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None,
                              growth=None, norm_p: float = 2.0) -> np.ndarray:
     """What a pose beyond the sampled joint ranges adds (3 x 3 per pose, mm^2; 0 inside them).
@@ -330,7 +343,7 @@ def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=N
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
     width = np.maximum(hi - lo, 1e-6)
-    beyond = np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    beyond = beyond_deg(q, sampled)
     grow = np.minimum(beyond / (EXTRAPOLATION_WIDTHS * width), 1.0)                 # (n, N)
     level, slope, reach = ((np.full(q.shape[1], np.nan),) * 3 if growth is None
                            else (np.asarray(g, float) for g in growth))

@@ -43,6 +43,10 @@ def test_the_effect_that_differs_is_the_one_whose_swap_closes_the_gap():
         assert by[k]["b_into_a_mm"] == pytest.approx(out["a_mm"], rel=1e-6)  # the others change nothing
     assert by[("joint_map", (2,))]["joint_rms_arcsec"][1] > 10.0
     assert max(by[("joint_map", (2,))]["joint_rms_arcsec"][j] for j in (0, 2, 3, 4, 5)) == 0.0
+    # joint 2's whole angle error swapped closes it too; any other joint's changes nothing
+    angles = {e["joint"]: e for e in out["joint_angles"]}
+    assert angles[2]["b_into_a_mm"] < 1e-6 and angles[2]["rms_arcsec"] > 10.0
+    assert all(angles[j]["b_into_a_mm"] == pytest.approx(out["a_mm"], rel=1e-6) for j in (1, 3, 4, 5, 6))
 
 
 def test_an_effect_is_known_by_name_joints_and_orders_not_by_its_grid():

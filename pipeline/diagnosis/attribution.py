@@ -76,7 +76,8 @@ def effect_swaps(robot, fit_a, fit_b, data, measured_mm, register_on, judged) ->
     dict with ``a_mm``, ``b_mm`` (each model's RMS error on the judged poses) and ``effects``: one entry per shared
     effect, ``{"effect": name, "joints", "b_into_a_mm": model a with this effect's terms from b, "a_into_b_mm": model b
     with this effect from a, "joint_rms_arcsec": RMS over the judged poses of the two effects' difference in each
-    joint angle}``, in model a's order.
+    joint angle}``, in model a's order; ``joint_angles``: one entry per joint, ``{"joint", "b_into_a_mm",
+    "a_into_b_mm", "rms_arcsec"}``, the same with the joint's whole angle error (every effect's term on it) swapped.
     """
     measured_mm = np.asarray(measured_mm, float)
     register_on, judged = np.asarray(register_on, bool), np.asarray(judged, bool)
@@ -93,6 +94,19 @@ def effect_swaps(robot, fit_a, fit_b, data, measured_mm, register_on, judged) ->
 
     out = {"a_mm": judge(ta, tb, keys_a, None), "b_mm": judge(tb, ta, keys_b, None), "effects": []}
     cols = design.idx.joints
+    sum_a, sum_b = sum(ta[k] for k in keys_a), sum(tb[k] for k in keys_b)
+
+    def channel_swap(mine, theirs, c):
+        Q = Q0 + mine
+        Q[:, c] += theirs[:, c] - mine[:, c]
+        return _rms_after_registration(design, Q, measured_mm, register_on, judged)
+
+    # each joint's whole angle error (every effect's term on it: offset, map, compliance, backlash ...), whatever
+    # share each model gave each effect: where effects on one joint trade off, only their sum compares
+    out["joint_angles"] = [{"joint": int(j + 1), "b_into_a_mm": channel_swap(sum_a, sum_b, c),
+                            "a_into_b_mm": channel_swap(sum_b, sum_a, c),
+                            "rms_arcsec": float(np.sqrt(np.mean(((sum_a - sum_b)[judged, c] * 1e3 * ARCSEC_PER_MRAD) ** 2)))}
+                           for j, c in enumerate(cols)]
     for k in shared:
         diff = (ta[k] - tb[k])[:, cols][judged] * 1e3 * ARCSEC_PER_MRAD
         out["effects"].append({"effect": k[0], "joints": list(k[1]), "b_into_a_mm": judge(ta, tb, keys_a, k),

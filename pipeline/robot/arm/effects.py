@@ -894,6 +894,32 @@ JOINT_MAP_SMOOTHING = 1e-4
 #: A pull of every grid value towards zero (relative to the number of poses): a stretch no pose covers
 #: decays to zero within a few knots instead of continuing its neighbours' slope.
 JOINT_MAP_RIDGE = 1e-4
+#: Inside its sampled range a joint map bridges a stretch without sample poses up to this wide by
+#: interpolating between the measured knots on either side; across a wider stretch it fades to zero from
+#: either side over :data:`JOINT_MAP_FADE_DEG`, as beyond the range's ends (two fades: they meet in the middle).
+#: A grid campaign leaves such stretches (a joint held on a lattice of angles, a joint range sampled in lobes):
+#: a knot no pose reaches was a free value the fit left at 0, a comb of spikes and zeros between the lattice.
+JOINT_MAP_GAP_DEG = 2 * JOINT_MAP_FADE_DEG
+
+
+def sampled_gaps(q_deg, step_deg) -> list:
+    """Stretches between consecutive sampled angles of one joint in which a map knot would have no pose within
+    a grid step of it (wider than two steps).
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n,), deg
+        The joint's sampled angles.
+    step_deg : float, deg
+        The map's grid step.
+
+    Returns
+    -------
+    list of [low, high] (deg, rounded to 1e-6 deg as the map's range): the sampled angles on either side.
+    """
+    s = np.unique(np.round(np.asarray(q_deg, float), 6))
+    wide = np.flatnonzero(np.diff(s) > 2.0 * step_deg)
+    return [[float(s[i]), float(s[i + 1])] for i in wide]
 
 
 def joint_map_basis(q_deg, knots, fade_deg=JOINT_MAP_FADE_DEG):
@@ -923,9 +949,23 @@ def joint_map_basis(q_deg, knots, fade_deg=JOINT_MAP_FADE_DEG):
     return B * np.clip(1.0 - np.maximum(beyond, 0.0) / fade_deg, 0.0, 1.0)[:, None]
 
 
+def curvature_rows(knots, segments, step_deg) -> np.ndarray:
+    """Second divided differences of a map's values on uneven ``knots`` (K,) deg, within each segment (index
+    arrays), scaled to a grid of ``step_deg``: the rows [1, -2, 1] on even knots. Shape (m, K)."""
+    rows = []
+    for seg in segments:
+        for a, b, c in zip(seg[:-2], seg[1:-1], seg[2:]):
+            h1, h2 = knots[b] - knots[a], knots[c] - knots[b]
+            r = np.zeros(len(knots))
+            scale = step_deg ** 2 * 2.0 / (h1 + h2)
+            r[a], r[b], r[c] = scale / h1, -scale * (1.0 / h1 + 1.0 / h2), scale / h2
+            rows.append(r)
+    return np.array(rows) if rows else np.zeros((0, len(knots)))
+
+
 class JointMap(RobotEffect):
     name = "joint_map"
-    allowed_params = ("joints", "step_deg", "smoothing", "range_deg")
+    allowed_params = ("joints", "step_deg", "smoothing", "range_deg", "gaps_deg")
     diagnosis_order = 6
     overlaps_with = ("chebyshev", "joint_harmonic")
     on_joint_angle = True
@@ -960,6 +1000,12 @@ class JointMap(RobotEffect):
                 isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v) and v[0] <= v[1]
                 for v in rng.values())):
             problems.append("effect 'joint_map': range_deg must map joint numbers to [low, high] in deg")
+        gaps = self.params.get("gaps_deg")
+        if gaps is not None and (not isinstance(gaps, dict) or not all(
+                isinstance(g, list) and all(isinstance(v, list) and len(v) == 2 and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) for x in v) and v[0] <= v[1] for v in g)
+                for g in gaps.values())):
+            problems.append("effect 'joint_map': gaps_deg must map joint numbers to lists of [low, high] in deg")
         return problems
 
     def prepared(self, robot, data):
@@ -968,15 +1014,44 @@ class JointMap(RobotEffect):
         q = np.asarray(data.q_deg, float)
         rng = {str(j): [float(np.round(q[:, j - 1].min(), 6)), float(np.round(q[:, j - 1].max(), 6))]
                for j in self.joints(robot)}
-        return type(self)(**{**self.params, "range_deg": rng})
+        gaps = {str(j): g for j in self.joints(robot) if (g := sampled_gaps(q[:, j - 1], self.step()))}
+        params = {k: v for k, v in self.params.items() if k != "gaps_deg"}
+        return type(self)(**{**params, "range_deg": rng, **({"gaps_deg": gaps} if gaps else {})})
+
+    def gaps(self, j: int) -> list:
+        """The stretches [low, high] (deg) of joint ``j``'s sampled range without sample poses (``gaps_deg``)."""
+        return [list(map(float, g)) for g in (self.params.get("gaps_deg") or {}).get(str(j), [])]
 
     def knots(self, j: int) -> np.ndarray:
+        """Joint ``j``'s knots (deg, increasing): the grid over its sampled range, without the knots that lie in a
+        gap (:meth:`gaps`) with no sample pose within a grid step of them."""
         rng = self.params.get("range_deg")
         if rng is None or str(j) not in rng:
             raise ValueError("joint_map: the joint range is set when the model is fitted (prepared)")
         lo, hi = rng[str(j)]
         k = max(2, int(np.ceil((hi - lo) / self.step() - 1e-9)) + 1)
-        return np.linspace(lo, hi if hi > lo else lo + 1e-6, k)
+        grid = np.linspace(lo, hi if hi > lo else lo + 1e-6, k)
+        keep = np.ones(grid.size, bool)
+        for a, b in self.gaps(j):
+            keep &= ~((grid - self.step() >= a - 1e-9) & (grid + self.step() <= b + 1e-9))
+        return grid[keep]
+
+    def segments(self, j: int) -> list:
+        """Joint ``j``'s knots (:meth:`knots`) split at every gap wider than :data:`JOINT_MAP_GAP_DEG`: index
+        arrays into the knots; the map interpolates within a segment and fades to zero beyond its ends."""
+        kn = self.knots(j)
+        cuts = sorted(0.5 * (a + b) for a, b in self.gaps(j) if b - a > JOINT_MAP_GAP_DEG)
+        side = np.searchsorted(np.asarray(cuts, float), kn)
+        return [np.flatnonzero(side == s) for s in range(len(cuts) + 1) if np.any(side == s)]
+
+    def map_basis(self, j: int, q_deg) -> np.ndarray:
+        """Weight of each of joint ``j``'s knots at the angles ``q_deg`` (n,) deg: shape (n, K); hat functions
+        within each segment (:meth:`segments`), fading to zero beyond a segment's ends."""
+        kn = self.knots(j)
+        B = np.zeros((len(np.asarray(q_deg)), kn.size))
+        for seg in self.segments(j):
+            B[:, seg] = joint_map_basis(q_deg, kn[seg])
+        return B
 
     def parameter_names(self, robot):
         return [f"map{j}_{k:03d}" for j in self.joints(robot) for k in range(len(self.knots(j)))]
@@ -988,7 +1063,7 @@ class JointMap(RobotEffect):
         out = []
         for j in self.joints(robot):
             # each knot's values contiguous (a column of the (n, K) basis is strided)
-            BT = 1e-3 * np.ascontiguousarray(joint_map_basis(data.q_deg[:, j - 1], self.knots(j)).T)
+            BT = 1e-3 * np.ascontiguousarray(self.map_basis(j, data.q_deg[:, j - 1]).T)
             out += [[(idx.joints[j - 1], BT[k])] for k in range(BT.shape[0])]
         return out
 
@@ -997,8 +1072,12 @@ class JointMap(RobotEffect):
 
         blocks = []
         for j in self.joints(robot):
-            K = len(self.knots(j))
-            D2 = np.diff(np.eye(K), 2, axis=0) if K > 2 else np.zeros((0, K))
+            kn = self.knots(j)
+            K = len(kn)
+            if not self.gaps(j):
+                D2 = np.diff(np.eye(K), 2, axis=0) if K > 2 else np.zeros((0, K))
+            else:
+                D2 = curvature_rows(kn, self.segments(j), self.step())
             # curvature (smooth curve) and the mean level (an offset is geometry's dtheta)
             blocks.append(np.vstack([np.sqrt(self.smoothing() * n_poses) * D2, np.sqrt(n_poses) * np.ones((1, K)) / K,
                                      np.sqrt(JOINT_MAP_RIDGE * n_poses) * np.eye(K)]))

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..robot.model.rigid import assumptions, model_payload
-from ..robot.model.uncertainty import beyond_deg, load_prediction
+from ..robot.model.uncertainty import beyond_deg, in_gap, load_prediction
 from .robot import Correction, ModelKinematics, correct_recorded
 from .targets import Targets, read_targets
 from .write import corrected_csv
@@ -40,11 +40,14 @@ def outside_region(q_deg, sampled: dict, u95_mm=None) -> list:
     -------
     list, length n: None inside the region, else ``{"joint": the joint farthest beyond (1-based), "q_deg": its
     angle, "beyond_deg": how far beyond, "range_deg": [low, high] of that joint, "others": {joint: deg beyond} of
-    the other joints beyond theirs, "u95_mm": float or None}``.
+    the other joints beyond theirs, "u95_mm": float or None}`` and, when that joint's angle lies inside its range
+    but in a stretch no sample pose reached (``sampled``'s ``gaps_deg``), ``"gap_deg": [low, high]`` of that
+    stretch (``beyond_deg`` is then the distance to the nearer sampled angle).
     """
     q = np.atleast_2d(np.asarray(q_deg, float))
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
     b = beyond_deg(q, sampled)
+    gaps = in_gap(q, sampled)
     out = []
     for k, row in enumerate(b):
         far = np.flatnonzero(row > 1e-9)      # the tolerance of pipeline.robot.model.predict.outside_range
@@ -56,6 +59,8 @@ def outside_region(q_deg, sampled: dict, u95_mm=None) -> list:
                     "range_deg": [float(lo[j]), float(hi[j])],
                     "others": {int(i) + 1: float(row[i]) for i in far if i != j},
                     "u95_mm": None if u95_mm is None else float(np.asarray(u95_mm, float)[k])})
+        if gaps[k][j] is not None:
+            out[-1]["gap_deg"] = gaps[k][j]
     return out
 
 
@@ -64,8 +69,15 @@ def outside_where(entry: dict, angle: bool = True) -> str:
     calibrated range, the other joints beyond theirs, the stated u95."""
     also = "; ".join(f"joint {j} {d:.3g} deg beyond" for j, d in entry["others"].items())
     lo, hi = entry["range_deg"]
-    return ((f"joint {entry['joint']} at {entry['q_deg']:.3f} deg, {entry['beyond_deg']:.3g} deg beyond "
-             f"[{lo:.2f}, {hi:.2f}]" if angle else f"{entry['beyond_deg']:.3g} deg beyond")
+    if "gap_deg" in entry:
+        a, b = entry["gap_deg"]
+        where = (f"joint {entry['joint']} at {entry['q_deg']:.3f} deg, inside its range but in [{a:.2f}, {b:.2f}], "
+                 f"a stretch no sample pose reached, {entry['beyond_deg']:.3g} deg from the nearer sampled angle"
+                 if angle else f"{entry['beyond_deg']:.3g} deg into a stretch no sample pose reached")
+    else:
+        where = (f"joint {entry['joint']} at {entry['q_deg']:.3f} deg, {entry['beyond_deg']:.3g} deg beyond "
+                 f"[{lo:.2f}, {hi:.2f}]" if angle else f"{entry['beyond_deg']:.3g} deg beyond")
+    return (where
             + (f" (also {also})" if also else "")
             + (f"; u95_mm {entry['u95_mm']:.3f}" if entry["u95_mm"] is not None else "; no stated u95"))
 
@@ -82,7 +94,7 @@ def outside_summary(where: list) -> str:
             joints.setdefault(j, []).append(d)
     u = [w["u95_mm"] for w in out if w["u95_mm"] is not None]
     return (f"{len(out)} of {len(where)} targets outside the calibrated region (the joint ranges the model was "
-            "fitted on; the model extrapolates there): "
+            "fitted on, and the stretches inside them no sample pose reached; the model extrapolates there): "
             + "; ".join(f"joint {j}: {len(d)}, up to {max(d):.3g} deg beyond" for j, d in sorted(joints.items()))
             + (f"; their u95_mm {min(u):.3f} to {max(u):.3f} mm (median {np.median(u):.3f})" if u else
                "; the model states no u95 (fitted before contract section 14)"))

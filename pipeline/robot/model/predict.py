@@ -32,7 +32,7 @@ from ...core.se3 import angle_arcsec, orientation_errors
 from .estimator import RobotErrorModel
 from .estimate import point_errors
 from .outliers import describe, find_wild
-from .uncertainty import beyond_deg
+from .uncertainty import beyond_deg, in_gap
 from ...core.se3 import rigid_fit, rotation_angle_deg
 from ..campaign.frame import apply, from_matrix, to_matrix
 from ..campaign.ingest import robot_data_sets
@@ -45,7 +45,7 @@ DOCUMENT_VERSION = 1
 
 
 def sampled_range(q_deg) -> dict:
-    """Joint ranges of the poses a model was fitted on.
+    """Joint ranges of the poses a model was fitted on, and the stretches inside them no pose reached.
 
     Parameters
     ----------
@@ -53,10 +53,19 @@ def sampled_range(q_deg) -> dict:
 
     Returns
     -------
-    dict ``{"lower_deg": [N], "upper_deg": [N]}``
+    dict ``{"lower_deg": [N], "upper_deg": [N]}`` and, when a joint's sampled angles leave a stretch wider than
+    :data:`pipeline.robot.arm.effects.JOINT_MAP_GAP_DEG` between two of them, ``"gaps_deg": {"j": [[low, high],
+    ...]}`` (deg, the sampled angles on either side; j 1-based): the model extrapolates there too
+    (:func:`pipeline.robot.model.uncertainty.beyond_deg`).
     """
+    from ..arm.effects import JOINT_MAP_GAP_DEG, sampled_gaps
+
     q = np.asarray(q_deg, float)
-    return {"lower_deg": q.min(axis=0).tolist(), "upper_deg": q.max(axis=0).tolist()}
+    out = {"lower_deg": q.min(axis=0).tolist(), "upper_deg": q.max(axis=0).tolist()}
+    gaps = {str(j + 1): g for j in range(q.shape[1]) if (g := sampled_gaps(q[:, j], JOINT_MAP_GAP_DEG / 2))}
+    if gaps:
+        out["gaps_deg"] = gaps
+    return out
 
 
 def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
@@ -77,20 +86,41 @@ def outside_range(q_deg, rng: dict, tol_deg: float = 1e-9) -> np.ndarray:
 
 
 def beyond_range(q_deg, rng: dict) -> list:
-    """Per pose, where it lies beyond the joint ranges ``rng`` (:func:`sampled_range`): None inside them, else
-    ``{"joint": the joint farthest beyond (1-based), "beyond_deg": how far, "joints": every joint beyond}``.
+    """Per pose, where it lies beyond the joint angles ``rng`` sampled (:func:`sampled_range`): None where the
+    poses were, else ``{"joint": the joint farthest beyond (1-based), "beyond_deg": how far, "joints": every joint
+    beyond}`` and, when that joint lies inside its range in a stretch no sample pose reached, ``"gap_deg": [low,
+    high]`` (``beyond_deg`` then the distance to the nearer sampled angle; :func:`uncertainty.beyond_deg`).
 
     Parameters
     ----------
     q_deg : ndarray, shape (n, N), deg
     """
     out = []
-    for row in beyond_deg(q_deg, rng):
+    gaps = in_gap(q_deg, rng)
+    for k, row in enumerate(beyond_deg(q_deg, rng)):
         far = np.flatnonzero(row > 1e-9)
+        j = int(np.argmax(row))
         out.append(None if not far.size else
-                   {"joint": int(np.argmax(row)) + 1, "beyond_deg": float(row.max()),
-                    "joints": [int(j) + 1 for j in far]})
+                   {"joint": j + 1, "beyond_deg": float(row.max()), "joints": [int(i) + 1 for i in far],
+                    **({"gap_deg": gaps[k][j]} if gaps[k][j] is not None else {})})
     return out
+
+
+def gap_message(points: list) -> str:
+    """Words on the points (:func:`predict_campaign`'s ``points``) whose farthest joint lies inside its sampled range
+    but in a stretch no sample pose reached (their ``extrapolates`` has ``gap_deg``): per joint how many, in which
+    stretches; '' when none."""
+    per: dict[int, dict] = {}
+    for p in points:
+        w = p.get("extrapolates")
+        if w and "gap_deg" in w:
+            per.setdefault(w["joint"], {}).setdefault(tuple(w["gap_deg"]), []).append(w["beyond_deg"])
+    if not per:
+        return ""
+    return ("points inside the joint ranges but in stretches no sample pose reached (the model extrapolates there "
+            "too): " + "; ".join(f"joint {j}: " + ", ".join(f"{len(d)} in [{a:.2f}, {b:.2f}] (up to {max(d):.3g} deg "
+                                                               "from a sampled angle)" for (a, b), d in sorted(g.items()))
+                                  for j, g in sorted(per.items())))
 
 
 def outside_calibrated_range(sample_q, target_q, target_ids, target_lines=None) -> list[dict]:
@@ -398,7 +428,7 @@ def _with_stated(out, model, data, sets, ev, stated, sampled, e, a, meas, pred) 
         out["orientation_error_p95_arcsec"] = float(np.quantile(a, P95))
     out["coverage_95"] = coverage(e, u["u95_mm"])
     out["u95_mm"] = float(np.mean(u["u95_mm"]))
-    far = outside_range(data.q_deg[ev], sampled)
+    far = np.any(beyond_deg(data.q_deg[ev], sampled) > 1e-9, axis=1)     # as each point's extrapolates
     out["u95_inside_mm"] = float(np.mean(u["u95_mm"][~far])) if (~far).any() else None
     out["u95_outside_mm"] = float(np.mean(u["u95_mm"][far])) if far.any() else None
     out["error_p95_mm"] = float(np.quantile(e, P95))
@@ -505,9 +535,11 @@ def predict_other_campaign(campaign, document: dict, model_path, register: bool,
     ev = clean == "target" if (clean == "target").any() else clean != "wild"
     outside = outside_calibrated_range(np.array([sampled["lower_deg"], sampled["upper_deg"]], float), data.q_deg[ev],
                                        np.asarray(data.point_id)[ev])
-    if outside:
+    gaps = gap_message(result["points"])
+    if outside or gaps:
         # before any error is looked at: where the model extrapolates, and (stated u95) how much wider it says it is
-        warn(f"warning: {outside_message(outside, worst=True).replace('targets', 'points', 1)}"
+        warn("warning: " + "; ".join(m for m in (outside and outside_message(outside, worst=True).replace(
+            'targets', 'points', 1), gaps) if m)
              + (f"; their mean u95_mm {result['u95_outside_mm']:.3f} against {result['u95_inside_mm']:.3f} inside"
                 if result.get("u95_outside_mm") is not None and result.get("u95_inside_mm") is not None else ""))
         # what of the model holds there (the effect registry's word on each effect, pipeline.core.effect)

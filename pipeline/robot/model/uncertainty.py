@@ -290,8 +290,10 @@ def unexplained_covariance(cv_residuals, parameter_part) -> np.ndarray:
 
 
 def beyond_deg(q_deg, sampled: dict) -> np.ndarray:
-    """How far each joint of each pose lies beyond the joint ranges ``sampled`` (``lower_deg`` / ``upper_deg``
-    (N,), :func:`pipeline.robot.model.predict.sampled_range`), shape (n, N), deg; 0 inside them.
+    """How far each joint of each pose lies from the angles the model sampled, shape (n, N), deg: beyond the joint
+    ranges ``sampled`` (``lower_deg`` / ``upper_deg`` (N,), :func:`pipeline.robot.model.predict.sampled_range`),
+    or inside one of their ``gaps_deg`` (stretches no sample pose reached) the distance to the nearer sampled
+    angle; 0 where the poses were.
 
     Parameters
     ----------
@@ -299,7 +301,29 @@ def beyond_deg(q_deg, sampled: dict) -> np.ndarray:
     """
     q = np.asarray(q_deg, float)
     lo, hi = np.asarray(sampled["lower_deg"], float), np.asarray(sampled["upper_deg"], float)
-    return np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    out = np.maximum(np.maximum(lo - q, q - hi), 0.0)
+    for j, stretches in (sampled.get("gaps_deg") or {}).items():
+        col = q[:, int(j) - 1]
+        for a, b in stretches:
+            out[:, int(j) - 1] = np.maximum(out[:, int(j) - 1], np.maximum(np.minimum(col - a, b - col), 0.0))
+    return out
+
+
+def in_gap(q_deg, sampled: dict) -> list:
+    """Per pose and joint, the stretch ``[low, high]`` (deg) of ``sampled``'s ``gaps_deg`` the joint's angle lies in,
+    or None (:func:`beyond_deg`); a list (n) of lists (N).
+
+    Parameters
+    ----------
+    q_deg : ndarray, shape (n, N), deg
+    """
+    q = np.atleast_2d(np.asarray(q_deg, float))
+    out = [[None] * q.shape[1] for _ in range(q.shape[0])]
+    for j, stretches in (sampled.get("gaps_deg") or {}).items():
+        for a, b in stretches:
+            for k in np.flatnonzero((q[:, int(j) - 1] > a) & (q[:, int(j) - 1] < b)):
+                out[k][int(j) - 1] = [float(a), float(b)]
+    return out
 
 
 def extrapolation_covariance(q_deg, sampled: dict, Jq, unexplained, spread_rad=None, Jturn=None,

@@ -164,8 +164,7 @@ def _fold_normal_equations(model, data, folds):
     d = model.design(data)
     x = np.asarray(model.coef_, float)
     n3 = 3 * data.n
-    sparse = model.solves_on_normal_equations(data)
-    if sparse:
+    if model.solves_on_normal_equations(data):
         _, F, J = d.residual_and_sparse_jacobian(x)
         J = J.tocsr()
     else:
@@ -175,13 +174,11 @@ def _fold_normal_equations(model, data, folds):
     parts = []
     for f in np.unique(folds):
         rp = np.flatnonzero(np.repeat(folds == f, 3))
-        Jp, Jo = J[rp], J[rp + n3] / w
-        if sparse:
-            Hp, gp = normal.gram(Jp.tocsc(), F[rp])
-            Ho, go = normal.gram(Jo.tocsc(), F[rp + n3])
-        else:
-            Hp, gp, Ho, go = Jp.T @ Jp, Jp.T @ F[rp], Jo.T @ Jo, Jo.T @ F[rp + n3]
-        parts.append((B.T @ Hp @ B, B.T @ gp, B.T @ Ho @ B, B.T @ go, Jp, F[rp], folds == f))
+        Jp = J[rp]
+        # the fold's rows in the fitted directions (a fold's share of the rows by k: no (p, p) product)
+        JBp, JBo = np.asarray(Jp @ B), np.asarray((J[rp + n3] @ B) / w)
+        parts.append((JBp.T @ JBp, JBp.T @ F[rp], JBo.T @ JBo, JBo.T @ F[rp + n3], Jp, F[rp], folds == f))
+        del JBp, JBo
     PB = Pen @ B
     return parts, PB.T @ PB, PB.T @ (Pen @ x), B
 

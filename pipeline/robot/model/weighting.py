@@ -156,7 +156,13 @@ def variance_components(model, data, fit_at) -> dict:
 def _fold_normal_equations(model, data, folds):
     """The fit linearised at its solution, fold by fold: per fold its position and unweighted orientation rows'
     normal equations in the fitted directions (``basis_``), and its position rows (Jacobian in the parameters,
-    residual mm); with the penalty's. None where the fit has no directions."""
+    residual mm); with the penalty's. None where the fit has no directions.
+
+    Parameters
+    ----------
+    folds : ndarray of int, shape (n,)
+        Each pose's fold (:func:`pose_folds`).
+    """
     B, Pen = model.basis_, model.penalty_
     w = model.weight_
     if B is None or B.shape[1] == 0 or not w or w <= 0:
@@ -177,7 +183,7 @@ def _fold_normal_equations(model, data, folds):
         Jp = J[rp]
         # the fold's rows in the fitted directions (a fold's share of the rows by k: no (p, p) product)
         JBp, JBo = np.asarray(Jp @ B), np.asarray((J[rp + n3] @ B) / w)
-        parts.append((JBp.T @ JBp, JBp.T @ F[rp], JBo.T @ JBo, JBo.T @ F[rp + n3], Jp, F[rp], folds == f))
+        parts.append((JBp.T @ JBp, JBp.T @ F[rp], JBo.T @ JBo, JBo.T @ F[rp + n3], Jp, F[rp]))
         del JBp, JBo
     PB = Pen @ B
     return parts, PB.T @ PB, PB.T @ (Pen @ x), B
@@ -192,7 +198,7 @@ def _linear_cv_position(eqs, v: float, n: int) -> float:
     Ho = sum(p[2] for p in parts)
     go = sum(p[3] for p in parts)
     sq = 0.0
-    for hp, gpf, ho, gof, Jp, Fp, _ in parts:
+    for hp, gpf, ho, gof, Jp, Fp in parts:
         dz, _ = normal.scaled_min_norm_step(Hp - hp + v * v * (Ho - ho) + PtP, gp - gpf + v * v * (go - gof) + pz)
         e = Fp + Jp @ (B @ dz)
         sq += float(e @ e)
@@ -207,6 +213,13 @@ def position_guard(model, data) -> dict | None:
     weight, no fit); against the same linear refits on the positions alone (weight 0). The largest weight that
     holds is sought by halving log w down to :data:`GUARD_FLOOR` of the fit's. None where the fit has no
     directions.
+
+    Parameters
+    ----------
+    model : RobotErrorModel
+        Fitted at its variance-components weight ``weight_`` (mm per mrad), with its ``basis_`` and ``penalty_``.
+    data : RobotData
+        The 6-DoF poses it was fitted on: ``measured_mm`` (n, 3) mm, ``measured_R`` (n, 3, 3).
 
     Returns
     -------

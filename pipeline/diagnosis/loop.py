@@ -16,8 +16,8 @@ Without it the first pick of a pair would be permanent.
 
 On a 6-DoF campaign the loop, once ended, is run again on the positions alone; it ends on that loop's spec, or
 on both loops' effects together, when that one does better in position held out by pose and no worse by region
-(:func:`positions_check_of`: full poses are never worse). Several campaigns of one robot (:func:`loop_on_several`): each its own tracker frame and folds,
-a round kept only when no campaign's cross-validated error rises, every round's errors per campaign.
+(:func:`positions_check_of`: full poses are never worse). Several campaigns of one robot
+(:func:`loop_on_several`): each its own tracker frame and folds, a round kept only when no campaign's cross-validated error rises, every round's errors per campaign.
 """
 
 from __future__ import annotations
@@ -441,8 +441,8 @@ def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, o
     def better(c):
         region = ("position_rms_region_mm" not in c or "position_rms_region_mm" not in f
                   or c["position_rms_region_mm"] <= f["position_rms_region_mm"])
-        return (c["position_rms_mm"] < f["position_rms_mm"] * (1.0 - POSITIONS_TOLERANCE)
-                and c["orientation_rms_arcsec"] <= f["orientation_rms_arcsec"] * (1.0 + POSITIONS_TOLERANCE) and region)
+        return (c["position_rms_mm"] < f["position_rms_mm"] * (1.0 - POSITIONS_TOLERANCE) and region
+                and c["orientation_rms_arcsec"] <= f["orientation_rms_arcsec"] * (1.0 + POSITIONS_TOLERANCE))
     passing = [k for k in specs if k != "full" and better(out[k])]
     taken = min(passing, key=lambda k: out[k]["position_rms_mm"]) if passing else "full"
     out["used"], out["taken"] = taken != "full", taken

@@ -194,6 +194,55 @@ def test_the_linearised_weight_ends_the_variance_components_in_two_fits(cell):
     assert abs(np.log(sp / so / w)) < VCE_RTOL
 
 
+def _skewed(data, arcsec):
+    """``data`` with its measured orientations turned by an error no effect of the model can explain (SYNTHETIC: a
+    probe's own orientation error, smooth in the pose, ``arcsec`` per axis at most, about the base axes)."""
+    from scipy.spatial.transform import Rotation
+
+    q = np.radians(data.q_deg)
+    rv = np.stack([np.sin(2 * q[:, 0] + q[:, 3]), np.cos(q[:, 1] + 2 * q[:, 5]), np.sin(q[:, 2] - q[:, 4])], 1)
+    data.measured_R = np.einsum("nij,njk->nik", Rotation.from_rotvec(rv * arcsec / 206264.806).as_matrix(),
+                                data.measured_R)
+    return data
+
+
+def test_orientation_rows_the_model_cannot_explain_do_not_cost_the_positions(cell):
+    """Issue 52, full poses never worse: where the probe's orientations carry an error the model cannot explain
+    (200 arcsec, ten times the probe's noise), the variance components weigh it as noise and the fit trades position
+    for orientation (held out: more than 1.05x the positions-only fit's position error). The position guard lowers
+    the weight until the orientations no longer cost the positions held out: within 1.05x, the orientation still
+    far better than the positions alone. On the clean campaign the guard leaves the weight as it is."""
+    from pipeline.core.se3 import angle_arcsec, orientation_errors
+    from pipeline.core.spec import parse_spec
+    from pipeline.robot.campaign.ingest import robot_data_sets
+    from pipeline.robot.model.estimate import fit_effects
+
+    robot, (sample, target) = robot_data_sets(cell["tmp"] / "meas", ("sample",), ("target",))
+    effects = list(parse_spec(SPEC, "<spec>").effects)
+    clean = fit_effects(robot, effects, sample)
+    sample, target = _skewed(sample, 200.0), _skewed(target, 200.0)
+
+    def held_out(m):
+        R, P = m.predict_pose(target)
+        return (float(np.sqrt(np.mean(np.sum((target.measured_mm - P) ** 2, axis=1)))),
+                float(np.sqrt(np.mean(angle_arcsec(orientation_errors(R, target.measured_R)) ** 2))))
+
+    alone = held_out(fit_effects(robot, effects, sample, orientation=False))
+    model = fit_effects(robot, effects, sample)
+    guard = model.weighting_.get("position_guard", {})
+    traded = held_out(fit_effects(robot, effects, sample,
+                                  orientation_weight=guard.get("vce_weight_mm_per_mrad", model.weight_)))
+    assert traded[0] > 1.05 * alone[0], (traded, alone)         # the trade the fixture carries
+    got = held_out(model)
+    assert got[0] <= 1.05 * alone[0], (got, alone, guard)
+    assert got[1] < 0.8 * alone[1], (got, alone)
+    assert clean.weighting_["position_guard"]["factor"] == 1.0
+    assert clean.weight_ == clean.weighting_["position_guard"]["vce_weight_mm_per_mrad"]
+    assert guard["factor"] < 1.0 and model.weight_ == pytest.approx(guard["weight_mm_per_mrad"])
+    assert guard["cv_position_rms_mm"] <= 1.025 * guard["cv_position_rms_positions_only_mm"] + 1e-12
+    assert model.weighting_["orientation_weight_mm_per_mrad"] == model.weight_
+
+
 def test_folds_in_forked_processes_give_the_same_cross_validation(cell):
     from pipeline.robot.campaign.ingest import robot_data_sets
     from pipeline.robot.model.estimate import cross_validate

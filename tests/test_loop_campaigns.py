@@ -134,14 +134,15 @@ class _Poses:
         return self.measured_R is not None
 
 
-def _run_loop(monkeypatch, position_cv):
+def _run_loop(monkeypatch, position_cv, region_cv=None):
     """The loop on a stand-in 6-DoF campaign; ``position_cv``: the refitted (position mm, orientation arcsec) by
-    pose of each final spec, keyed by its extra effect's name."""
+    pose of each final spec, keyed by its extra effects' names joined by '+' (in spec order); ``region_cv``: the
+    same by region (None: the stand-in has no folds by region)."""
     from pipeline.diagnosis import loop as loop_mod
 
     def extra(effects):
         names = [e.name for e in effects if e.name != "geometry"]
-        return names[0] if names else None
+        return "+".join(names) if names else None
 
     def fake_diagnose(adapter, spec, data, progress=None):
         have = extra(spec.effects)
@@ -159,10 +160,11 @@ def _run_loop(monkeypatch, position_cv):
 
         def refit_cv(self, effects, data):
             assert data.has_orientation        # both specs judged with the orientations, fold by fold
-            return extra(effects), None
+            return extra(effects), (None if region_cv is None else ("region", extra(effects)))
 
         def components(self, cv, data):
-            return {"position_rms_mm": position_cv[cv][0], "orientation_rms_arcsec": position_cv[cv][1]}
+            got = region_cv[cv[1]] if isinstance(cv, tuple) else position_cv[cv]
+            return {"position_rms_mm": got[0], "orientation_rms_arcsec": got[1]}
 
     class Model:
         converged_ = plausible_ = True
@@ -180,7 +182,8 @@ def test_a_full_pose_loop_ends_no_worse_in_position_than_positions_alone(monkeyp
     """The full-pose loop ends on the compliance; the loop on the positions alone on the map, which holds out by
     pose far better in position (every fold refitted with the orientations) and no worse in orientation: the
     map's spec is the result, and the JSON says why."""
-    out = _run_loop(monkeypatch, {"compliance": (0.25, 80.0), "joint_map": (0.15, 78.0)})
+    out = _run_loop(monkeypatch, {"compliance": (0.25, 80.0), "joint_map": (0.15, 78.0),
+                                  "compliance+joint_map": (0.25, 80.0)})
     check = out["positions_only"]
     assert check["used"] and check["full"]["position_rms_mm"] == 0.25 and check["positions"]["position_rms_mm"] == 0.15
     names = [e.name for e in __import__("pipeline.core.spec", fromlist=["x"]).parse_spec(out["final_spec"]).effects]
@@ -191,6 +194,30 @@ def test_a_full_pose_loop_ends_no_worse_in_position_than_positions_alone(monkeyp
 @pytest.mark.parametrize("cv", [{"compliance": (0.25, 80.0), "joint_map": (0.245, 78.0)},   # within 1.05x
                                 {"compliance": (0.25, 80.0), "joint_map": (0.15, 120.0)}])   # orientation worse
 def test_the_full_pose_spec_stays_when_positions_alone_do_not_do_better(monkeypatch, cv):
-    out = _run_loop(monkeypatch, cv)
-    assert not out["positions_only"]["used"]
+    out = _run_loop(monkeypatch, {**cv, "compliance+joint_map": cv["compliance"]})
+    assert not out["positions_only"]["used"] and out["positions_only"]["taken"] == "full"
     assert "compliance" in out["final_spec"] and "joint_map" not in out["final_spec"]
+
+
+def test_both_loops_effects_together_are_the_result_where_they_hold_out_best(monkeypatch):
+    """What each loop found may hold together (Series D: the full-pose loop's compliance and the positions-only
+    loop's map): the union of the two specs, judged by the same rule, is the result when it does best in position
+    by pose, no worse in orientation, and no worse by region than the full-pose loop's spec."""
+    by_pose = {"compliance": (0.25, 80.0), "joint_map": (0.16, 78.0), "compliance+joint_map": (0.12, 62.0)}
+    by_region = {"compliance": (0.39, 140.0), "joint_map": (0.55, 180.0), "compliance+joint_map": (0.32, 122.0)}
+    out = _run_loop(monkeypatch, by_pose, by_region)
+    check = out["positions_only"]
+    assert check["used"] and check["taken"] == "union", check["why"]
+    names = [e.name for e in __import__("pipeline.core.spec", fromlist=["x"]).parse_spec(out["final_spec"]).effects]
+    assert names == ["geometry", "compliance", "joint_map"], out["final_spec"]
+    assert check["union"]["position_rms_region_mm"] == 0.32 and "both loops' effects" in out["done"]
+
+
+def test_an_alternative_worse_by_region_is_not_taken(monkeypatch):
+    """The positions-only loop's spec holds out better by pose but worse by region than the full-pose loop's (the
+    loop keeps a round only when both fall): the full-pose loop's spec stays (the union is no better by pose)."""
+    by_pose = {"compliance": (0.25, 80.0), "joint_map": (0.16, 78.0), "compliance+joint_map": (0.25, 80.0)}
+    by_region = {"compliance": (0.39, 140.0), "joint_map": (0.55, 180.0), "compliance+joint_map": (0.39, 140.0)}
+    out = _run_loop(monkeypatch, by_pose, by_region)
+    assert not out["positions_only"]["used"], out["positions_only"]["why"]
+    assert "joint_map" not in out["final_spec"]

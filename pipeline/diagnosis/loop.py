@@ -14,10 +14,10 @@ the other) is replaced by it when the model with the replacement verifies better
 refitted, lower by pose by at least diagnosis' ``min_gain`` and lower by region (:func:`try_swap`).
 Without it the first pick of a pair would be permanent.
 
-On a 6-DoF campaign the loop, once ended, is run again on the positions alone; it ends on that loop's spec
-when that one does better in position held out by pose (:func:`positions_check_of`: full poses are never
-worse). Several campaigns of one robot (:func:`loop_on_several`): each its own tracker frame and folds,
-a round kept only when no campaign's cross-validated error rises, every round's errors per campaign.
+On a 6-DoF campaign the loop, once ended, is run again on the positions alone; it ends on that loop's spec, or
+on both loops' effects together, when that one does better in position held out by pose and no worse by region
+(:func:`positions_check_of`: full poses are never worse). Several campaigns of one robot
+(:func:`loop_on_several`): each its own tracker frame and folds, a round kept only when no campaign's cross-validated error rises, every round's errors per campaign.
 """
 
 from __future__ import annotations
@@ -336,7 +336,7 @@ def diagnosis_loop(robot, spec_text: str, sample, target, other=None, max_rounds
         out["positions_only"] = check = positions_check_of(robot, spec_text, out["final_spec"], sample, target, other,
                                                           max_rounds, say, repeat, refits)
         if check["used"]:
-            out["final_spec"] = check["final_spec"]
+            out["final_spec"] = check["result_spec"]
             out["done"] += f"; {check['why']}"
     return out
 
@@ -359,26 +359,60 @@ def _positions(data):
     return out
 
 
+def union_spec(robot, final_spec: str, positions_spec: str) -> str | None:
+    """Both loops' effects: the full-pose loop's spec with every effect of the positions-only loop's spec that it
+    lacks and that overlaps none of its own (:meth:`~pipeline.robot.arm.effects.RobotEffect.overlaps`: two models of
+    one joint's angle error are never fitted side by side); None where that is one of the two specs."""
+    full = list(parse_spec(final_spec, "<loop spec>").effects)
+    have = {e.spec_lines() for e in full}
+    extra = [e for e in parse_spec(positions_spec, "<loop spec>").effects
+             if e.spec_lines() not in have and not any(e.overlaps(f, robot) for f in full)]
+    if not extra:
+        return None
+    lines = [e.spec_lines() for e in full + extra]
+    if sorted(lines) == sorted(e.spec_lines() for e in parse_spec(positions_spec, "<loop spec>").effects):
+        return None
+    return _with_effects(final_spec, lines)
+
+
+def _same_effects(a: str, b: str) -> bool:
+    return [e.spec_lines() for e in parse_spec(a, "<loop spec>").effects] == \
+        [e.spec_lines() for e in parse_spec(b, "<loop spec>").effects]
+
+
+#: what :func:`positions_check_of` may end on instead of the full-pose loop's spec, in words
+ALTERNATIVES = {"positions": "the positions-only loop's spec", "union": "both loops' effects together"}
+
+
 def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, other, max_rounds, say, repeat,
                        refits) -> dict:
-    """Full poses are never worse (issue 52): the loop run again on the positions alone, and its spec
-    compared with the full-pose loop's on the 6-DoF sample poses, every fold refitted with the orientations
-    (:meth:`RobotAdapter.refit_cv`, by pose: what the held-out targets are).
+    """Full poses are never worse (issue 52): the loop run again on the positions alone, and its spec (and both
+    loops' effects together, :func:`union_spec`) compared with the full-pose loop's on the 6-DoF sample poses,
+    every fold refitted with the orientations (:meth:`RobotAdapter.refit_cv`, by pose: what the held-out targets
+    are; by region: what the loop keeps a round on).
 
     Why: the loop's decisions depend on its path. On a 6-DoF campaign the orientation rows rank the candidates
     otherwise (a joint's compliance before its angle-error map, say); once one is in the model, the other no
     longer lowers the error held out by region (one region where it extrapolates outweighs the others where
     it helps), and the loop ends where the positions-only loop, which took the map first, does much better
     by pose and on the held-out targets. The positions-only loop's decisions passed the same rules (by pose and
-    by region) on the same poses' positions: the orientations must not make the loop stop short of them.
+    by region) on the same poses' positions: the orientations must not make the loop stop short of them. What
+    each loop found may hold together: the union of the two specs is judged by the same rule.
+
+    An alternative is the result when, held out by pose, its position error is lower than the full-pose loop's
+    spec's by more than :data:`POSITIONS_TOLERANCE` and its orientation error not higher by more than it, and,
+    held out by region, its position error is not higher (the loop's own rule for a round); of several, the one
+    lowest in position by pose.
 
     Returns
     -------
     dict: ``final_spec`` (the positions-only loop's), ``rounds`` (its number of rounds), ``done``,
     ``own_positions_fit`` (its last kept round's held-out target errors, fitted on the positions alone), the refitted
-    cross-validated errors of both specs (``full`` and ``positions``: ``position_rms_mm``,
-    ``orientation_rms_arcsec``), ``used`` (the positions-only loop's spec is the result), ``own`` (then: its
-    held-out target errors, fitted with the orientations) and ``why``.
+    cross-validated errors of the specs compared (``full``, ``positions`` and, where it is another spec,
+    ``union``: ``position_rms_mm``, ``orientation_rms_arcsec`` by pose, ``position_rms_region_mm``,
+    ``orientation_rms_region_arcsec`` by region), ``union_spec`` (where judged), ``used`` (the result is not the
+    full-pose loop's spec), ``taken`` (``"full"``, ``"positions"`` or ``"union"``), ``result_spec`` and ``own``
+    (then: its held-out target errors, fitted with the orientations) and ``why``.
     """
     say("positions only: the loop again on the positions alone (full poses must not end worse in position)")
     inner = diagnosis_loop(robot, spec_text, _positions(sample), _positions(target),
@@ -386,28 +420,47 @@ def positions_check_of(robot, spec_text: str, final_spec: str, sample, target, o
                            lambda m: say(f"  positions only: {m}"), repeat=_positions(repeat), positions_check=False)
     last = max((r for r in inner["rounds"] if r.get("kept")), key=lambda r: r["round"])
     out = {"final_spec": inner["final_spec"], "rounds": len(inner["rounds"]), "done": inner["done"],
-           "own_positions_fit": last["own"], "used": False}
-    if parse_spec(inner["final_spec"], "<loop spec>").names() == parse_spec(final_spec, "<loop spec>").names() and \
-            [e.spec_lines() for e in parse_spec(inner["final_spec"], "<loop spec>").effects] == \
-            [e.spec_lines() for e in parse_spec(final_spec, "<loop spec>").effects]:
+           "own_positions_fit": last["own"], "used": False, "taken": "full"}
+    if _same_effects(inner["final_spec"], final_spec):
         out["why"] = "the loop on the positions alone ends on the same spec"
         return out
+    specs = {"full": final_spec, "positions": inner["final_spec"]}
+    both = union_spec(robot, final_spec, inner["final_spec"])
+    if both is not None:
+        specs["union"] = out["union_spec"] = both
     adapter = RobotAdapter(robot, refit_cache=refits)
-    for key, text in (("full", final_spec), ("positions", inner["final_spec"])):
-        a, _ = adapter.refit_cv(list(parse_spec(text, "<loop spec>").effects), sample)
+    for key, text in specs.items():
+        a, b = adapter.refit_cv(list(parse_spec(text, "<loop spec>").effects), sample)
         out[key] = adapter.components(a, sample)
-    f, p = out["full"], out["positions"]
-    used = (p["position_rms_mm"] < f["position_rms_mm"] * (1.0 - POSITIONS_TOLERANCE)
-            and p["orientation_rms_arcsec"] <= f["orientation_rms_arcsec"] * (1.0 + POSITIONS_TOLERANCE))
-    out["used"] = bool(used)
-    if used and target.n:
-        # the result's held-out targets (what each round reports as ``own``), fitted with the orientations
-        out["own"] = _pose_stats(fit_effects(robot, list(parse_spec(inner["final_spec"], "<loop spec>").effects),
-                                             sample), target)
-    out["why"] = (f"the positions-only loop's spec, refitted with the orientations fold by fold, holds out by pose at "
-                  f"{p['position_rms_mm']:.4g} mm and {p['orientation_rms_arcsec']:.1f} arcsec against the full-pose "
-                  f"loop's {f['position_rms_mm']:.4g} mm and {f['orientation_rms_arcsec']:.1f} arcsec: "
-                  + ("it is the result" if used else "the full-pose loop's spec is kept"))
+        if b is not None:
+            r = adapter.components(b, sample)
+            out[key].update(position_rms_region_mm=r["position_rms_mm"],
+                            orientation_rms_region_arcsec=r["orientation_rms_arcsec"])
+    f = out["full"]
+
+    def better(c):
+        region = ("position_rms_region_mm" not in c or "position_rms_region_mm" not in f
+                  or c["position_rms_region_mm"] <= f["position_rms_region_mm"])
+        return (c["position_rms_mm"] < f["position_rms_mm"] * (1.0 - POSITIONS_TOLERANCE) and region
+                and c["orientation_rms_arcsec"] <= f["orientation_rms_arcsec"] * (1.0 + POSITIONS_TOLERANCE))
+    passing = [k for k in specs if k != "full" and better(out[k])]
+    taken = min(passing, key=lambda k: out[k]["position_rms_mm"]) if passing else "full"
+    out["used"], out["taken"] = taken != "full", taken
+    if out["used"]:
+        out["result_spec"] = specs[taken]
+        if target.n:
+            # the result's held-out targets (what each round reports as ``own``), fitted with the orientations
+            out["own"] = _pose_stats(fit_effects(robot, list(parse_spec(specs[taken], "<loop spec>").effects),
+                                                 sample), target)
+
+    def said(k):
+        c = out[k]
+        region = (f", by region {c['position_rms_region_mm']:.4g} mm" if "position_rms_region_mm" in c else "")
+        return f"{c['position_rms_mm']:.4g} mm and {c['orientation_rms_arcsec']:.1f} arcsec{region}"
+    alts = "; ".join(f"{ALTERNATIVES[k]} at {said(k)}" for k in specs if k != "full")
+    out["why"] = (f"refitted with the orientations fold by fold, {alts}, against the full-pose loop's "
+                  f"{said('full')} (by pose): "
+                  + (f"{ALTERNATIVES[taken]} is the result" if out["used"] else "the full-pose loop's spec is kept"))
     say(f"positions only: {out['why']}")
     return out
 

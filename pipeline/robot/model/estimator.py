@@ -195,8 +195,9 @@ class RobotErrorModel:
         """Fit on ``data``'s measured positions (and orientations, a 6-DoF campaign); returns self.
 
         A 6-DoF fit without a stated ``orientation_weight`` weighs the two by variance components
-        (:func:`pipeline.robot.model.weighting.variance_components`); one on its positions alone then
-        registers the probe's mounting from the orientations."""
+        (:func:`pipeline.robot.model.weighting.variance_components`), a weight whose orientation rows cost the
+        positions held out lowered (:func:`pipeline.robot.model.weighting.position_guard`); one on its positions
+        alone then registers the probe's mounting from the orientations."""
         t0 = time.perf_counter()
         self.weight_ = None
         self.weighting_ = None

@@ -5,6 +5,14 @@ per axis (mm) to its RMS orientation residual per axis (mrad), refitted until it
 :data:`VCE_RTOL` (:func:`variance_components`). Each next weight is where the iteration ends on the fit
 linearised at its solution (:func:`linear_weight`), else the plain or secant step (:func:`vce_next`).
 A fit on the positions alone registers the probe's mounting from the orientations (:func:`register_mounting`).
+
+The variance components treat each block's residual as its noise. Where the orientation rows carry an error the
+model cannot explain (the probe's own orientation error, an unmodelled wrist effect), that error is systematic:
+weighed as noise it pulls the parameters the positions share, and the fit trades position for orientation. So a
+variance-components weight is then judged held out (:func:`position_guard`): the fit linearised at its solution,
+k-fold by pose, its position error at the weight against the same model's on its positions alone; where the
+orientation rows raise it by more than :data:`POSITION_GUARD`, the weight is lowered to the largest one that
+does not (the orientations still fit, the positions no longer pay for them).
 """
 
 from __future__ import annotations
@@ -26,6 +34,26 @@ POSITIONS_ONLY = {"method": "positions only",
                   "rule": "fitted on the positions alone; the probe frame's turn on the flange (tool_ex, "
                           "tool_ey, tool_ez) is then the mean rotation from the predicted to the measured "
                           "probe frames, every other parameter as the positions put it"}
+
+
+#: The orientation rows of a variance-components fit may raise its position error held out (k-fold by pose, the
+#: fit linearised at its solution) by at most this share over the same model fitted on its positions alone
+#: (:func:`position_guard`): half of issue 52's 1.05x, the held-out targets being another sample than the folds
+POSITION_GUARD = 0.025
+#: folds by pose of the guard (as ``jointcal fit``'s cross-validation: :func:`pose_folds`)
+GUARD_FOLDS = 5
+#: the guard's search for the largest weight that holds: halvings of log w at most, and how far down it looks
+GUARD_STEPS = 10
+GUARD_FLOOR = 1.0 / 64.0
+
+
+def pose_folds(n: int, k: int = GUARD_FOLDS, seed: int = 0) -> np.ndarray:
+    """Fold of each pose (n,) int: a seeded permutation cut into k nearly equal parts (the cross-validation's,
+    :func:`pipeline.robot.model.estimate.fold_ids`)."""
+    perm = np.random.default_rng(seed).permutation(n)
+    folds = np.empty(n, int)
+    folds[perm] = np.arange(n) % k
+    return folds
 
 
 def vce_next(log_w: float, h: float, before) -> float:
@@ -98,7 +126,7 @@ def variance_components(model, data, fit_at) -> dict:
         guess = linear_weight(model, data, w)
         w = guess if guess is not None else vce_next(np.log(w), h, before)
         before = (float(np.log(history[-1])), h)
-    return {
+    out = {
         "method": "stated" if model.orientation_weight else "variance components",
         "rule": ("the orientation rows (mrad) weigh orientation_weight_mm_per_mrad mm each: the ratio of the "
                  "fit's RMS position residual per axis (mm) to its RMS orientation residual per axis (mrad), "
@@ -106,6 +134,125 @@ def variance_components(model, data, fit_at) -> dict:
         "started_from": source, "iterations": len(history),
         "orientation_weight_mm_per_mrad": float(model.weight_),
         "position_sigma_mm": sp, "orientation_sigma_arcsec": so * ARCSEC_PER_MRAD}
+    if model.orientation_weight or so <= 0 or sp <= 0:
+        return out
+    guard = position_guard(model, data)
+    if guard is None:
+        return out
+    out["position_guard"] = guard
+    if guard["factor"] < 1.0:
+        fit_at(guard["weight_mm_per_mrad"])
+        R, P = model.design(data).predict_pose(model.coef_)
+        out["rule"] += (f"; lowered to the largest weight at which the orientation rows raise the position error held "
+                        f"out ({GUARD_FOLDS}-fold by pose, linearised) by at most {POSITION_GUARD:.1%} over the "
+                        "positions alone (position_guard)")
+        out.update(orientation_weight_mm_per_mrad=float(model.weight_),
+                   position_sigma_mm=float(np.sqrt(np.mean((P - data.measured_mm) ** 2))),
+                   orientation_sigma_arcsec=float(np.sqrt(np.mean(orientation_errors(R, data.measured_R) ** 2)))
+                   * ARCSEC_PER_MRAD)
+    return out
+
+
+def _fold_normal_equations(model, data, folds):
+    """The fit linearised at its solution, fold by fold: per fold its position and unweighted orientation rows'
+    normal equations in the fitted directions (``basis_``), and its position rows (Jacobian in the parameters,
+    residual mm); with the penalty's. None where the fit has no directions.
+
+    Parameters
+    ----------
+    folds : ndarray of int, shape (n,)
+        Each pose's fold (:func:`pose_folds`).
+    """
+    B, Pen = model.basis_, model.penalty_
+    w = model.weight_
+    if B is None or B.shape[1] == 0 or not w or w <= 0:
+        return None
+    d = model.design(data)
+    x = np.asarray(model.coef_, float)
+    n3 = 3 * data.n
+    if model.solves_on_normal_equations(data):
+        _, F, J = d.residual_and_sparse_jacobian(x)
+        J = J.tocsr()
+    else:
+        F, J = d.residual_and_jacobian(x)
+    F = np.array(F, float)
+    F[n3:] /= w                     # the orientation rows unweighted (mrad)
+    parts = []
+    for f in np.unique(folds):
+        rp = np.flatnonzero(np.repeat(folds == f, 3))
+        Jp = J[rp]
+        # the fold's rows in the fitted directions (a fold's share of the rows by k: no (p, p) product)
+        JBp, JBo = np.asarray(Jp @ B), np.asarray((J[rp + n3] @ B) / w)
+        parts.append((JBp.T @ JBp, JBp.T @ F[rp], JBo.T @ JBo, JBo.T @ F[rp + n3], Jp, F[rp]))
+        del JBp, JBo
+    PB = Pen @ B
+    return parts, PB.T @ PB, PB.T @ (Pen @ x), B
+
+
+def _linear_cv_position(eqs, v: float, n: int) -> float:
+    """The held-out position RMS (mm, of the 3-D errors) of the fit linearised at its solution, each fold's
+    directions refitted on the other folds' rows with the orientation rows weighing ``v`` mm per mrad."""
+    parts, PtP, pz, B = eqs
+    Hp = sum(p[0] for p in parts)
+    gp = sum(p[1] for p in parts)
+    Ho = sum(p[2] for p in parts)
+    go = sum(p[3] for p in parts)
+    sq = 0.0
+    for hp, gpf, ho, gof, Jp, Fp in parts:
+        dz, _ = normal.scaled_min_norm_step(Hp - hp + v * v * (Ho - ho) + PtP, gp - gpf + v * v * (go - gof) + pz)
+        e = Fp + Jp @ (B @ dz)
+        sq += float(e @ e)
+    return float(np.sqrt(sq / n))
+
+
+def position_guard(model, data) -> dict | None:
+    """How far the orientation rows of a variance-components fit (``model``, fitted on the 6-DoF ``data`` at its
+    weight) raise its position error held out, and the weight (mm per mrad) at which they raise it by at most
+    :data:`POSITION_GUARD`: the fit linearised at its solution, :data:`GUARD_FOLDS`-fold by pose
+    (:func:`pose_folds`), each fold's directions refitted on the other folds' rows (a (k, k) solve a fold and a
+    weight, no fit); against the same linear refits on the positions alone (weight 0). The largest weight that
+    holds is sought by halving log w down to :data:`GUARD_FLOOR` of the fit's. None where the fit has no
+    directions.
+
+    Parameters
+    ----------
+    model : RobotErrorModel
+        Fitted at its variance-components weight ``weight_`` (mm per mrad), with its ``basis_`` and ``penalty_``.
+    data : RobotData
+        The 6-DoF poses it was fitted on: ``measured_mm`` (n, 3) mm, ``measured_R`` (n, 3, 3).
+
+    Returns
+    -------
+    dict: ``rule``, ``cv_position_rms_positions_only_mm``, ``cv_position_rms_at_vce_mm`` (at the variance
+    components' weight), ``cv_position_rms_mm`` (at the weight kept), ``vce_weight_mm_per_mrad``,
+    ``weight_mm_per_mrad`` (kept) and ``factor`` (their ratio, 1 where the variance components' weight holds).
+    """
+    folds = pose_folds(data.n)
+    eqs = _fold_normal_equations(model, data, folds)
+    if eqs is None:
+        return None
+    w = float(model.weight_)
+    alone = _linear_cv_position(eqs, 0.0, data.n)
+    at_w = _linear_cv_position(eqs, w, data.n)
+    limit = alone * (1.0 + POSITION_GUARD)
+    out = {"rule": (f"the orientation rows may raise the position error held out ({GUARD_FOLDS}-fold by pose, the fit "
+                    f"linearised at its solution) by at most {POSITION_GUARD:.1%} over the positions alone"),
+           "cv_position_rms_positions_only_mm": alone, "cv_position_rms_at_vce_mm": at_w,
+           "vce_weight_mm_per_mrad": w}
+    kept, cv = w, at_w
+    if at_w > limit:
+        lo, hi = np.log(w * GUARD_FLOOR), np.log(w)
+        kept, cv = float(np.exp(lo)), _linear_cv_position(eqs, float(np.exp(lo)), data.n)
+        if cv <= limit:
+            for _ in range(GUARD_STEPS):
+                mid = 0.5 * (lo + hi)
+                c = _linear_cv_position(eqs, float(np.exp(mid)), data.n)
+                if c <= limit:
+                    lo, kept, cv = mid, float(np.exp(mid)), c
+                else:
+                    hi = mid
+    out.update(cv_position_rms_mm=cv, weight_mm_per_mrad=kept, factor=kept / w)
+    return out
 
 
 def holds_on(model, P, ori, meas) -> dict | None:
@@ -121,7 +268,9 @@ def holds_on(model, P, ori, meas) -> dict | None:
         Orientation errors (mrad).
     """
     sp, so = float(np.sqrt(np.mean((P - meas) ** 2))), float(np.sqrt(np.mean(ori ** 2)))
-    if not (sp > 0 and so > 0) or abs(float(np.log(sp / so / model.weight_))) >= VCE_RTOL:
+    # a weight the position guard lowered holds where the same share of the poses' ratio is the fit's
+    factor = float((model.weighting_.get("position_guard") or {}).get("factor", 1.0))
+    if not (sp > 0 and so > 0) or abs(float(np.log(factor * sp / so / model.weight_))) >= VCE_RTOL:
         return None
     return dict(model.weighting_, position_sigma_mm=sp, orientation_sigma_arcsec=so * ARCSEC_PER_MRAD)
 

@@ -2,7 +2,8 @@
 
 Read: the ``/MN`` motion lines ``J``, ``L`` and ``C`` (with its continuation line ``:  P[j] ...``) to
 ``P[n]`` and the group-1 data of their ``/POS`` entries: Cartesian ``X Y Z W P R`` with
-``CONFIG : 'F|N U|D T|B, t1, t2, t3'`` (t1, t2, t3 the turns of joints 1, 4 and 6: decision), or joint
+``CONFIG : 'F|N U|D T|B, t1, t2, t3'`` (t1, t2, t3 the turns of joints 1, 4 and 6: decision; the word is
+the pendant's language's: German ``KONFIG``), or joint
 ``J1 .. J6`` (the robot.toml's joint angles: no J2/J3 interaction is applied: decision). Group 1 is
 the robot (decision); an entry of other groups only (a positioner, a rail) is named and left as
 given, and the other groups of an entry are never rewritten. A ``J`` move
@@ -12,7 +13,8 @@ is the robot's base frame and ``UT : 0`` the faceplate (FANUC's mechanical inter
 the program), is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
 
 Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
-``Offset``, ``Tool_Offset``, ``VOFFSET`` and ``INC`` options. ``/MN`` lines of other forms (``:``
+``Offset``, ``Tool_Offset`` (German ``WKZ_Offset``), ``VOFFSET`` and ``INC`` options, ``COORD`` (coordinated motion: the point
+is in a frame a positioner moves). ``/MN`` lines of other forms (``:``
 lines without a number, ``------ ;``) are kept. The payload is a controller schedule
 (``PAYLOAD[n]``), never in the program: ``--payload``. Refused (file:line): a file without ``/PROG``
 or ``/END``, a numbered ``/MN`` line without its ``;``, a ``/POS`` entry without its ``};``.
@@ -33,7 +35,11 @@ MN_LINE = re.compile(r"^\s*\d+\s*:(.*);\s*$")
 MOTION = re.compile(r"^\s*([JLC])\s+(P|PR)\[\s*(R\[)?\s*(\d+)\s*(?::[^\]]*)?\]", re.IGNORECASE)
 CIRC_FIRST = re.compile(r"^\s*\d+\s*:\s*C\s+P\[[^\]]*\]\s*$", re.IGNORECASE)
 CIRC_SECOND = re.compile(r"^\s*:\s*(P|PR)\[\s*(\d+)\s*(?::[^\]]*)?\](.*);\s*$", re.IGNORECASE)
-OFFSET_OPT = re.compile(r"\b(Offset|Tool_Offset|VOFFSET|INC)\b", re.IGNORECASE)
+OFFSET_OPT = re.compile(r"\b(Offset|Tool_Offset|WKZ_Offset|VOFFSET|INC)\b", re.IGNORECASE)
+#: coordinated motion: the point is in a frame the leader group (a positioner) moves
+COORD_OPT = re.compile(r"\bCOORD\b", re.IGNORECASE)
+#: group 1's configuration ``CONFIG : 'N U T, 0, 0, 0'``, whatever word the pendant's language gives it
+CONFIG_FIELD = re.compile(r"[^\s,:']+\s*:\s*'([^']*)'")
 POS_HEAD = re.compile(r"^\s*P\[\s*(\d+)\s*(?::\s*\"[^\"]*\")?\s*\]\s*\{\s*$")
 FIELD = re.compile(r"\b(X|Y|Z|W|P|R|J[1-6])\s*=(\s*)(" + NUMBER + r")\s*(mm|deg)")
 
@@ -93,7 +99,9 @@ class _Pos:
             m = re.search(r"\bUT\s*:\s*(\d+)", s)
             if m:
                 info["ut"] = int(m.group(1))
-            m = re.search(r"CONFIG\s*:\s*'([^']*)'", s)
+            # the configuration is the one quoted field of group 1; its word is the pendant's language
+            # (CONFIG; a controller set to German writes KONFIG)
+            m = CONFIG_FIELD.search(s)
             if m:
                 info["config"] = (m.group(1), i + 1)
             for f in FIELD.finditer(s):
@@ -215,6 +223,9 @@ def read(path) -> Program:
             raise InputError(src.path, f"{name}: group 1 has neither X, Y, Z, W, P, R nor J1 .. J6", e["line"], None)
         if mo:
             t.runtime = f"the {mo.group(1)} option (an offset applied at run time)"
+        elif COORD_OPT.search(opts) and t.kind == CARTESIAN:
+            t.runtime = ("COORD: coordinated motion, the point is in a frame the leader group (a positioner) "
+                         "moves: the robot's joints depend on the positioner's axes too")
         before = [pl for pl in payloads if pl[0] < line]
         t.extra["payload"] = (None, f"{before[-1][1]} at line {before[-1][0]}: a payload schedule of the controller, "
                               "not in the program") if before else (None, "a FANUC program states no payload")

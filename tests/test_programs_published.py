@@ -1,0 +1,112 @@
+"""What programs other people published showed (session 57; the table is in docs/programs.md, "Programs
+others published"). Every program text here is synthetic, written for the test: a published program is
+never copied into the project. Each test failed on the code before its fix."""
+
+from __future__ import annotations
+
+from pipeline.programs import fanuc, krl, urscript
+
+FANUC_EN = """/PROG  WELD1
+/ATTR
+OWNER\t\t= MNEDITOR;
+COMMENT\t\t= "synthetic";
+DEFAULT_GROUP\t= 1,*,*,*,*;
+/MN
+   1:  UFRAME_NUM=0 ;
+   2:  UTOOL_NUM=0 ;
+   3:J P[1] 100% FINE    ;
+   4:J P[2] 100% CNT100    ;
+   5:L P[3] 500mm/sec FINE    ;
+   6:L P[3] 500mm/sec FINE Tool_Offset,PR[1]    ;
+/POS
+P[1]{
+   GP1:
+\tUF : 0, UT : 0,\t\tCONFIG : 'N D B, 0, 0, 1',
+\tX =  1200.000  mm,\tY =   300.000  mm,\tZ =   900.000  mm,
+\tW =   180.000 deg,\tP =     0.000 deg,\tR =     0.000 deg
+};
+P[2]{
+   GP1:
+\tUF : 0, UT : 0,\t\tCONFIG : 'F U T, -1, 0, 0',
+\tX =  1100.000  mm,\tY =  -200.000  mm,\tZ =   800.000  mm,
+\tW =   170.000 deg,\tP =    10.000 deg,\tR =     5.000 deg
+};
+P[3]{
+   GP1:
+\tUF : 0, UT : 0,\t\tCONFIG : 'F U T, 0, 0, 0',
+\tX =  1100.000  mm,\tY =  -200.000  mm,\tZ =   700.000  mm,
+\tW =   170.000 deg,\tP =    10.000 deg,\tR =     5.000 deg
+};
+/END
+"""
+
+# the same program as a FANUC controller set to German writes it: KONFIG, BENUTZER_NUM, WKZ_NUM, mm/sek
+FANUC_DE = (FANUC_EN.replace("OWNER\t\t= MNEDITOR", "EIGN.\t\t= MNEDITOR").replace("COMMENT", "KOMMENTAR")
+            .replace("UFRAME_NUM", "BENUTZER_NUM").replace("UTOOL_NUM", "WKZ_NUM").replace("CONFIG :", "KONFIG :")
+            .replace("mm/sec", "mm/sek").replace("DEFAULT_GROUP", "DEFAULT_GRUP").replace("Tool_Offset", "WKZ_Offset"))
+
+
+def test_fanuc_configuration_in_the_pendants_language(tmp_path):
+    """A controller set to German writes ``KONFIG : '...'``: it was not read (no branch, no turns), so
+    a J move went to the branch of the point before and the German file was filtered to other
+    numbers than the same program in English (a published German TP backup and its English twin). Its
+    tool offset option is ``WKZ_Offset`` (was not seen: the motion would have been filtered)."""
+    (tmp_path / "en.ls").write_text(FANUC_EN)
+    (tmp_path / "de.ls").write_bytes(FANUC_DE.encode("latin-1"))
+    en, de = fanuc.read(tmp_path / "en.ls").targets, fanuc.read(tmp_path / "de.ls").targets
+    assert [t.flags for t in en] == [(True, True, True)] + [(False, False, False)] * 3
+    assert [t.turn for t in en] == [(0, 0, 1), (-1, 0, 0), (0, 0, 0), (0, 0, 0)]
+    assert [bool(t.runtime) for t in en] == [False, False, False, True]
+    assert [(t.flags, t.turn, t.branch, bool(t.runtime)) for t in de] == [
+        (t.flags, t.turn, t.branch, bool(t.runtime)) for t in en]
+
+
+def test_fanuc_coordinated_motion_is_left_as_given(tmp_path):
+    """``COORD`` (coordinated motion): the point is in a frame the leader group (a positioner) moves,
+    so the robot's joints depend on the positioner's axes too. It was filtered as if the user frame
+    stood still (a published weld program on a two-axis positioner)."""
+    s = FANUC_EN.replace("   4:J P[2] 100% CNT100    ;", "   4:J P[2] 100% CNT100 COORD    ;").replace(
+        "   5:L P[3] 500mm/sec FINE    ;", "   5:L P[3] 50cm/min CNT100 COORD PTH  ;")
+    (tmp_path / "c.ls").write_text(s)
+    t = fanuc.read(tmp_path / "c.ls").targets
+    assert not t[0].runtime
+    assert all("COORD" in x.runtime and "positioner" in x.runtime for x in t[1:3]), [x.runtime for x in t]
+
+
+KRL_SRC = """DEF follow( )
+  $TOOL = $NULLFRAME
+  $BASE = $NULLFRAME
+  RET = EKI_GetReal("Channel", "Pos/X", goal.X)
+  RET = EKI_GetFrame("Channel", "Pos", whole)
+  show(shown)
+  LIN goal
+  LIN whole
+  PTP shown
+  LIN fixed
+END
+
+DEF show(p :IN)
+  DECL E6POS p
+END
+"""
+KRL_DAT = """DEFDAT follow
+  DECL EKI_STATUS RET
+  DECL E6POS goal={X 1500.0,Y 100.0,Z 1600.0,A 0.0,B 60.0,C 0.0,S 2,T 35}
+  DECL FRAME whole={X 1500.0,Y 100.0,Z 1500.0,A 0.0,B 60.0,C 0.0}
+  DECL E6POS shown={X 1400.0,Y 100.0,Z 1500.0,A 0.0,B 60.0,C 0.0,S 2,T 35}
+  DECL E6POS fixed={X 1500.0,Y 100.0,Z 1400.0,A 0.0,B 60.0,C 0.0,S 2,T 35}
+ENDDAT
+"""
+
+
+def test_krl_variable_a_call_writes_is_left_as_given(tmp_path):
+    """A point passed to a function (EthernetKRL's ``EKI_GetReal(..., goal.X)``, a KRL parameter is
+    :OUT unless declared :IN) holds what the call wrote at run time: it was filtered from its DECL
+    (a published EKI server program). A point passed to a routine of the file that declares the
+    parameter :IN, and a point passed nowhere, are still read from their DECL."""
+    (tmp_path / "follow.src").write_text(KRL_SRC)
+    (tmp_path / "follow.dat").write_text(KRL_DAT)
+    named = {t.name: t for t in krl.read(tmp_path / "follow.src").targets}
+    assert "EKI_GetReal" in named["goal"].runtime and "line 4" in named["goal"].runtime
+    assert "EKI_GetFrame" in named["whole"].runtime
+    assert not named["shown"].runtime and not named["fixed"].runtime

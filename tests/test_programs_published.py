@@ -110,3 +110,40 @@ def test_krl_variable_a_call_writes_is_left_as_given(tmp_path):
     assert "EKI_GetReal" in named["goal"].runtime and "line 4" in named["goal"].runtime
     assert "EKI_GetFrame" in named["whole"].runtime
     assert not named["shown"].runtime and not named["fixed"].runtime
+
+
+def test_urscript_qnear_picks_the_solution_the_controller_picks(tmp_path):
+    """PolyScope writes every waypoint as ``movej(get_inverse_kin(Waypoint_1_p, qnear=Waypoint_1_q))``:
+    the controller goes to the solution nearest qnear. It was not read (the solution nearest the point
+    before was taken: another branch than the taught one on a published PolyScope program). Two motions
+    to one pose, each with the qnear of another of its solutions, go to those two solutions."""
+    import numpy as np
+
+    import program_samples as ps
+    from conftest import ROOT
+    from pipeline.programs import conventions as cv
+    from pipeline.programs import ik
+    from pipeline.programs.filtering import play
+    from pipeline.robot.arm.kinematics import load_robot
+
+    robot = load_robot(ROOT / "raw/real/ur10-ipa/robot.toml")
+    chain = ik.chain_of(robot)
+    q0 = (robot.lower_deg + robot.upper_deg) / 2 + np.array([20.0, -30.0, 40.0, 10.0, 35.0, -15.0])
+    T = ik.flange(chain, np.deg2rad(q0[None]))[0]
+    sols = np.rad2deg(ik.expand_turns(chain, ik.solve_all(chain, T[None])[0]))
+    far = sols[np.argmax(np.abs(sols - q0).max(axis=1))]        # another solution of the same pose
+    assert np.abs(far - q0).max() > 30.0
+    tool = np.eye(4)
+    P, _ = ps._poses(robot, q0[None], tool, np.eye(4), "ur")
+    lit = "p[" + ", ".join(f"{v:.12f}" for v in np.r_[P[0][:3, 3] / 1000.0, cv.ur_rotvec(P[0][:3, :3])]) + "]"
+    near = lambda q: "[" + ", ".join(f"{v:.6f}" for v in np.deg2rad(q + 2.0)) + "]"   # noqa: E731
+    text = (f"def taught():\n  set_tcp(p[0.0, 0.0, 0.0, 0.0, 0.0, 0.0])\n  global Waypoint_1_p={lit}\n"
+            f"  global Waypoint_1_q={near(q0)}\n  movej(get_inverse_kin(Waypoint_1_p, qnear=Waypoint_1_q), a=1.4, v=1.05)\n"
+            f"  movej(get_inverse_kin(Waypoint_1_p, {near(far)}), a=1.4, v=1.05)\n"
+            f"  movej(get_inverse_kin(Waypoint_1_p, qnear=Waypoint_1_q), a=1.4, v=1.05)\nend\n")
+    (tmp_path / "taught.script").write_text(text)
+    prog = urscript.read(tmp_path / "taught.script")
+    played = play(prog, robot)
+    assert not any(played.reason), played.reason
+    assert np.allclose(played.q_deg[0], q0, atol=1e-6) and np.allclose(played.q_deg[2], q0, atol=1e-6)
+    assert np.allclose(played.q_deg[1], far, atol=1e-6)

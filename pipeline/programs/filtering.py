@@ -6,7 +6,8 @@ pose in the program's base frame) through inverse kinematics on its branch: the 
 configuration data name, or, for a linear move (and every UR move, and a joint move without
 configuration monitoring), the branch of the point before; among the turns of that branch, the one
 the target's turn data name (KUKA ``T``, ABB ``cf1 cf4 cf6``, FANUC turns), else the one nearest the
-joints of the point before. The robot starts at the middle of its joint ranges (decision). A tool
+joints of the point before (a URScript ``get_inverse_kin(pose, qnear)`` with a known ``qnear``: the
+branch and the solution nearest ``qnear``, as the controller does). The robot starts at the middle of its joint ranges (decision). A tool
 is given in the vendor's flange frame (FANUC's faceplate, KUKA's ``$FLANGE``, ABB's ``tool0``, UR's
 tool flange: :mod:`pipeline.programs.flanges`), whatever frame the robot's kinematics end at; a target
 with no solution that a half-turn of the tool would reach is named as such.
@@ -150,7 +151,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     # link frame {N}: a program's tool is given in it, the kinematics end at {N}
     flange = vendor_flange(robot, fmt)
     notes = [flange.note] if flange.note and any(t.kind == CARTESIAN and not t.runtime for t in targets) else []
-    want, T_fl, cart, T_target = {}, {}, [], {}
+    want, T_fl, cart, T_target, near = {}, {}, [], {}, {}
     for k, t in enumerate(targets):
         if t.runtime:
             reason[k] = t.runtime
@@ -170,6 +171,10 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         T_target[k] = base_T @ fm.pose(fmt, t.values)
         T_fl[k] = T_target[k] @ invert(tool_T)
         w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
+        if t.extra.get("qnear_deg") is not None:
+            # URScript get_inverse_kin(pose, qnear): the solution nearest qnear (the controller's angles)
+            near[k] = robot.kinematic_angles(np.asarray(t.extra["qnear_deg"], float)[None])[0]
+            w = ik.arm_flags(chain, near[k][None])[0]
         want[k] = w
         prev_flags = w
         cart.append(k)
@@ -211,7 +216,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
                 reason[k] = f"no solution on its branch ({flags}) has the turn it names ({t.turn})"
                 continue
             cands = cands[okt]
-        best = cands[np.argmin(np.abs(cands - prev).max(axis=1))]
+        best = cands[np.argmin(np.abs(cands - near.get(k, prev)).max(axis=1))]
         q[k] = best
         prev = best
     return Played(q, reason, tools, bases, notes)

@@ -4,7 +4,7 @@ never copied into the project. Each test failed on the code before its fix."""
 
 from __future__ import annotations
 
-from pipeline.programs import fanuc, krl, urscript
+from pipeline.programs import fanuc, krl, rapid, urscript
 
 FANUC_EN = """/PROG  WELD1
 /ATTR
@@ -147,3 +147,29 @@ def test_urscript_qnear_picks_the_solution_the_controller_picks(tmp_path):
     assert not any(played.reason), played.reason
     assert np.allclose(played.q_deg[0], q0, atol=1e-6) and np.allclose(played.q_deg[2], q0, atol=1e-6)
     assert np.allclose(played.q_deg[1], far, atol=1e-6)
+
+
+RAPID_TEACH = """MODULE Teach
+  PERS Wobjdata wTeach:=[FALSE,TRUE,"",[[1000,-300,200],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+  PERS wobjdata wFixed:=[FALSE,TRUE,"",[[1000,300,200],[1,0,0,0]],[[0,0,0],[1,0,0,0]]];
+  PERS robjoint jNow:=[0,0,0,0,30,0];
+  PROC main()
+    CONST robtarget pA:=[[100,0,300],[0,0,1,0],[0,0,0,0],[9E+09,9E+09,9E+09,9E+09,9E+09,9E+09]];
+    wteach.oframe:=[[0,0,0],[1,0,0,0]];
+    MoveAbsJ [jNow,[9e9,9e9,9e9,9e9,9e9,9e9]], v100, fine, tool0;
+    MoveJ pA,v1000,fine,tool0\\WObj:=wTeach;
+    MoveJ pA,v1000,fine,tool0\\WObj:=wFixed;
+  ENDPROC
+ENDMODULE"""
+
+
+def test_rapid_aggregate_of_variables_and_a_work_object_the_program_sets(tmp_path):
+    """``MoveAbsJ [joints,[9e9,...]]`` (a jointtarget of a PERS robjoint: valid RAPID) was refused as a
+    broken program (exit 2: 'expected 6 numbers'), and a target in a work object whose frame the program
+    sets (``wTeach.oframe := ...``, RAPID names in any case) was filtered in its declared frame (two
+    published ABB modules: a controller backup's, a work-object teaching routine)."""
+    (tmp_path / "Teach.mod").write_text(RAPID_TEACH)
+    t = rapid.read(tmp_path / "Teach.mod").targets
+    assert "built at run time" in t[0].runtime
+    assert "wTeach is assigned by the program" in (t[1].runtime or "")
+    assert not t[2].runtime

@@ -921,3 +921,24 @@ def test_filter_with_model_counts_and_payloads(cells, tmp_path):
     assert lines[0].startswith(f"f.script: {len(program.targets)} targets in 0.0 s: {run.counts['ok']} filtered")
     assert len([x for x in lines if " left as given: " in x and x.startswith("  ")]) == len(left)
     assert "  a note" in lines and "; payload: " in lines[-1]
+
+
+def test_numbers_without_the_decimals_to_carry_the_correction_are_named(cells, tmp_path):
+    """A published KRL driver moves to ``PTP {A1 0, A2 -90, A3 90, A4 0, A5 90, A6 0}``: written with no
+    decimals, the corrected angles round back to the same integers. It was reported filtered (a
+    correction of hundreds of arcsec, a move of 1.6 mm) while no byte changed; it is named
+    ``rounded_away`` and left as given. The same joints written with decimals are filtered."""
+    fit = cells["kr210"]["fit"]
+    mid = np.round((np.array(fit["sampled_range"]["lower_deg"]) + fit["sampled_range"]["upper_deg"]) / 2)
+    ints = ", ".join(f"A{j + 1} {v:.0f}" for j, v in enumerate(mid))
+    decs = ", ".join(f"A{j + 1} {v:.5f}" for j, v in enumerate(mid))
+    src = f"DEF drive( )\n  PTP {{{ints}}}\n  PTP {{{decs}}}\nEND\n"
+    (tmp_path / "drive.src").write_text(src)
+    r, rows = _correct(cells, tmp_path, "kr210_fit.json", tmp_path / "drive.src", "out", "--payload",
+                       cells["kr210"]["payload"], json_name="r.json")
+    assert r.exit_code == 0, r.output
+    by_line = {t["line"]: t for t in rows.values()}
+    assert by_line[2]["status"] == "rounded_away" and "more decimals" in by_line[2]["reason"], by_line[2]
+    assert by_line[3]["status"] == "ok" and by_line[3]["move_mm"] > 0.05, by_line[3]
+    out = (tmp_path / "out/drive.src").read_text().splitlines()
+    assert out[1] == src.splitlines()[1] and out[2] != src.splitlines()[2]

@@ -41,6 +41,10 @@ PAYLOAD_EFFECTS = ("compliance",)
 
 #: a correction below this (arcsec, largest joint; 1e-9 deg) is none: the target is left as written
 UNCHANGED_ARCSEC = 3.6e-6
+#: a target whose numbers, rounded to the decimals they are written with, land it farther than this fraction
+#: of its correction and this many mm from the corrected target is named ``rounded_away``, left as given
+ROUNDED_AWAY = 0.5
+ROUNDED_AWAY_MM = 0.001
 
 
 def payloads(program: Program, given: float | None = None, model_kg: float | None = None,
@@ -353,10 +357,26 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         else:
             new = fm.joint_values(fmt, robot.recorded_angles(np.asarray(qb, float)[None])[0])  # the controller's
             move = float(np.linalg.norm((fl_b[k] @ smr - fl_a[k] @ smr)[:3]))
+        spelled, written = {}, []
         for num, v in zip(t.numbers, new):
             s = num.respell(float(v))
             if s is not None:
-                changes[(num.file, num.start, num.end)] = s
+                spelled[(num.file, num.start, num.end)] = s
+            written.append(float(s) if s is not None else num.value)
+        # the numbers keep their decimals: where the rounding undoes most of the correction (a KRL
+        # {A1 0, A2 -90, ...} with no decimals), the target is named, not reported filtered
+        if t.kind == CARTESIAN:
+            miss = float(np.linalg.norm(fm.pose(fmt, written)[:3, 3] - new_pose[:3, 3]))
+        else:
+            qw = robot.kinematic_angles(np.asarray(fm.joints_deg(fmt, written), float)[None])
+            miss = float(np.linalg.norm((ik.flange(chain, np.deg2rad(qw))[0] @ smr - fl_b[k] @ smr)[:3]))
+        if miss > ROUNDED_AWAY * move and miss > ROUNDED_AWAY_MM:
+            row["status"] = "rounded_away"
+            row["reason"] = (f"its numbers, written with their decimals, cannot carry the correction: rounded, the "
+                             f"target would land {miss:.3f} mm from the corrected one (the correction moves it "
+                             f"{move:.3f} mm); write it with more decimals")
+            continue
+        changes.update(spelled)
         row["max_correction_arcsec"] = float(dq)
         row["move_mm"] = move
     return Filtered(changes, rows, conflicts=conflicts, notes=list(played.notes))

@@ -4,6 +4,8 @@ never copied into the project. Each test failed on the code before its fix."""
 
 from __future__ import annotations
 
+import re
+
 from pipeline.programs import fanuc, krl, rapid, urscript
 
 FANUC_EN = """/PROG  WELD1
@@ -173,3 +175,33 @@ def test_rapid_aggregate_of_variables_and_a_work_object_the_program_sets(tmp_pat
     assert "built at run time" in t[0].runtime
     assert "wTeach is assigned by the program" in (t[1].runtime or "")
     assert not t[2].runtime
+
+
+def test_fanuc_motion_lines_without_their_numbers_and_remote_tcp_points(tmp_path):
+    """A TP listing whose /MN lines carry no number (``    :J P[1] 100% FINE ;``, as in a published
+    backup's download folder) had no motion read: its targets were neither filtered nor named. A point
+    taught with Remote TCP (``RX = ... mm``: the tool stands still) refused the whole program (exit 2,
+    'group 1 has neither X, Y, Z, W, P, R nor J1 .. J6'), and so did a point never taught (``X = ********``)."""
+    unnumbered = re.sub(r"(?m)^ +\d+:", "    :", FANUC_EN)
+    (tmp_path / "u.ls").write_text(unnumbered)
+    (tmp_path / "n.ls").write_text(FANUC_EN)
+    u, n = fanuc.read(tmp_path / "u.ls").targets, fanuc.read(tmp_path / "n.ls").targets
+    assert [(t.name, t.line, t.flags, bool(t.runtime)) for t in u] == [(t.name, t.line, t.flags, bool(t.runtime)) for t in n]
+    assert len(u) == 4
+    remote = FANUC_EN.replace("\tX =  1100.000  mm,\tY =  -200.000  mm,\tZ =   800.000  mm,\n\tW =   170.000 deg,"
+                              "\tP =    10.000 deg,\tR =     5.000 deg",
+                              "\tRX =  1100.000  mm,\tRY =  -200.000  mm,\tRZ =   800.000  mm,\n\tRW =   170.000 deg,"
+                              "\tRP =    10.000 deg,\tRR =     5.000 deg")
+    assert remote != FANUC_EN
+    (tmp_path / "r.ls").write_text(remote)
+    r = fanuc.read(tmp_path / "r.ls").targets
+    assert "Remote TCP" in r[1].runtime and not r[0].runtime
+    # a point never taught: the pendant writes asterisks (it refused the program too)
+    untaught = FANUC_EN.replace("UF : 0, UT : 0,\t\tCONFIG : 'F U T, 0, 0, 0',\n\tX =  1100.000  mm,\tY =  -200.000  mm,"
+                                "\tZ =   700.000  mm,\n\tW =   170.000 deg,\tP =    10.000 deg,\tR =     5.000 deg",
+                                "UF : F, UT : F,\t\tCONFIG : 'N D B, 0, 0, 0',\n\tX = ********  mm,\tY = ********  mm,"
+                                "\tZ = ********  mm,\n\tW = ******** deg,\tP = ******** deg,\tR = ******** deg")
+    assert untaught != FANUC_EN
+    (tmp_path / "t.ls").write_text(untaught)
+    t = fanuc.read(tmp_path / "t.ls").targets
+    assert "not taught" in t[2].runtime and "not taught" in t[3].runtime and not t[0].runtime

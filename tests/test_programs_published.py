@@ -205,3 +205,12 @@ def test_fanuc_motion_lines_without_their_numbers_and_remote_tcp_points(tmp_path
     (tmp_path / "t.ls").write_text(untaught)
     t = fanuc.read(tmp_path / "t.ls").targets
     assert "not taught" in t[2].runtime and "not taught" in t[3].runtime and not t[0].runtime
+
+
+def test_rapid_run_time_target_is_named_whole(tmp_path):
+    """A run-time target with an optional argument inside it (``Offs(CRobT(\\Tool:=tGrip), ...)``) was
+    named by its text up to the backslash (``Offs(CRobT(``, a published backup's jogging routine)."""
+    (tmp_path / "Jog.mod").write_text("MODULE Jog\n  PROC main()\n    MoveL Offs(CRobT(\\Tool:=tool0), 0, 0, 10)\\ID:=3, "
+                                      "v100, fine, tool0;\n  ENDPROC\nENDMODULE\n")
+    t = rapid.read(tmp_path / "Jog.mod").targets
+    assert t[0].runtime and "Offs(CRobT(\\Tool:=tool0), 0, 0, 10)" in t[0].runtime, t[0].runtime

@@ -450,7 +450,7 @@ def _motions(src, fidx, stmts, decl, masked) -> list:
         corr = re.search(r"\\Corr\b", args, re.IGNORECASE)
         branch = CONFIG if (jtype and conf_j) else PREVIOUS
         for off, expr in parts[:n_points]:
-            e = re.split(r"\\", expr)[0]
+            e = _before_switch(expr)
             t = _motion_target(word, kind, branch, e, args_at + off, fidx, decl, src.path, line)
             t.tool, t.base = tool, base
             t.extra["payload"] = payload
@@ -461,6 +461,20 @@ def _motions(src, fidx, stmts, decl, masked) -> list:
                 t.runtime = "\\Corr: a path correction added at run time"
             targets.append(t)
     return targets
+
+
+def _before_switch(expr: str) -> str:
+    """``expr`` up to its first optional argument (``p10\\ID:=1`` -> ``p10``) outside parentheses and brackets:
+    ``Offs(CRobT(\\Tool:=tool0), 0, 0, 10)`` is kept whole."""
+    depth = 0
+    for k, ch in enumerate(expr):
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth -= 1
+        elif ch == "\\" and depth == 0:
+            return expr[:k]
+    return expr
 
 
 def _assigned_frame(frame, name, what, decl):

@@ -13,8 +13,8 @@ is the robot's base frame and ``UT : 0`` the faceplate (FANUC's mechanical inter
 the program), is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
 
 Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
-``Offset``, ``Tool_Offset`` (German ``WKZ_Offset``), ``VOFFSET`` and ``INC`` options, ``COORD`` (coordinated motion: the point
-is in a frame a positioner moves), a Remote TCP point (``RX .. RR``: a stationary tool), a point never
+``Offset``, ``Tool_Offset`` (German ``WKZ_Offset``), ``VOFFSET`` and ``INC`` options, ``COORD``
+(coordinated motion: the point is in a frame a positioner moves), a Remote TCP point (``RX .. RR``: a stationary tool), a point never
 taught (``X = ********``). An
 instruction whose line number is left out (``:J P[1] 100% FINE ;``) is read as a numbered one;
 ``/MN`` lines of other forms (``------ ;``) are kept. The payload is a controller schedule
@@ -213,8 +213,9 @@ def read(path) -> Program:
                                   "values are '********': the controller has no position for it)"))
             continue
         if e["remote"]:
-            targets.append(Target(src.path, line, name, CARTESIAN, branch, runtime=f"{name} is a Remote TCP point (RX .. "
-                                  "RR: the tool stands still, the robot carries the part: a stationary tool)"))
+            targets.append(Target(src.path, line, name, CARTESIAN, branch,
+                                  runtime=f"{name} is a Remote TCP point (RX .. RR: the tool stands still, the robot "
+                                  "carries the part: a stationary tool)"))
             continue
         if all(j in f for j in ("J1", "J2", "J3", "J4", "J5", "J6")):
             t = Target(src.path, line, name, JOINT, branch, [f[j] for j in ("J1", "J2", "J3", "J4", "J5", "J6")],

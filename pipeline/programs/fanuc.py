@@ -14,10 +14,10 @@ the program), is ``--base`` / ``--tool``. New numbers are right-aligned in their
 
 Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
 ``Offset``, ``Tool_Offset`` (German ``WKZ_Offset``), ``VOFFSET`` and ``INC`` options, ``COORD``
-(coordinated motion: the point is in a frame a positioner moves), a Remote TCP point (``RX .. RR``: a stationary tool), a point never
-taught (``X = ********``). An
-instruction whose line number is left out (``:J P[1] 100% FINE ;``) is read as a numbered one;
-``/MN`` lines of other forms (``------ ;``) are kept. The payload is a controller schedule
+(coordinated motion: the point is in a frame a positioner moves), a Remote TCP point (``RX .. RR``: a
+stationary tool), a point never taught (``X = ********``). An instruction whose line number is left
+out (``:J P[1] 100% FINE ;``) is read as a numbered one; ``/MN`` lines of other forms (``------ ;``)
+are kept. The payload is a controller schedule
 (``PAYLOAD[n]``), never in the program: ``--payload``. Refused (file:line): a file without ``/PROG``
 or ``/END``, a numbered ``/MN`` line without its ``;``, a ``/POS`` entry without its ``};``.
 """

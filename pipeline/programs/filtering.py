@@ -316,7 +316,8 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             row["payload_kg"] = float(np.broadcast_to(np.asarray(payload_kg, float), (n,))[k])
             row["payload_source"] = payload_source[k] if payload_source else ""
         rows.append(row)
-        use = (played.tool[k], played.base[k], row.get("payload_kg"))
+        q_played = None if np.isnan(played.q_deg[k]).any() else played.q_deg[k]
+        use = (played.tool[k], played.base[k], row.get("payload_kg"), q_played)
         if t.decl and t.decl in seen:
             first, used = seen[t.decl]
             row["status"] = "same_target"
@@ -383,15 +384,19 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
 
 
 def _uses_differ(a, b) -> list:
-    """What differs between two uses ``(tool 4 x 4 or None, base 4 x 4 or None, payload kg or None)``
-    of one declared target: ``tool frame`` / ``base frame`` (an entry of the 4 x 4 apart by more than
-    1e-6: mm, or rotation), ``payload``."""
+    """What differs between two uses ``(tool 4 x 4 or None, base 4 x 4 or None, payload kg or None,
+    commanded joints (N,) deg or None)`` of one declared target: ``tool frame`` / ``base frame`` (an entry
+    of the 4 x 4 apart by more than 1e-6: mm, or rotation), ``payload``, ``arm solution`` (the nominal
+    controller's joints apart by more than 1e-3 deg: another branch or turn, e.g. two URScript
+    ``get_inverse_kin`` of one pose with the ``qnear`` of two solutions)."""
     out = []
     for word, fa, fb in (("tool", a[0], b[0]), ("base", a[1], b[1])):
         if fa is not None and fb is not None and not np.allclose(fa, fb, rtol=0.0, atol=1e-6):
             out.append(f"{word} frame")
     if a[2] is not None and b[2] is not None and abs(a[2] - b[2]) > 1e-9:
         out.append(f"payload ({a[2]:g} kg there, {b[2]:g} kg here)")
+    if len(a) > 3 and a[3] is not None and b[3] is not None and np.abs(np.asarray(a[3]) - b[3]).max() > 1e-3:
+        out.append("arm solution (branch or turn)")
     return out
 
 

@@ -921,3 +921,51 @@ def test_filter_with_model_counts_and_payloads(cells, tmp_path):
     assert lines[0].startswith(f"f.script: {len(program.targets)} targets in 0.0 s: {run.counts['ok']} filtered")
     assert len([x for x in lines if " left as given: " in x and x.startswith("  ")]) == len(left)
     assert "  a note" in lines and "; payload: " in lines[-1]
+
+
+def test_numbers_without_the_decimals_to_carry_the_correction_are_named(cells, tmp_path):
+    """A published KRL driver moves to ``PTP {A1 0, A2 -90, A3 90, A4 0, A5 90, A6 0}``: written with no
+    decimals, the corrected angles round back to the same integers. It was reported filtered (a
+    correction of hundreds of arcsec, a move of 1.6 mm) while no byte changed; it is named
+    ``rounded_away`` and left as given. The same joints written with decimals are filtered."""
+    fit = cells["kr210"]["fit"]
+    mid = np.round((np.array(fit["sampled_range"]["lower_deg"]) + fit["sampled_range"]["upper_deg"]) / 2)
+    ints = ", ".join(f"A{j + 1} {v:.0f}" for j, v in enumerate(mid))
+    decs = ", ".join(f"A{j + 1} {v:.5f}" for j, v in enumerate(mid))
+    src = f"DEF drive( )\n  PTP {{{ints}}}\n  PTP {{{decs}}}\nEND\n"
+    (tmp_path / "drive.src").write_text(src)
+    r, rows = _correct(cells, tmp_path, "kr210_fit.json", tmp_path / "drive.src", "out", "--payload",
+                       cells["kr210"]["payload"], json_name="r.json")
+    assert r.exit_code == 0, r.output
+    by_line = {t["line"]: t for t in rows.values()}
+    assert by_line[2]["status"] == "rounded_away" and "more decimals" in by_line[2]["reason"], by_line[2]
+    assert by_line[3]["status"] == "ok" and by_line[3]["move_mm"] > 0.05, by_line[3]
+    out = (tmp_path / "out/drive.src").read_text().splitlines()
+    assert out[1] == src.splitlines()[1] and out[2] != src.splitlines()[2]
+
+
+def test_a_declared_target_played_on_two_solutions_is_named(cells, tmp_path):
+    """One PolyScope waypoint moved to twice with the qnear of two solutions of its pose: its numbers
+    can serve one solution only (the correction depends on the joints). The second use was counted a
+    plain 'same_target'; it is named like a use under another tool (the console's "used again")."""
+    import program_samples as ps
+
+    robot = load_robot(UR10)
+    chain = ik.chain_of(robot)
+    q0 = (robot.lower_deg + robot.upper_deg) / 2 + np.array([20.0, -30.0, 40.0, 10.0, 35.0, -15.0])
+    T = ik.flange(chain, np.deg2rad(q0[None]))[0]
+    sols = np.rad2deg(ik.expand_turns(chain, ik.solve_all(chain, T[None])[0]))
+    far = sols[np.argmax(np.abs(sols - q0).max(axis=1))]
+    P, _ = ps._poses(robot, q0[None], np.eye(4), np.eye(4), "ur")
+    lit = "p[" + ", ".join(f"{v:.12f}" for v in np.r_[P[0][:3, 3] / 1000.0, cv.ur_rotvec(P[0][:3, :3])]) + "]"
+    near = lambda q: "[" + ", ".join(f"{v:.6f}" for v in np.deg2rad(q + 2.0)) + "]"   # noqa: E731
+    (tmp_path / "twice.script").write_text(
+        f"def twice():\n  set_tcp(p[0.0, 0.0, 0.0, 0.0, 0.0, 0.0])\n  global W1_p={lit}\n"
+        f"  movej(get_inverse_kin(W1_p, qnear={near(q0)}))\n  movej(get_inverse_kin(W1_p, qnear={near(far)}))\n"
+        f"  movej(get_inverse_kin(W1_p, qnear={near(q0)}))\nend\n")
+    r, rows = _correct(cells, tmp_path, "ur10_identity.json", tmp_path / "twice.script", "out", "--payload", "0",
+                       json_name="r.json")
+    assert r.exit_code == 0, r.output
+    by_line = {t["line"]: t for t in rows.values()}
+    assert by_line[5]["status"] == "same_target" and "arm solution" in by_line[5]["reason"], by_line[5]
+    assert by_line[6]["status"] == "same_target" and "arm solution" not in by_line[6]["reason"], by_line[6]

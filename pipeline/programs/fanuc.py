@@ -2,7 +2,8 @@
 
 Read: the ``/MN`` motion lines ``J``, ``L`` and ``C`` (with its continuation line ``:  P[j] ...``) to
 ``P[n]`` and the group-1 data of their ``/POS`` entries: Cartesian ``X Y Z W P R`` with
-``CONFIG : 'F|N U|D T|B, t1, t2, t3'`` (t1, t2, t3 the turns of joints 1, 4 and 6: decision), or joint
+``CONFIG : 'F|N U|D T|B, t1, t2, t3'`` (t1, t2, t3 the turns of joints 1, 4 and 6: decision; the word is
+the pendant's language's: German ``KONFIG``), or joint
 ``J1 .. J6`` (the robot.toml's joint angles: no J2/J3 interaction is applied: decision). Group 1 is
 the robot (decision); an entry of other groups only (a positioner, a rail) is named and left as
 given, and the other groups of an entry are never rewritten. A ``J`` move
@@ -12,8 +13,11 @@ is the robot's base frame and ``UT : 0`` the faceplate (FANUC's mechanical inter
 the program), is ``--base`` / ``--tool``. New numbers are right-aligned in their field as the TP writes them.
 
 Left as given and named: ``PR[n]`` targets, ``P[R[n]]``, a ``P[n]`` without a ``/POS`` entry, the
-``Offset``, ``Tool_Offset``, ``VOFFSET`` and ``INC`` options. ``/MN`` lines of other forms (``:``
-lines without a number, ``------ ;``) are kept. The payload is a controller schedule
+``Offset``, ``Tool_Offset`` (German ``WKZ_Offset``), ``VOFFSET`` and ``INC`` options, ``COORD``
+(coordinated motion: the point is in a frame a positioner moves), a Remote TCP point (``RX .. RR``: a
+stationary tool), a point never taught (``X = ********``). An instruction whose line number is left
+out (``:J P[1] 100% FINE ;``) is read as a numbered one; ``/MN`` lines of other forms (``------ ;``)
+are kept. The payload is a controller schedule
 (``PAYLOAD[n]``), never in the program: ``--payload``. Refused (file:line): a file without ``/PROG``
 or ``/END``, a numbered ``/MN`` line without its ``;``, a ``/POS`` entry without its ``};``.
 """
@@ -29,13 +33,19 @@ from . import conventions as cv
 from .model import CARTESIAN, CONFIG, JOINT, PREVIOUS, Frame, Program, Target
 from .text import NUMBER, Number, read_source
 
-MN_LINE = re.compile(r"^\s*\d+\s*:(.*);\s*$")
+MN_LINE = re.compile(r"^\s*\d*\s*:(.*);\s*$")          # the line number may be left out (':J P[1] ... ;')
 MOTION = re.compile(r"^\s*([JLC])\s+(P|PR)\[\s*(R\[)?\s*(\d+)\s*(?::[^\]]*)?\]", re.IGNORECASE)
 CIRC_FIRST = re.compile(r"^\s*\d+\s*:\s*C\s+P\[[^\]]*\]\s*$", re.IGNORECASE)
 CIRC_SECOND = re.compile(r"^\s*:\s*(P|PR)\[\s*(\d+)\s*(?::[^\]]*)?\](.*);\s*$", re.IGNORECASE)
-OFFSET_OPT = re.compile(r"\b(Offset|Tool_Offset|VOFFSET|INC)\b", re.IGNORECASE)
+OFFSET_OPT = re.compile(r"\b(Offset|Tool_Offset|WKZ_Offset|VOFFSET|INC)\b", re.IGNORECASE)
+#: coordinated motion: the point is in a frame the leader group (a positioner) moves
+COORD_OPT = re.compile(r"\bCOORD\b", re.IGNORECASE)
+#: group 1's configuration ``CONFIG : 'N U T, 0, 0, 0'``, whatever word the pendant's language gives it
+CONFIG_FIELD = re.compile(r"[^\s,:']+\s*:\s*'([^']*)'")
 POS_HEAD = re.compile(r"^\s*P\[\s*(\d+)\s*(?::\s*\"[^\"]*\")?\s*\]\s*\{\s*$")
 FIELD = re.compile(r"\b(X|Y|Z|W|P|R|J[1-6])\s*=(\s*)(" + NUMBER + r")\s*(mm|deg)")
+#: a point taught with Remote TCP (the tool stands still, the robot carries the part): RX .. RR
+REMOTE_FIELD = re.compile(r"\bR[XYZWPR]\s*=\s*" + NUMBER + r"\s*(mm|deg)")
 
 
 class _Pos:
@@ -84,7 +94,8 @@ class _Pos:
                 in_gp1 = False
             if in_gp1:
                 gp1.append(i)
-        info = {"line": head + 1, "uf": None, "ut": None, "config": None, "fields": {}, "groups": groups}
+        info = {"line": head + 1, "uf": None, "ut": None, "config": None, "fields": {}, "groups": groups,
+                "remote": False, "untaught": False}
         for i in gp1:
             s = lines[i]
             m = re.search(r"\bUF\s*:\s*(\d+)", s)
@@ -93,9 +104,15 @@ class _Pos:
             m = re.search(r"\bUT\s*:\s*(\d+)", s)
             if m:
                 info["ut"] = int(m.group(1))
-            m = re.search(r"CONFIG\s*:\s*'([^']*)'", s)
+            # the configuration is the one quoted field of group 1; its word is the pendant's language
+            # (CONFIG; a controller set to German writes KONFIG)
+            m = CONFIG_FIELD.search(s)
             if m:
                 info["config"] = (m.group(1), i + 1)
+            if REMOTE_FIELD.search(s):
+                info["remote"] = True
+            if re.search(r"\b(X|J1)\s*=\s*\*+", s):
+                info["untaught"] = True      # the pendant writes ******** for a position never recorded
             for f in FIELD.finditer(s):
                 lead = len(f.group(2))
                 a = offsets[i] + f.start(3)
@@ -159,7 +176,7 @@ def read(path) -> Program:
             if re.match(r"^\s*\d+\s*:", raw):
                 raise InputError(src.path, f"not an /MN instruction line: '{raw.strip()[:40]}' (expected 'n: ... ;'); "
                                  "an instruction without its ';'", k + 1, None)
-            k += 1                       # a line of another form (':' lines without a number, '------ ;'): kept
+            k += 1                       # a line of another form ('------ ;', ':' lines without their ';'): kept
             continue
         if re.match(r"^\s*PAYLOAD\s*\[", m.group(1), re.IGNORECASE):
             payloads.append((k + 1, m.group(1).strip()))
@@ -191,6 +208,15 @@ def read(path) -> Program:
                                   f"{', '.join(map(str, e['groups']))} only, not the robot (group 1)"))
             continue
         mo = OFFSET_OPT.search(opts)
+        if e["untaught"]:
+            targets.append(Target(src.path, line, name, CARTESIAN, branch, runtime=f"{name} is not taught (its /POS "
+                                  "values are '********': the controller has no position for it)"))
+            continue
+        if e["remote"]:
+            targets.append(Target(src.path, line, name, CARTESIAN, branch,
+                                  runtime=f"{name} is a Remote TCP point (RX .. RR: the tool stands still, the robot "
+                                  "carries the part: a stationary tool)"))
+            continue
         if all(j in f for j in ("J1", "J2", "J3", "J4", "J5", "J6")):
             t = Target(src.path, line, name, JOINT, branch, [f[j] for j in ("J1", "J2", "J3", "J4", "J5", "J6")],
                        decl=(0, n))
@@ -215,6 +241,9 @@ def read(path) -> Program:
             raise InputError(src.path, f"{name}: group 1 has neither X, Y, Z, W, P, R nor J1 .. J6", e["line"], None)
         if mo:
             t.runtime = f"the {mo.group(1)} option (an offset applied at run time)"
+        elif COORD_OPT.search(opts) and t.kind == CARTESIAN:
+            t.runtime = ("COORD: coordinated motion, the point is in a frame the leader group (a positioner) "
+                         "moves: the robot's joints depend on the positioner's axes too")
         before = [pl for pl in payloads if pl[0] < line]
         t.extra["payload"] = (None, f"{before[-1][1]} at line {before[-1][0]}: a payload schedule of the controller, "
                               "not in the program") if before else (None, "a FANUC program states no payload")

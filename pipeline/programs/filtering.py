@@ -6,7 +6,8 @@ pose in the program's base frame) through inverse kinematics on its branch: the 
 configuration data name, or, for a linear move (and every UR move, and a joint move without
 configuration monitoring), the branch of the point before; among the turns of that branch, the one
 the target's turn data name (KUKA ``T``, ABB ``cf1 cf4 cf6``, FANUC turns), else the one nearest the
-joints of the point before. The robot starts at the middle of its joint ranges (decision). A tool
+joints of the point before (a URScript ``get_inverse_kin(pose, qnear)`` with a known ``qnear``: the
+branch and the solution nearest ``qnear``, as the controller does). The robot starts at the middle of its joint ranges (decision). A tool
 is given in the vendor's flange frame (FANUC's faceplate, KUKA's ``$FLANGE``, ABB's ``tool0``, UR's
 tool flange: :mod:`pipeline.programs.flanges`), whatever frame the robot's kinematics end at; a target
 with no solution that a half-turn of the tool would reach is named as such.
@@ -40,6 +41,10 @@ PAYLOAD_EFFECTS = ("compliance",)
 
 #: a correction below this (arcsec, largest joint; 1e-9 deg) is none: the target is left as written
 UNCHANGED_ARCSEC = 3.6e-6
+#: a target whose numbers, rounded to the decimals they are written with, land it farther than this fraction
+#: of its correction and this many mm from the corrected target is named ``rounded_away``, left as given
+ROUNDED_AWAY = 0.5
+ROUNDED_AWAY_MM = 0.001
 
 
 def payloads(program: Program, given: float | None = None, model_kg: float | None = None,
@@ -150,7 +155,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
     # link frame {N}: a program's tool is given in it, the kinematics end at {N}
     flange = vendor_flange(robot, fmt)
     notes = [flange.note] if flange.note and any(t.kind == CARTESIAN and not t.runtime for t in targets) else []
-    want, T_fl, cart, T_target = {}, {}, [], {}
+    want, T_fl, cart, T_target, near = {}, {}, [], {}, {}
     for k, t in enumerate(targets):
         if t.runtime:
             reason[k] = t.runtime
@@ -170,6 +175,10 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
         T_target[k] = base_T @ fm.pose(fmt, t.values)
         T_fl[k] = T_target[k] @ invert(tool_T)
         w = np.array(t.flags, bool) if (t.branch == CONFIG and t.flags is not None) else prev_flags
+        if t.extra.get("qnear_deg") is not None:
+            # URScript get_inverse_kin(pose, qnear): the solution nearest qnear (the controller's angles)
+            near[k] = robot.kinematic_angles(np.asarray(t.extra["qnear_deg"], float)[None])[0]
+            w = ik.arm_flags(chain, near[k][None])[0]
         want[k] = w
         prev_flags = w
         cart.append(k)
@@ -211,7 +220,7 @@ def play(program: Program, robot, tool=None, base=None) -> Played:
                 reason[k] = f"no solution on its branch ({flags}) has the turn it names ({t.turn})"
                 continue
             cands = cands[okt]
-        best = cands[np.argmin(np.abs(cands - prev).max(axis=1))]
+        best = cands[np.argmin(np.abs(cands - near.get(k, prev)).max(axis=1))]
         q[k] = best
         prev = best
     return Played(q, reason, tools, bases, notes)
@@ -307,7 +316,8 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
             row["payload_kg"] = float(np.broadcast_to(np.asarray(payload_kg, float), (n,))[k])
             row["payload_source"] = payload_source[k] if payload_source else ""
         rows.append(row)
-        use = (played.tool[k], played.base[k], row.get("payload_kg"))
+        q_played = None if np.isnan(played.q_deg[k]).any() else played.q_deg[k]
+        use = (played.tool[k], played.base[k], row.get("payload_kg"), q_played)
         if t.decl and t.decl in seen:
             first, used = seen[t.decl]
             row["status"] = "same_target"
@@ -348,25 +358,45 @@ def filter_program(program: Program, robot, kin, sampled=None, tool=None, base=N
         else:
             new = fm.joint_values(fmt, robot.recorded_angles(np.asarray(qb, float)[None])[0])  # the controller's
             move = float(np.linalg.norm((fl_b[k] @ smr - fl_a[k] @ smr)[:3]))
+        spelled, written = {}, []
         for num, v in zip(t.numbers, new):
             s = num.respell(float(v))
             if s is not None:
-                changes[(num.file, num.start, num.end)] = s
+                spelled[(num.file, num.start, num.end)] = s
+            written.append(float(s) if s is not None else num.value)
+        # the numbers keep their decimals: where the rounding undoes most of the correction (a KRL
+        # {A1 0, A2 -90, ...} with no decimals), the target is named, not reported filtered
+        if t.kind == CARTESIAN:
+            miss = float(np.linalg.norm(fm.pose(fmt, written)[:3, 3] - new_pose[:3, 3]))
+        else:
+            qw = robot.kinematic_angles(np.asarray(fm.joints_deg(fmt, written), float)[None])
+            miss = float(np.linalg.norm((ik.flange(chain, np.deg2rad(qw))[0] @ smr - fl_b[k] @ smr)[:3]))
+        if miss > ROUNDED_AWAY * move and miss > ROUNDED_AWAY_MM:
+            row["status"] = "rounded_away"
+            row["reason"] = (f"its numbers, written with their decimals, cannot carry the correction: rounded, the "
+                             f"target would land {miss:.3f} mm from the corrected one (the correction moves it "
+                             f"{move:.3f} mm); write it with more decimals")
+            continue
+        changes.update(spelled)
         row["max_correction_arcsec"] = float(dq)
         row["move_mm"] = move
     return Filtered(changes, rows, conflicts=conflicts, notes=list(played.notes))
 
 
 def _uses_differ(a, b) -> list:
-    """What differs between two uses ``(tool 4 x 4 or None, base 4 x 4 or None, payload kg or None)``
-    of one declared target: ``tool frame`` / ``base frame`` (an entry of the 4 x 4 apart by more than
-    1e-6: mm, or rotation), ``payload``."""
+    """What differs between two uses ``(tool 4 x 4 or None, base 4 x 4 or None, payload kg or None,
+    commanded joints (N,) deg or None)`` of one declared target: ``tool frame`` / ``base frame`` (an entry
+    of the 4 x 4 apart by more than 1e-6: mm, or rotation), ``payload``, ``arm solution`` (the nominal
+    controller's joints apart by more than 1e-3 deg: another branch or turn, e.g. two URScript
+    ``get_inverse_kin`` of one pose with the ``qnear`` of two solutions)."""
     out = []
     for word, fa, fb in (("tool", a[0], b[0]), ("base", a[1], b[1])):
         if fa is not None and fb is not None and not np.allclose(fa, fb, rtol=0.0, atol=1e-6):
             out.append(f"{word} frame")
     if a[2] is not None and b[2] is not None and abs(a[2] - b[2]) > 1e-9:
         out.append(f"payload ({a[2]:g} kg there, {b[2]:g} kg here)")
+    if len(a) > 3 and a[3] is not None and b[3] is not None and np.abs(np.asarray(a[3]) - b[3]).max() > 1e-3:
+        out.append("arm solution (branch or turn)")
     return out
 
 

@@ -131,12 +131,71 @@ def config_of(src: Path) -> Path | None:
 ASSIGNED_RE = re.compile(r"^\s*([A-Za-z_]\w*)(?:\s*\.\s*\w+)*\s*=(?!=)")
 
 
+#: words followed by '(' that are no call of a routine (control flow, operators, built-in functions whose
+#: parameters are all :IN)
+NOT_CALLS = {"IF", "WHILE", "UNTIL", "FOR", "WAIT", "SWITCH", "CASE", "AND", "OR", "NOT", "EXOR", "RETURN",
+             "ELSE", "TO", "STEP", "SIN", "COS", "TAN", "ASIN", "ACOS", "ATAN2", "SQRT", "ABS", "INV_POS",
+             "FORWARD", "INVERSE", "VARSTATE", "STRLEN", "B_AND", "B_OR", "B_NOT", "B_EXOR"}
+ROUTINE_RE = re.compile(r"^\s*(?:GLOBAL\s+)?(?:DEF|DEFFCT\s+\w+|EXT|EXTFCT\s+\w+)\s+([A-Za-z_]\w*)\s*\(([^)]*)\)",
+                        re.IGNORECASE)
+
+
+def _modes(text: str) -> dict:
+    """Per routine DEF'd in the file (upper-case name): True for each parameter declared ``:IN``."""
+    out = {}
+    for raw in text.splitlines():
+        m = ROUTINE_RE.match(strip_comment(raw, ";"))
+        if m and m.group(2).strip():
+            out[m.group(1).upper()] = [bool(re.search(r":\s*IN\b", a, re.IGNORECASE)) for a in m.group(2).split(",")]
+    return out
+
+
+def _passed(text: str) -> dict:
+    """Variables the .src passes to a call (bare or a field: ``f(goal)``, ``EKI_GetReal(c, t, goal.X)``): a
+    KRL parameter is :OUT (by reference) unless the routine declares it :IN, so the call may write it.
+
+    Returns
+    -------
+    dict
+        upper-case name -> (line, callee) of its first such call.
+    """
+    modes, out = _modes(text), {}
+    for k, raw in enumerate(text.splitlines(), 1):
+        code = strip_comment(raw, ";")
+        if ROUTINE_RE.match(code) or re.match(r"^\s*(?:DECL\b|GLOBAL\b|&)", code, re.IGNORECASE):
+            continue
+        for m in re.finditer(r"(?<![\w$.])([A-Za-z_]\w*)\s*\(", code):
+            callee = m.group(1)
+            if callee.upper() in NOT_CALLS:
+                continue
+            depth, args, start = 0, [], m.end()
+            for i in range(m.end(), len(code)):
+                c = code[i]
+                if c in "([{":
+                    depth += 1
+                elif c in ")]}":
+                    if depth == 0:
+                        args.append(code[start:i])
+                        break
+                    depth -= 1
+                elif c == "," and depth == 0:
+                    args.append(code[start:i])
+                    start = i + 1
+            ins = modes.get(callee.upper(), [])
+            for j, a in enumerate(args):
+                ma = re.fullmatch(r"\s*([A-Za-z_]\w*)(?:\s*\.\s*\w+)*\s*", a)
+                if ma and not (j < len(ins) and ins[j]):
+                    out.setdefault(ma.group(1).upper(), (k, callee))
+    return out
+
+
 class _Data:
     def __init__(self):
         self.decls = {}
         self.numbered = {}             # ("TOOL_DATA", n) -> (items, file index, line)
         self.config = None             # file index of $config.dat, when read
         self.assigned = {}             # NAME -> first .src line that assigns it (or a field of it)
+        self.passed = {}               # NAME -> (line, callee): passed to a call that may write it
 
     def scan(self, src, fidx, only_global=False):
         text = src.text
@@ -232,6 +291,7 @@ def read(path, config=None, shared=()) -> Program:
         ma = ASSIGNED_RE.match(strip_comment(raw, ";"))
         if ma and not re.match(r"^\s*DECL\b", raw, re.IGNORECASE):
             data.assigned.setdefault(ma.group(1).upper(), k)
+    data.passed = _passed(text)
     targets = []
     tool = Frame(None, "the program never sets $TOOL (nor BAS(#TOOL, n), nor FDAT_ACT)", "$TOOL (not set)")
     base = Frame(None, "the program never sets $BASE (nor BAS(#BASE, n), nor FDAT_ACT)", "$BASE (not set)")
@@ -449,6 +509,11 @@ def _motion_target(expr, at, text, data, path, line, word) -> Target:
         return Target(path, line, e, CARTESIAN, branch,
                       runtime=f"{e} is assigned by the program (line {data.assigned[e.upper()]}): its value is the run "
                               "time's, not its declaration's")
+    if e.upper() in data.passed:
+        at_line, callee = data.passed[e.upper()]
+        return Target(path, line, e, CARTESIAN, branch,
+                      runtime=f"{e} is passed to {callee}() (line {at_line}), which may write it (a KRL parameter is "
+                              ":OUT unless declared :IN): its value is the run time's, not its declaration's")
     d = data.decls.get(e.upper())
     if d is None:
         return Target(path, line, e, CARTESIAN, branch,

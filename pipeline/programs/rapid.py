@@ -443,11 +443,14 @@ def _motions(src, fidx, stmts, decl, masked) -> list:
         base = decl.wobjs.get((wobj or "wobj0").upper(),
                               Frame(None, f"work object {wobj} is not declared in the program's modules",
                                     wobj or "wobj0"))
+        # a tool or work object the program assigns (wobj.oframe := ...): its frame is the run time's
+        tool = _assigned_frame(tool, tool_name, "tool", decl)
+        base = _assigned_frame(base, wobj or "wobj0", "work object", decl)
         payload = _payload(tool_name, mass, grip, tl, decl)
         corr = re.search(r"\\Corr\b", args, re.IGNORECASE)
         branch = CONFIG if (jtype and conf_j) else PREVIOUS
         for off, expr in parts[:n_points]:
-            e = re.split(r"\\", expr)[0]
+            e = _before_switch(expr)
             t = _motion_target(word, kind, branch, e, args_at + off, fidx, decl, src.path, line)
             t.tool, t.base = tool, base
             t.extra["payload"] = payload
@@ -458,6 +461,29 @@ def _motions(src, fidx, stmts, decl, masked) -> list:
                 t.runtime = "\\Corr: a path correction added at run time"
             targets.append(t)
     return targets
+
+
+def _before_switch(expr: str) -> str:
+    """``expr`` up to its first optional argument (``p10\\ID:=1`` -> ``p10``) outside parentheses and brackets:
+    ``Offs(CRobT(\\Tool:=tool0), 0, 0, 10)`` is kept whole."""
+    depth = 0
+    for k, ch in enumerate(expr):
+        if ch in "([{":
+            depth += 1
+        elif ch in ")]}":
+            depth -= 1
+        elif ch == "\\" and depth == 0:
+            return expr[:k]
+    return expr
+
+
+def _assigned_frame(frame, name, what, decl):
+    """``frame``, or a moving Frame naming where the program assigns ``name`` (or a field of it)."""
+    at = decl.assigned.get(name.upper()) if name else None
+    if at is None:
+        return frame
+    return Frame(None, f"{what} {name} is assigned by the program ({at[0]}:{at[1]}): its frame is the run time's, "
+                 "not its declaration's", name, moving=True)
 
 
 def _tool_of(parts, n_points, standard, decl):
@@ -499,6 +525,10 @@ def _motion_target(word, kind, branch, expr, at, fidx, decl, path, line) -> Targ
         raise InputError(path, f"{word} without a target", line, None)
     if e.startswith("["):
         name = f"<inline>@{line}"
+        g = _groups(e, lead, fidx, path, line)
+        if any(not isinstance(x, list) or not all(isinstance(i, Number) for i in x) for x in g):
+            # [joints, [9E9, ...]]: an aggregate of the program's variables, its value is the run time's
+            return Target(path, line, name, kind, branch, runtime=f"a target built at run time from variables ({e[:60]})")
         if joint:
             return Target(path, line, name, JOINT, branch, _jointtarget(e, lead, fidx, path, line), decl=(fidx, lead))
         nums, flags, turn = _robtarget(e, lead, fidx, path, line)

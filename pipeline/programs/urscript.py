@@ -7,8 +7,11 @@ to a variable assigned once (``global P1 = p[...]``, ``Q1 = [...]``), or to
 ``get_inverse_kin(pose, qnear=...)`` of one; the TCP from ``set_tcp(p[...])`` (or a variable assigned
 once); the payload from ``set_payload(m, ...)``, ``set_payload_mass(m)`` and ``set_target_payload(m, ...)``
 (kg; from that statement on, in the text's order: decision). UR has no configuration data: every
-Cartesian target goes to the solution nearest the joints of the point before (decision: the
-``qnear`` hint is not read, and not rewritten). Poses are in the robot's base frame (``--base`` is
+Cartesian target goes to the solution nearest the joints of the point before (decision), but for
+``get_inverse_kin(pose, qnear)`` with a known ``qnear`` (a literal joint list or a variable assigned once,
+as PolyScope writes every waypoint: ``movej(get_inverse_kin(Waypoint_1_p, qnear=Waypoint_1_q))``), which
+goes to the solution nearest ``qnear``, as the controller does; ``qnear`` is not rewritten. A
+``get_inverse_kin`` with its own ``tcp=`` is left as given. Poses are in the robot's base frame (``--base`` is
 not used for UR); without ``set_tcp`` the TCP is ``--tool`` (mm and a rotation vector, rad). ``#``
 starts a comment.
 
@@ -182,11 +185,35 @@ def read(path) -> Program:
 def _target(word, expr, at, path, line, lookup) -> Target:
     e = expr.strip()
     mg = re.fullmatch(r"get_inverse_kin\s*\((.*)\)", e, re.DOTALL)
+    qnear = None
     if mg:
-        inner = split_top(mg.group(1))[0]
+        args = split_top(mg.group(1))
+        inner = args[0]
         at = at + expr.index(mg.group(1)) + inner[0]
         expr = inner[1]
         e = expr.strip()
+        # the controller returns the solution nearest qnear (the second argument, or qnear=): a literal joint
+        # list or a variable assigned once; computed at run time it is not known (the point before stands)
+        rest = [a.strip() for _, a in args[1:]]
+        named = {a.split("=", 1)[0].strip(): a.split("=", 1)[1] for a in rest if re.match(r"^\w+\s*=(?!=)", a)}
+        if "tcp" in named:
+            return Target(path, line, e[:40], CARTESIAN, PREVIOUS,
+                          runtime=f"get_inverse_kin with its own tcp ({named['tcp'].strip()[:40]})")
+        qexpr = named.get("qnear", rest[0] if rest and not re.match(r"^\w+\s*=(?!=)", rest[0]) else None)
+        if qexpr is not None:
+            lit = _list(qexpr, 0, path, line)
+            if lit is None and re.fullmatch(r"\s*[A-Za-z_]\w*\s*", qexpr):
+                lit, _ = lookup(qexpr.strip(), line)
+            if lit is not None and not lit[0]:
+                qnear = np.rad2deg([float(n.text) for n in lit[1]])
+    t = _plain_target(word, expr, at, path, line, lookup)
+    if qnear is not None and t.kind == CARTESIAN and not t.runtime:
+        t.extra["qnear_deg"] = qnear
+    return t
+
+
+def _plain_target(word, expr, at, path, line, lookup) -> Target:
+    e = expr.strip()
     lit = _list(expr, at, path, line)
     name = f"<inline>@{line}"
     decl = (0, at)

@@ -214,3 +214,29 @@ def test_rapid_run_time_target_is_named_whole(tmp_path):
                                       "v100, fine, tool0;\n  ENDPROC\nENDMODULE\n")
     t = rapid.read(tmp_path / "Jog.mod").targets
     assert t[0].runtime and "Offs(CRobT(\\Tool:=tool0), 0, 0, 10)" in t[0].runtime, t[0].runtime
+
+
+RAPID_TRACK = """MODULE Track
+  CONST robtarget pHome:=[[900,0,1200],[0,0,1,0],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];
+  CONST robtarget pFar:=[[2400,-80,950],[0,0,1,0],[-1,0,0,0],[3100,9E9,9E9,9E9,9E9,9E9]];
+  PROC main()
+    MoveJ pHome, v1000, z50, tool0;
+    MoveJ pFar, v1000, z50, tool0;
+    MoveL [[2450,-80,950],[0,0,1,0],[-1,0,0,0],[3100,9E9,9E9,9E9,9E9,9E9]], v200, fine, tool0;
+    MoveJ pFar, v1000, fine, tool0;
+  ENDPROC
+ENDMODULE
+"""
+
+
+def test_rapid_target_that_sets_an_external_axis_is_named(tmp_path):
+    """A robot on a track (a published MultiMove cell: targets in world coordinates, the track's position in
+    eax_a, 73-3400 mm): its targets were played without the track and reported 'no solution' without naming
+    it. A Cartesian target that sets an external axis is left as given and says so; a declared one counts as
+    used (not also 'declared, and no motion goes there'); 9E9 (not used) changes nothing."""
+    (tmp_path / "Track.mod").write_text(RAPID_TRACK)
+    t = rapid.read(tmp_path / "Track.mod").targets
+    assert [x.name for x in t][:1] == ["pHome"] and not t[0].runtime
+    track = [x for x in t if x.runtime]
+    assert len(track) == 3 and len(t) == 4
+    assert all("eax_a = 3100" in x.runtime and "external axis" in x.runtime for x in track)

@@ -28,7 +28,8 @@ A call of any other name (``moveToHome;``, a procedure of the program or of anot
 call, passed through. Left as given and named: ``Offs``, ``RelTool``, ``CRobT``, ``CalcRobT`` and any
 other function at the motion, ``*`` (a point stored in the instruction), indexed arrays, a name
 declared in none of the modules or declared without a value (a parameter, a ``VAR`` set at run
-time), ``\Corr``, a stationary tool (``robhold`` FALSE) or a moving work object, and the motions not
+time), ``\Corr``, a stationary tool (``robhold`` FALSE) or a moving work object, a Cartesian target that sets an
+external axis (a track or a positioner: ``eax_a`` .. ``eax_f`` not 9E9), and the motions not
 read (``SearchL``, ``SearchC``, ``MoveExtJ``, ...). Refused (file:line): a statement without its
 ``;``, unbalanced brackets, a robtarget or jointtarget with the wrong number of values, ``MODULE``
 without ``ENDMODULE``.
@@ -125,9 +126,25 @@ def _robtarget(lit, at, fidx, path, line):
     trans = _nums(g[0], 3, "robtarget trans [x,y,z]", path, line)
     rot = _nums(g[1], 4, "robtarget rot [q1,q2,q3,q4]", path, line)
     conf = _nums(g[2], 4, "robtarget robconf [cf1,cf4,cf6,cfx]", path, line)
-    _nums(g[3], 6, "robtarget extax", path, line)
+    extax = _nums(g[3], 6, "robtarget extax", path, line)
     cf = [int(float(c.text)) for c in conf]
-    return trans + rot, cv.abb_cfx_flags(cf[3]), (cf[0], cf[1], cf[2])
+    return trans + rot, cv.abb_cfx_flags(cf[3]), (cf[0], cf[1], cf[2]), _external_axes(extax)
+
+
+#: An external axis value at or above this is RAPID's "not used" (9E9)
+EXTAX_UNUSED = 8.9e9
+
+
+def _external_axes(extax) -> str:
+    """Words on the external axes a robtarget sets (``eax_a = 1200``), '' when none (all 9E9)."""
+    used = [(letter, float(x.text)) for letter, x in zip("abcdef", extax) if abs(float(x.text)) < EXTAX_UNUSED]
+    return ", ".join(f"eax_{a} = {v:g}" for a, v in used)
+
+
+def _extax_reason(extax: str) -> str:
+    """Why a Cartesian target that sets external axes is left as given."""
+    return (f"it sets an external axis ({extax}): a track carrying the robot or a positioner carrying the work "
+            "moves with it, and where that puts the target relative to the robot is not in the model")
 
 
 def _jointtarget(lit, at, fidx, path, line):
@@ -531,7 +548,9 @@ def _motion_target(word, kind, branch, expr, at, fidx, decl, path, line) -> Targ
             return Target(path, line, name, kind, branch, runtime=f"a target built at run time from variables ({e[:60]})")
         if joint:
             return Target(path, line, name, JOINT, branch, _jointtarget(e, lead, fidx, path, line), decl=(fidx, lead))
-        nums, flags, turn = _robtarget(e, lead, fidx, path, line)
+        nums, flags, turn, extax = _robtarget(e, lead, fidx, path, line)
+        if extax:
+            return Target(path, line, name, kind, branch, runtime=_extax_reason(extax))
         return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(fidx, lead))
     if e == "*":
         return Target(path, line, "*", kind, branch, runtime="a point stored in the instruction (*)")
@@ -552,6 +571,8 @@ def _motion_target(word, kind, branch, expr, at, fidx, decl, path, line) -> Targ
         return Target(path, line, name, kind, branch, runtime=f"{word} {e}: {e} is a {typ} ({dpath}:{dline})")
     if joint:
         return Target(path, line, name, JOINT, branch, data, decl=(data[0].file, data[0].start))
-    nums, flags, turn = data
+    nums, flags, turn, extax = data
+    if extax:      # its declaration is this motion's (not "declared, and no motion goes there")
+        return Target(path, line, name, kind, branch, runtime=_extax_reason(extax), decl=(nums[0].file, nums[0].start))
     return Target(path, line, name, CARTESIAN, branch, nums, flags, turn, decl=(nums[0].file, nums[0].start),
                   extra={"pers": how == "PERS"})

@@ -188,23 +188,27 @@ def test_fanuc_motion_lines_without_their_numbers_and_remote_tcp_points(tmp_path
     u, n = fanuc.read(tmp_path / "u.ls").targets, fanuc.read(tmp_path / "n.ls").targets
     assert [(t.name, t.line, t.flags, bool(t.runtime)) for t in u] == [(t.name, t.line, t.flags, bool(t.runtime)) for t in n]
     assert len(u) == 4
-    remote = FANUC_EN.replace("\tX =  1100.000  mm,\tY =  -200.000  mm,\tZ =   800.000  mm,\n\tW =   170.000 deg,"
-                              "\tP =    10.000 deg,\tR =     5.000 deg",
-                              "\tRX =  1100.000  mm,\tRY =  -200.000  mm,\tRZ =   800.000  mm,\n\tRW =   170.000 deg,"
-                              "\tRP =    10.000 deg,\tRR =     5.000 deg")
-    assert remote != FANUC_EN
-    (tmp_path / "r.ls").write_text(remote)
-    r = fanuc.read(tmp_path / "r.ls").targets
+    r = _fanuc_variant(tmp_path, "r.ls",
+                       "\tX =  1100.000  mm,\tY =  -200.000  mm,\tZ =   800.000  mm,\n\tW =   170.000 deg,"
+                       "\tP =    10.000 deg,\tR =     5.000 deg",
+                       "\tRX =  1100.000  mm,\tRY =  -200.000  mm,\tRZ =   800.000  mm,\n\tRW =   170.000 deg,"
+                       "\tRP =    10.000 deg,\tRR =     5.000 deg")
     assert "Remote TCP" in r[1].runtime and not r[0].runtime
     # a point never taught: the pendant writes asterisks (it refused the program too)
-    untaught = FANUC_EN.replace("UF : 0, UT : 0,\t\tCONFIG : 'F U T, 0, 0, 0',\n\tX =  1100.000  mm,\tY =  -200.000  mm,"
-                                "\tZ =   700.000  mm,\n\tW =   170.000 deg,\tP =    10.000 deg,\tR =     5.000 deg",
-                                "UF : F, UT : F,\t\tCONFIG : 'N D B, 0, 0, 0',\n\tX = ********  mm,\tY = ********  mm,"
-                                "\tZ = ********  mm,\n\tW = ******** deg,\tP = ******** deg,\tR = ******** deg")
-    assert untaught != FANUC_EN
-    (tmp_path / "t.ls").write_text(untaught)
-    t = fanuc.read(tmp_path / "t.ls").targets
+    t = _fanuc_variant(tmp_path, "t.ls",
+                       "UF : 0, UT : 0,\t\tCONFIG : 'F U T, 0, 0, 0',\n\tX =  1100.000  mm,\tY =  -200.000  mm,"
+                       "\tZ =   700.000  mm,\n\tW =   170.000 deg,\tP =    10.000 deg,\tR =     5.000 deg",
+                       "UF : F, UT : F,\t\tCONFIG : 'N D B, 0, 0, 0',\n\tX = ********  mm,\tY = ********  mm,"
+                       "\tZ = ********  mm,\n\tW = ******** deg,\tP = ******** deg,\tR = ******** deg")
     assert "not taught" in t[2].runtime and "not taught" in t[3].runtime and not t[0].runtime
+
+
+def _fanuc_variant(tmp_path, name, old, new):
+    """The targets of FANUC_EN with ``old`` replaced by ``new`` (which must occur), read from ``tmp_path/name``."""
+    text = FANUC_EN.replace(old, new)
+    assert text != FANUC_EN
+    (tmp_path / name).write_text(text)
+    return fanuc.read(tmp_path / name).targets
 
 
 def test_rapid_run_time_target_is_named_whole(tmp_path):

@@ -31,3 +31,12 @@ class CVResult:
     def rms(self) -> float:
         r = np.asarray(self.residuals, float)
         return float(np.sqrt(np.mean(np.sum(r.reshape(r.shape[0], -1) ** 2, axis=1))))
+
+
+def fold_ids(n: int, k: int = 5, seed: int = 0) -> np.ndarray:
+    """Fold of each of ``n`` poses (n,) int: a seeded permutation cut into ``k`` nearly equal parts (every
+    cross-validation by pose: ``jointcal fit``'s, diagnosis's, the weighting's position guard)."""
+    perm = np.random.default_rng(seed).permutation(n)
+    folds = np.empty(n, int)
+    folds[perm] = np.arange(n) % k
+    return folds

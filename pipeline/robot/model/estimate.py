@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core import crossval
 from ...core.crossval import CVResult
 from ...core.parallel import can_fork, fork_map, fork_map_async
 from ...core.se3 import angle_arcsec, orientation_errors
@@ -182,11 +183,8 @@ N_FOLDS = 5
 
 
 def fold_ids(n: int, k: int = N_FOLDS, seed: int = 0) -> np.ndarray:
-    """Fold of each pose: a seeded permutation cut into k nearly equal parts."""
-    perm = np.random.default_rng(seed).permutation(n)
-    folds = np.empty(n, int)
-    folds[perm] = np.arange(n) % k
-    return folds
+    """Fold of each pose: a seeded permutation cut into k nearly equal parts (:func:`pipeline.core.crossval.fold_ids`)."""
+    return crossval.fold_ids(n, k, seed)
 
 
 def fold_description(data, n_folds: int = N_FOLDS) -> str:

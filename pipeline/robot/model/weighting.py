@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.se3 import ARCSEC_PER_MRAD, angle_arcsec, chordal_mean, orientation_errors
+from ...core.crossval import fold_ids
 from . import normal
 
 #: The variance components' iteration stops when the weight changes by less than this (relative)
@@ -40,20 +41,11 @@ POSITIONS_ONLY = {"method": "positions only",
 #: fit linearised at its solution) by at most this share over the same model fitted on its positions alone
 #: (:func:`position_guard`): half of issue 52's 1.05x, the held-out targets being another sample than the folds
 POSITION_GUARD = 0.025
-#: folds by pose of the guard (as ``jointcal fit``'s cross-validation: :func:`pose_folds`)
+#: folds by pose of the guard (as ``jointcal fit``'s cross-validation: :func:`pipeline.core.crossval.fold_ids`)
 GUARD_FOLDS = 5
 #: the guard's search for the largest weight that holds: halvings of log w at most, and how far down it looks
 GUARD_STEPS = 10
 GUARD_FLOOR = 1.0 / 64.0
-
-
-def pose_folds(n: int, k: int = GUARD_FOLDS, seed: int = 0) -> np.ndarray:
-    """Fold of each pose (n,) int: a seeded permutation cut into k nearly equal parts (the cross-validation's,
-    :func:`pipeline.robot.model.estimate.fold_ids`)."""
-    perm = np.random.default_rng(seed).permutation(n)
-    folds = np.empty(n, int)
-    folds[perm] = np.arange(n) % k
-    return folds
 
 
 def vce_next(log_w: float, h: float, before) -> float:
@@ -161,7 +153,7 @@ def _fold_normal_equations(model, data, folds):
     Parameters
     ----------
     folds : ndarray of int, shape (n,)
-        Each pose's fold (:func:`pose_folds`).
+        Each pose's fold (:func:`pipeline.core.crossval.fold_ids`).
     """
     B, Pen = model.basis_, model.penalty_
     w = model.weight_
@@ -209,7 +201,7 @@ def position_guard(model, data) -> dict | None:
     """How far the orientation rows of a variance-components fit (``model``, fitted on the 6-DoF ``data`` at its
     weight) raise its position error held out, and the weight (mm per mrad) at which they raise it by at most
     :data:`POSITION_GUARD`: the fit linearised at its solution, :data:`GUARD_FOLDS`-fold by pose
-    (:func:`pose_folds`), each fold's directions refitted on the other folds' rows (a (k, k) solve a fold and a
+    (:func:`pipeline.core.crossval.fold_ids`), each fold's directions refitted on the other folds' rows (a (k, k) solve a fold and a
     weight, no fit); against the same linear refits on the positions alone (weight 0). The largest weight that
     holds is sought by halving log w down to :data:`GUARD_FLOOR` of the fit's. None where the fit has no
     directions.
@@ -227,7 +219,7 @@ def position_guard(model, data) -> dict | None:
     components' weight), ``cv_position_rms_mm`` (at the weight kept), ``vce_weight_mm_per_mrad``,
     ``weight_mm_per_mrad`` (kept) and ``factor`` (their ratio, 1 where the variance components' weight holds).
     """
-    folds = pose_folds(data.n)
+    folds = fold_ids(data.n, GUARD_FOLDS)
     eqs = _fold_normal_equations(model, data, folds)
     if eqs is None:
         return None

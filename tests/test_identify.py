@@ -81,3 +81,15 @@ def test_fit_directions_in_the_leading_singular_directions_leave_the_redundant_o
                                    identify.RANK_TOL)
     assert B.shape == (4, 3) and U.shape[1] == 1
     assert np.linalg.matrix_rank(J @ B) == 3
+
+
+def test_a_table_value_no_pose_reaches_says_so():
+    """A joint map's knot that the sample poses barely reach was said to sit on 'an axis the SMR sits on'
+    (Series A: knots of joint 1 across a stretch no pose sampled): its reason names the poses."""
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=(60, 4))
+    J[:, 3] *= 1e-4                      # the table value the poses barely reach
+    units = [("arcsec", 1.0)] * 4
+    v = identify.identifiability(J, ["r1", "r2", "m1", "m2"], units=units, penalised=np.array([False, False, True, True]))
+    assert v["not_identifiable"] == ["m2"]
+    assert "few or no sample poses lie near this angle" in v["fixed_reasons"]["m2"]["reason"]

@@ -39,6 +39,10 @@ SHORT_LEVER = 1e-2
 
 _SHORT = ("moves the measured point less than 1/100 as much as a typical parameter "
           "(an axis the SMR sits on or near): not identifiable")
+#: the same for a value of a penalised table (a joint map's knot): few or no sample poses near its angle
+_SHORT_KNOT = ("moves the measured point less than 1/100 as much as a typical parameter: few or no sample "
+               "poses lie near this angle of the joint (a range's end, a stretch the poses barely reached), or "
+               "the joint barely moves the measured point (an axis the SMR sits on); it stays at 0")
 
 
 def identifiability(J: np.ndarray, names: list[str], tol: float = RANK_TOL, priority=None,
@@ -131,7 +135,7 @@ def _identifiability_penalised(J, names, tol, priority, weak_tol, units, penalis
     zero |= short
     reasons = dict(rest["fixed_reasons"])
     for c in np.flatnonzero(short):
-        reasons[names[c]] = {"relative_determination": 0.0, "reason": _SHORT}
+        reasons[names[c]] = {"relative_determination": 0.0, "reason": _SHORT_KNOT}
     return {**rest, "n_params": int(J.shape[1]), "keep": keep, "zero": zero, "fixed_reasons": reasons,
             "not_identifiable": [n for n, k in zip(names, keep) if not k], "penalised": int(pen.sum())}
 

@@ -244,3 +244,24 @@ def test_rapid_target_that_sets_an_external_axis_is_named(tmp_path):
     track = [x for x in t if x.runtime]
     assert len(track) == 3 and len(t) == 4
     assert all("eax_a = 3100" in x.runtime and "external axis" in x.runtime for x in track)
+
+
+def test_rapid_unclosed_bracket_is_named_as_such(tmp_path):
+    """An unbalanced bracket in a RAPID statement was reported as 'statement without its ;' (the right line,
+    the wrong words: a published backup's corrupted line): the ';' is there, the bracket is not closed."""
+    import pytest
+
+    from pipeline.core.errors import InputError
+
+    text = RAPID_TRACK.replace("MoveJ pHome, v1000, z50, tool0;",
+                               "MoveL [[2450,-80,950],[0,0,1,0],[-1,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9], v200, fine, tool0;")
+    assert text != RAPID_TRACK
+    (tmp_path / "Broken.mod").write_text(text)
+    with pytest.raises(InputError) as err:
+        rapid.read(tmp_path / "Broken.mod")
+    assert "unbalanced brackets" in str(err.value) and ":5" in str(err.value)
+    missing = RAPID_TRACK.replace("MoveJ pHome, v1000, z50, tool0;", "MoveJ pHome, v1000, z50, tool0")
+    (tmp_path / "Missing.mod").write_text(missing)
+    with pytest.raises(InputError) as err:
+        rapid.read(tmp_path / "Missing.mod")
+    assert "without its ';'" in str(err.value)

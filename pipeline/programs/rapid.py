@@ -267,6 +267,11 @@ def statements(src, masked):
             nxt = re.search(r"\n[ \t]*(?:" + ENDS_A_STATEMENT.pattern + r"|(?:CONST|PERS|VAR|ConfJ|ConfL|"
                             + "|".join(MOTIONS) + r")\b)", stmt, re.IGNORECASE)
             if j >= n or nxt:
+                semi = masked.find(";", k)
+                if semi >= 0 and not balanced(masked[k:semi]) and (not nxt or semi < k + nxt.start()):
+                    # its ';' is there, but a bracket opened before it is not closed: the scan at depth 0 ran on
+                    raise InputError(src.path, "unbalanced brackets: a '[' or '(' of the statement is not closed "
+                                     "before its ';'", line, None)
                 raise InputError(src.path, "statement without its ';'", line, None)
             if not balanced(stmt):
                 raise InputError(src.path, "unbalanced brackets", line, None)

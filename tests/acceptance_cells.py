@@ -33,6 +33,8 @@ CELLS = {
             "format": "rapid", "coupling": None},
 }
 URDF_DIR = Path(__file__).parent / "data" / "urdf"
+#: the kinematic spec a cell is fitted with
+KINEMATIC_SPEC = Path(__file__).parents[1] / "specs" / "robot_kinematic.toml"
 
 ORIGIN = re.compile(r'(<joint name="(joint_\d)" type="revolute">\s*<origin xyz=")([^"]*)(" rpy=")([^"]*)(")')
 
@@ -114,6 +116,34 @@ def export(cell: str, truth: Truth, q_arm, path: Path, seed: int, noise_mm: floa
                   '[orientation]\nkind = "nest"\ncolumns = ["x2", "y2", "z2", "x3", "y3", "z3"]\n'
                   '[columns]\npoint_id = "id"\n[split]\nsample_fraction = 0.7\nseed = 1\n')
     return src, mp
+
+
+def simulate_and_fit(invoke, cell: str, tmp: Path, n_measured: int, seed: int, export_urdf: bool = True):
+    """A cell's job up to the model, as a user runs it: the hidden truth (``seed``), ``n_measured`` poses
+    exported by the tracker (:func:`export`), imported as recorded, fitted with the kinematic spec and, with
+    ``export_urdf``, written into the user's URDF (``jointcal export --format urdf``); every command must
+    succeed. ``invoke`` runs the command line (the tests' fixture).
+
+    Returns
+    -------
+    (truth, nominal, camp, fit_path, cal): the :class:`Truth`, the nominal URDF's path, the campaign folder,
+    the fit JSON's path and the exported URDF's path (None without ``export_urdf``).
+    """
+    c = CELLS[cell]
+    nominal = URDF_DIR / c["urdf"]
+    truth = Truth(true_urdf(nominal.read_text(), seed=seed))
+    Q = arm_angles(nominal.read_text(), n_measured, np.random.default_rng(seed + 1))
+    src, mp = export(cell, truth, Q, tmp, seed=seed + 2)
+    tool = ("--tip", c["tip"], "--tool-mm", *map(str, c["smr_mm"]))
+    camp, fit_path, cal = tmp / "camp", tmp / "fit.json", (tmp / "cal.urdf" if export_urdf else None)
+    steps = [("import", "--source", src, "--map", mp, "--robot", nominal, *tool, "--out", camp),
+             ("fit", "--campaign", camp, "--spec", KINEMATIC_SPEC, "--out", fit_path)]
+    if export_urdf:
+        steps.append(("export", "--model", fit_path, "--format", "urdf", "--urdf", nominal, *tool, "--out", cal))
+    for args in steps:
+        r = invoke(*args)
+        assert r.exit_code == 0, r.output
+    return truth, nominal, camp, fit_path, cal
 
 
 def in_tracker(T) -> np.ndarray:

@@ -20,7 +20,6 @@ import pinocchio as pin
 import pytest
 
 import acceptance_cells as ac
-from conftest import ROOT
 from pipeline.robot.arm.kinematics import load_robot
 from pipeline.robot.campaign.ingest import ingest_robot_with_frame
 
@@ -28,17 +27,7 @@ from pipeline.robot.campaign.ingest import ingest_robot_with_frame
 def run_cell(invoke, cell: str, tmp, n_measured: int, seed: int = 21) -> dict:
     """The whole job on a simulated cell; the numbers the acceptance judges."""
     c = ac.CELLS[cell]
-    nominal = ac.URDF_DIR / c["urdf"]
-    truth = ac.Truth(ac.true_urdf(nominal.read_text(), seed=seed))
-    Q = ac.arm_angles(nominal.read_text(), n_measured, np.random.default_rng(seed + 1))
-    src, mp = ac.export(cell, truth, Q, tmp, seed=seed + 2)
-    tool = ("--tip", c["tip"], "--tool-mm", *map(str, c["smr_mm"]))
-    camp, fit_path, cal = tmp / "camp", tmp / "fit.json", tmp / "cal.urdf"
-    for args in (("import", "--source", src, "--map", mp, "--robot", nominal, *tool, "--out", camp),
-                 ("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", fit_path),
-                 ("export", "--model", fit_path, "--format", "urdf", "--urdf", nominal, *tool, "--out", cal)):
-        r = invoke(*args)
-        assert r.exit_code == 0, r.output
+    truth, nominal, camp, fit_path, cal = ac.simulate_and_fit(invoke, cell, tmp, n_measured, seed)
     robot = load_robot(camp / "robot.toml")
     assert bool(robot.coupling) == bool(c["coupling"])
     _, _, info = ingest_robot_with_frame(camp)

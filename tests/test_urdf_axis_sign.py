@@ -17,7 +17,6 @@ import pinocchio as pin
 import pytest
 
 import acceptance_cells as ac
-from conftest import ROOT
 from pipeline.export.urdf import UrdfProblem, rewrite_urdf
 from pipeline.robot.arm.kinematics import build_model, load_robot, positions
 from pipeline.robot.campaign.ingest import ingest_robot_with_frame
@@ -140,16 +139,7 @@ def test_a_minus_z_cell_is_fitted_corrected_and_exported_in_the_urdfs_angles(inv
     monkeypatch.setitem(ac.CELLS, "kuka_a1_minus_z", CELL)
     seed = 21
     nominal_text = MINUS_Z.read_text()
-    truth = ac.Truth(ac.true_urdf(nominal_text, seed=seed))
-    Q = ac.arm_angles(nominal_text, 100, np.random.default_rng(seed + 1))
-    src, mp = ac.export("kuka_a1_minus_z", truth, Q, tmp_path, seed=seed + 2)
-    tool = ("--tip", "link_6", "--tool-mm", *map(str, SMR_MM))
-    camp, fit_path, cal = tmp_path / "camp", tmp_path / "fit.json", tmp_path / "cal.urdf"
-    for args in (("import", "--source", src, "--map", mp, "--robot", MINUS_Z, *tool, "--out", camp),
-                 ("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", fit_path),
-                 ("export", "--model", fit_path, "--format", "urdf", "--urdf", MINUS_Z, *tool, "--out", cal)):
-        r = invoke(*args)
-        assert r.exit_code == 0, r.output
+    truth, _, camp, fit_path, cal = ac.simulate_and_fit(invoke, "kuka_a1_minus_z", tmp_path, 100, seed)
     robot = load_robot(camp / "robot.toml")
     assert robot.coupling_matrix[0, 0] == -1.0
     fit = json.loads(fit_path.read_text())
@@ -215,15 +205,8 @@ def test_a_krl_program_for_a_minus_z_arm_is_corrected_with_its_turns_in_the_cont
     monkeypatch.setitem(ac.CELLS, "kuka_a1_minus_z", CELL)
     seed = 31
     nominal_text = MINUS_Z.read_text()
-    truth = ac.Truth(ac.true_urdf(nominal_text, seed=seed))
-    Q = ac.arm_angles(nominal_text, 100, np.random.default_rng(seed + 1))
-    src, mp = ac.export("kuka_a1_minus_z", truth, Q, tmp_path, seed=seed + 2)
-    tool = ("--tip", "link_6", "--tool-mm", *map(str, SMR_MM))
-    camp, fit_path = tmp_path / "camp", tmp_path / "fit.json"
-    for args in (("import", "--source", src, "--map", mp, "--robot", MINUS_Z, *tool, "--out", camp),
-                 ("fit", "--campaign", camp, "--spec", ROOT / "specs" / "robot_kinematic.toml", "--out", fit_path)):
-        r = invoke(*args)
-        assert r.exit_code == 0, r.output
+    truth, _, camp, fit_path, _ = ac.simulate_and_fit(invoke, "kuka_a1_minus_z", tmp_path, 100, seed,
+                                                      export_urdf=False)
     robot = load_robot(camp / "robot.toml")
     fit = json.loads(fit_path.read_text())
     _, _, info = ingest_robot_with_frame(camp)
